@@ -1,0 +1,92 @@
+"""Environments E: where the robot starts and ends, where the laptop and the table are.
+
+An :class:`Environment` is a frozen value. It is validated where it is made, so a laptop off
+the table or a start outside the joint limits never reaches the planner.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from corrections_sim import geometry as g
+from corrections_sim.robot import N_ARM_JOINTS, joint_limits
+
+
+def _frozen_array(name: str, value, shape: tuple[int, ...]) -> np.ndarray:
+    arr = np.array(value, dtype=float, copy=True)
+    if arr.shape != shape:
+        raise ValueError(f"{name}: expected shape {shape}, got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name}: all values must be finite, got {arr.tolist()}")
+    arr.setflags(write=False)
+    return arr
+
+
+def _check_in_limits(name: str, q: np.ndarray) -> None:
+    lo, hi = joint_limits()
+    for i, (qi, lo_i, hi_i) in enumerate(zip(q, lo, hi, strict=True)):
+        if not lo_i <= qi <= hi_i:
+            raise ValueError(
+                f"{name}[{i}] = {qi:.4f} rad is outside joint {i + 1}'s range "
+                f"[{lo_i:.4f}, {hi_i:.4f}]"
+            )
+
+
+@dataclass(frozen=True, eq=False)
+class Environment:
+    """One environment E of the study.
+
+    Attributes:
+        q_start: start configuration of the 7 arm joints, shape (7,), rad.
+        q_goal: goal configuration, shape (7,), rad (the cup's delivery pose).
+        laptop: laptop pose on the table top, (x, y, yaw) of the keyboard centre.
+        table: table centre (x, y); the top is at ``geometry.TABLE_TOP_Z``.
+        name: a short label for plots and logs.
+    """
+
+    q_start: np.ndarray
+    q_goal: np.ndarray
+    laptop: np.ndarray
+    table: np.ndarray
+    name: str = field(default="")
+
+    def __post_init__(self) -> None:
+        n = N_ARM_JOINTS
+        object.__setattr__(self, "q_start", _frozen_array("q_start", self.q_start, (n,)))
+        object.__setattr__(self, "q_goal", _frozen_array("q_goal", self.q_goal, (n,)))
+        object.__setattr__(self, "laptop", _frozen_array("laptop", self.laptop, (3,)))
+        object.__setattr__(self, "table", _frozen_array("table", self.table, (2,)))
+        _check_in_limits("q_start", self.q_start)
+        _check_in_limits("q_goal", self.q_goal)
+        tx, ty = self.table
+        for axis, value, (lo, hi) in (
+            ("x", tx, g.TABLE_X_RANGE),
+            ("y", ty, g.TABLE_Y_RANGE),
+        ):
+            if not lo <= value <= hi:
+                raise ValueError(f"table.{axis} = {value:.3f} m is outside [{lo}, {hi}] m")
+        corners = g.laptop_base_corners_xy(*self.laptop)
+        hx, hy = g.TABLE_HALF_SIZE
+        inside = (np.abs(corners[:, 0] - tx) <= hx) & (np.abs(corners[:, 1] - ty) <= hy)
+        if not np.all(inside):
+            raise ValueError(
+                f"laptop = {self.laptop.tolist()} is off the table: its keyboard must lie "
+                f"within x in [{tx - hx:.3f}, {tx + hx:.3f}] m, y in [{ty - hy:.3f}, "
+                f"{ty + hy:.3f}] m"
+            )
+
+    def key(self) -> bytes:
+        """Bytes that identify this environment's contents (for caches)."""
+        return b"".join(a.tobytes() for a in (self.q_start, self.q_goal, self.laptop, self.table))
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Environment) and self.key() == other.key()
+
+    def __hash__(self) -> int:
+        return hash(self.key())
+
+    def params(self) -> np.ndarray:
+        """The environment as the planner's parameter vector: laptop (3), table (2)."""
+        return np.concatenate([self.laptop, self.table])
