@@ -1,0 +1,43 @@
+"""Learners of the human's preferences θ from corrections: pure numpy, no planner.
+
+* :mod:`.belief`: the Gaussian belief N(θ̂, P) and the filter's noise (M, N).
+* :mod:`.perceptron`: the Preference Perceptron, eq. (B5).
+* :mod:`.kalman`: UKF and EKF updates, eqs. (K1)–(K7), and their predicted covariances.
+* :mod:`.active`: greedy environment selection, eq. (A1).
+"""
+
+from corrections_sim.learners.active import frobenius, select_environment
+from corrections_sim.learners.belief import Belief, KalmanNoise, symmetrize
+from corrections_sim.learners.kalman import (
+    COV_FLOOR_RTOL,
+    EkfStep,
+    Observe,
+    SigmaPoints,
+    UkfStep,
+    ekf_predicted_covariance,
+    ekf_update,
+    finite_difference_jacobian,
+    ukf_predicted_covariance,
+    ukf_update,
+)
+from corrections_sim.learners.perceptron import learning_rate_schedule, perceptron_update
+
+__all__ = [
+    "COV_FLOOR_RTOL",
+    "Belief",
+    "EkfStep",
+    "KalmanNoise",
+    "Observe",
+    "SigmaPoints",
+    "UkfStep",
+    "ekf_predicted_covariance",
+    "ekf_update",
+    "finite_difference_jacobian",
+    "frobenius",
+    "learning_rate_schedule",
+    "perceptron_update",
+    "select_environment",
+    "symmetrize",
+    "ukf_predicted_covariance",
+    "ukf_update",
+]
