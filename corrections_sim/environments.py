@@ -6,12 +6,13 @@ the table or a start outside the joint limits never reaches the planner.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from corrections_sim import geometry as g
-from corrections_sim.robot import N_ARM_JOINTS, joint_limits
+from corrections_sim.robot import N_ARM_JOINTS, inverse_kinematics, joint_limits
 
 
 def _frozen_array(name: str, value, shape: tuple[int, ...]) -> np.ndarray:
@@ -90,3 +91,61 @@ class Environment:
     def params(self) -> np.ndarray:
         """The environment as the planner's parameter vector: laptop (3), table (2)."""
         return np.concatenate([self.laptop, self.table])
+
+
+# --- the study's 48 environments ---------------------------------------------------------------
+
+#: Cup-centre start positions (x, y, z), m: beside the table on the robot's left.
+START_POSITIONS = (
+    (0.40, 0.45, 0.22),
+    (0.58, 0.42, 0.30),
+    (0.33, 0.55, 0.35),
+    (0.48, 0.55, 0.26),
+)
+#: Cup-centre goal position, m: the far side of the table on the robot's right.
+GOAL_POSITION = (0.42, -0.52, 0.28)
+#: Table centres (x, y), m.
+TABLE_POSITIONS = ((0.55, 0.0), (0.60, -0.12), (0.50, 0.10))
+#: Laptop poses relative to the table centre (dx, dy, yaw), m and rad.
+LAPTOP_OFFSETS = ((0.0, 0.0, 0.0), (0.06, -0.14, 0.35), (-0.08, 0.05, -0.3), (0.08, 0.06, 0.0))
+#: IK seed: the Panda's ready pose with the hand down, turned toward the target.
+_IK_SEED = np.array([0.0, -0.3, 0.0, -2.2, 0.0, 2.0, np.pi / 4])
+
+
+def configuration_at(cup_position, yaw: float = 0.0) -> np.ndarray:
+    """Arm configuration (7,) that holds the cup upright at ``cup_position`` (x, y, z).
+
+    Raises:
+        ValueError: no IK solution within the joint limits (the position is unreachable).
+    """
+    target = np.asarray(cup_position, dtype=float)
+    seed = _IK_SEED.copy()
+    seed[0] = np.arctan2(target[1], target[0])
+    q = inverse_kinematics(target, yaw, seed)
+    if q is None:
+        raise ValueError(
+            f"cup_position = {target.tolist()} is unreachable with the hand down "
+            "(no IK solution within the joint limits)"
+        )
+    return q
+
+
+@functools.cache
+def paper_environments() -> tuple[Environment, ...]:
+    """The 48 environments of the study: 4 starts x 3 table positions x 4 laptop poses."""
+    goal = configuration_at(GOAL_POSITION)
+    envs = []
+    for i, start in enumerate(START_POSITIONS):
+        q_start = configuration_at(start)
+        for j, (tx, ty) in enumerate(TABLE_POSITIONS):
+            for k, (dx, dy, yaw) in enumerate(LAPTOP_OFFSETS):
+                envs.append(
+                    Environment(
+                        q_start=q_start,
+                        q_goal=goal,
+                        laptop=(tx + dx, ty + dy, yaw),
+                        table=(tx, ty),
+                        name=f"s{i}-t{j}-l{k}",
+                    )
+                )
+    return tuple(envs)

@@ -33,7 +33,7 @@ LAPTOP_SCREEN_TILT = 0.26  # rad the screen leans back from vertical
 #: height above the table top and semi-axes (x, y, z). The planner keeps every arm sphere
 #: outside this ellipsoid inflated by the sphere's radius.
 LAPTOP_KEEPOUT_CENTER_Z = 0.04
-LAPTOP_KEEPOUT_SEMI_AXES = (0.26, 0.26, 0.26)
+LAPTOP_KEEPOUT_SEMI_AXES = (0.27, 0.27, 0.27)
 
 # --- cup of coffee held in the hand ---------------------------------------------------------
 CUP_RADIUS = 0.04

@@ -181,7 +181,9 @@ def _cup_spheres() -> tuple[Sphere, ...]:
 
 
 #: Spheres that stand for the moving arm in the planner's table and laptop constraints: the
-#: spheres of example-robot-data's collision URDF for links 3 to 7 and the hand, plus the cup.
+#: spheres of example-robot-data's collision URDF (panda_collision.urdf) for links 3 to 7
+#: and the hand, one sphere per open finger, and the cup. ``tests/test_robot.py`` checks
+#: them against that file.
 ARM_SPHERES: tuple[Sphere, ...] = (
     Sphere("panda_link3", (0.0, 0.0, -0.07), 0.09),
     Sphere("panda_link3", (0.0, 0.0, -0.22), 0.09),
@@ -195,8 +197,12 @@ ARM_SPHERES: tuple[Sphere, ...] = (
     Sphere("panda_link6", (0.0, 0.0, -0.07), 0.08),
     Sphere("panda_link7", (0.0, 0.0, 0.08), 0.07),
     Sphere("panda_link7", (0.0, 0.0, -0.06), 0.07),
+    Sphere("panda_link7", (0.04, 0.04, 0.09), 0.045),
     Sphere("panda_hand", (0.0, -0.075, 0.03), 0.05),
     Sphere("panda_hand", (0.0, 0.075, 0.03), 0.05),
+    # The open fingers (prismatic joints at FINGER_OPENING), one sphere each in hand frame.
+    Sphere("panda_hand", (0.0, FINGER_OPENING + 0.015, 0.0884), 0.03),
+    Sphere("panda_hand", (0.0, -(FINGER_OPENING + 0.015), 0.0884), 0.03),
     *_cup_spheres(),
 )
 
