@@ -20,6 +20,7 @@ import hashlib
 import inspect
 import json
 import os
+import tempfile
 import time
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
@@ -246,15 +247,19 @@ class Planner:
         if path.is_file():
             self._solver = ca.Function.load(str(path))
             return
-        self._solver = self._build(self.config)
         path.parent.mkdir(parents=True, exist_ok=True)
-        # Write then rename, so a concurrent process never loads a half-written file.
-        tmp = path.with_suffix(f".{os.getpid()}.tmp")
-        self._solver.save(str(tmp))
-        os.replace(tmp, path)
+        # gcc's scratch files go to a private folder, not the working directory.
+        with tempfile.TemporaryDirectory(dir=path.parent) as scratch:
+            built = self._build(self.config, scratch)
+            # Write then rename, so a concurrent process never loads a half-written file.
+            tmp = path.with_suffix(f".{os.getpid()}.tmp")
+            built.save(str(tmp))
+            os.replace(tmp, path)
+            del built  # CasADi removes its scratch files when the function goes
+        self._solver = ca.Function.load(str(path))
 
     @staticmethod
-    def _build(cfg: PlannerConfig) -> ca.Function:
+    def _build(cfg: PlannerConfig, scratch: str | None = None) -> ca.Function:
         """The IPOPT solver of the NLP; parameters p = (θ, e, q_start, q_goal)."""
         n_free = cfg.n_waypoints - 2
         x = ca.SX.sym("x", n_free * N_ARM_JOINTS)
@@ -293,7 +298,7 @@ class Planner:
             opts.update(
                 jit=True,
                 compiler="shell",
-                jit_options={"flags": ["-O1"], "verbose": False},
+                jit_options={"flags": ["-O1"], "verbose": False, "directory": scratch or "."},
                 jit_serialize="embed",
             )
         return ca.nlpsol("trajopt", "ipopt", nlp, opts)

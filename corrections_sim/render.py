@@ -42,10 +42,10 @@ class Camera:
         elevation: degrees of the viewing direction above the horizon (negative looks down).
     """
 
-    lookat: tuple[float, float, float] = (0.35, 0.0, 0.12)
-    distance: float = 2.0
-    azimuth: float = 135.0
-    elevation: float = -24.0
+    lookat: tuple[float, float, float] = (0.42, 0.0, 0.1)
+    distance: float = 1.75
+    azimuth: float = 160.0
+    elevation: float = -42.0
 
 
 #: Looks from the table's far corner back at the robot: pedestal, arm, table, laptop, and
