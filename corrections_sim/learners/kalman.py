@@ -201,6 +201,8 @@ def ukf_update(
     phi_human: np.ndarray,
     noise: KalmanNoise,
     sigma: SigmaPoints | None = None,
+    *,
+    reference: np.ndarray | None = None,
 ) -> UkfStep:
     """One unscented Kalman filter step: predict with (K1), correct with Φ_h.
 
@@ -214,6 +216,11 @@ def ukf_update(
         phi_human: Φ(ξ_hᵗ, Eᵗ), features of the human's correction, shape (k,).
         noise: process M and observation N covariances, (k, k) each.
         sigma: sigma-point parameters; the defaults of :class:`SigmaPoints` if None.
+        reference: if given, the innovation is Φ_h − reference instead of Φ_h − ẑ. With
+            reference = Φ(ξᵗ) = h(θ̂) this is the paper's update (K5): a correction is an
+            *improvement* of the robot's trajectory, so it says how Φ should move from
+            Φ(ξᵗ); the sigma-point mean ẑ differs from h(θ̂) wherever h is nonlinear, and
+            that difference is not information from the human.
 
     Returns:
         The posterior and the intermediate quantities, see :class:`UkfStep`.
@@ -224,7 +231,8 @@ def ukf_update(
     """
     phi_human = _as_vector("phi_human", phi_human, belief.dim)
     stats = _ukf_statistics(belief, observe, noise, sigma or SigmaPoints())
-    innovation = phi_human - stats.obs_mean
+    base = stats.obs_mean if reference is None else _as_vector("reference", reference, belief.dim)
+    innovation = phi_human - base
     return UkfStep(
         belief=Belief(theta=belief.theta + stats.gain @ innovation, cov=stats.cov),
         gain=stats.gain,

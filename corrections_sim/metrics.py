@@ -1,0 +1,40 @@
+"""Metrics of a learner's estimate: estimate error and regret (paper §6).
+
+Regret compares, in each environment E, the user's optimal trajectory ξ* = ξ*(θ*, E) with the
+robot's ξ = ξ*(θ̂, E), and is summed over all environments:
+
+* ``regret`` (headline): the planner's full objective under θ*,
+  R*(ξ) = θ*·Φ(ξ, E) − λ·S(ξ), so regret = R*(ξ*) − R*(ξ) ≥ 0 up to local optima;
+* ``regret_paper``: the paper's θ*·Φ(ξ*, E) − θ*·Φ(ξ, E), which can go negative because the
+  planner also pays for smoothness.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def estimate_error(theta_hat: np.ndarray, theta_star: np.ndarray) -> float:
+    """‖θ̂ − θ*‖₁."""
+    return float(np.sum(np.abs(np.asarray(theta_hat) - np.asarray(theta_star))))
+
+
+def regret_terms(
+    theta_star: np.ndarray,
+    phi_star: np.ndarray,
+    smooth_star: float,
+    phi: np.ndarray,
+    smooth: float,
+    smoothness_weight: float,
+) -> tuple[float, float]:
+    """(full-objective regret, paper's θ*·Φ regret) of one environment.
+
+    Args:
+        theta_star: the user's θ* (k,).
+        phi_star, smooth_star: Φ and S of the user's optimal trajectory ξ*(θ*, E).
+        phi, smooth: Φ and S of the robot's trajectory ξ*(θ̂, E).
+        smoothness_weight: λ of the planner.
+    """
+    paper = float(theta_star @ (np.asarray(phi_star) - np.asarray(phi)))
+    full = paper - smoothness_weight * (smooth_star - smooth)
+    return full, paper

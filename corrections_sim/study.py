@@ -1,0 +1,276 @@
+"""One learner, one simulated user, N iterations of corrections -> tidy records (paper §6).
+
+Each iteration t: the environment Eᵗ is drawn (PP, KF: uniformly at random; AL: eq. (A1)),
+the robot plans ξᵗ = ξ*(θ̂ᵗ, Eᵗ), the user corrects it, the learner updates its belief. Every
+record describes the belief *after* t corrections (t = 0 is the prior): estimate error and
+regret summed over all environments (see :mod:`corrections_sim.metrics`).
+
+Planner solves are memoized per run (:class:`PlanBook`): the robot's own trajectory, the
+UKF's mean sigma point and the regret in Eᵗ are one solve, not three.
+Everything random flows from ``np.random.Generator`` objects made from the study's seed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from corrections_sim.environments import Environment
+from corrections_sim.learners import (
+    Belief,
+    KalmanNoise,
+    SigmaPoints,
+    perceptron_update,
+    select_environment,
+    ukf_predicted_covariance,
+    ukf_update,
+)
+from corrections_sim.metrics import estimate_error, regret_terms
+from corrections_sim.planner import Plan, Planner, PlanningError, smoothness_cost
+
+LEARNERS = ("PP", "KF", "AL")
+
+
+@dataclass(frozen=True)
+class StudySettings:
+    """Resolved settings of one study (a figure's learning curves).
+
+    Attributes:
+        theta_star: the user's true preferences θ* (k,).
+        theta0: the robot's initial estimate θ̂⁰ (k,).
+        cov0: initial covariance P⁰ (k, k), symmetric positive definite.
+        iterations: corrections per run.
+        runs: runs of PP and KF (AL is deterministic and runs once).
+        seed: root of every random draw.
+        process_noise: M = process_noise · I.
+        observation_noise: N = observation_noise · I.
+        sigma_alpha, sigma_beta, sigma_kappa: UKF sigma-point parameters.
+        user_step: fraction of the way the biased user moves its worst waypoint.
+        fixed_alpha: if set, PP's learning rate; otherwise αᵗ = mean diag(Kᵗ) over KF runs.
+    """
+
+    theta_star: tuple[float, ...]
+    theta0: tuple[float, ...]
+    cov0: tuple[tuple[float, ...], ...]
+    iterations: int
+    runs: int
+    seed: int = 0
+    process_noise: float = 1e-4
+    observation_noise: float = 0.25
+    sigma_alpha: float = 1.0
+    sigma_beta: float = 2.0
+    sigma_kappa: float = 0.0
+    user_step: float = 1.0
+    fixed_alpha: float | None = None
+    learners: tuple[str, ...] = field(default=LEARNERS)
+
+    def __post_init__(self) -> None:
+        k = len(self.theta_star)
+        if len(self.theta0) != k:
+            raise ValueError(
+                f"theta0: expected {k} weights like theta_star, got {len(self.theta0)}"
+            )
+        if self.iterations < 1:
+            raise ValueError(f"iterations = {self.iterations} must be >= 1")
+        if self.runs < 1:
+            raise ValueError(f"runs = {self.runs} must be >= 1")
+        for name in ("process_noise", "observation_noise"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v >= 0):
+                raise ValueError(f"{name} = {v} must be finite and >= 0")
+        if not self.observation_noise > 0:
+            raise ValueError("observation_noise must be > 0")
+        if self.fixed_alpha is not None and not self.fixed_alpha > 0:
+            raise ValueError(f"fixed_alpha = {self.fixed_alpha} must be > 0")
+        unknown = [n for n in self.learners if n not in LEARNERS]
+        if unknown or not self.learners:
+            raise ValueError(f"learners: {list(self.learners)} must be names from {LEARNERS}")
+        # Validates P⁰ (symmetric positive definite) and θ̂⁰ where they enter.
+        self.prior()
+
+    @property
+    def k(self) -> int:
+        return len(self.theta_star)
+
+    def prior(self) -> Belief:
+        return Belief(theta=np.array(self.theta0, float), cov=np.array(self.cov0, float))
+
+    def noise(self) -> KalmanNoise:
+        eye = np.eye(self.k)
+        return KalmanNoise(
+            process=self.process_noise * eye, observation=self.observation_noise * eye
+        )
+
+    def sigma(self) -> SigmaPoints:
+        return SigmaPoints(alpha=self.sigma_alpha, beta=self.sigma_beta, kappa=self.sigma_kappa)
+
+
+class PlanBook:
+    """Memoized ξ*(θ, E) for one run: identical problems are solved once.
+
+    Failures are memoized too (as the exception), so a failing problem costs one solve.
+    """
+
+    def __init__(self, planner: Planner) -> None:
+        self.planner = planner
+        self._plans: dict[tuple[bytes, bytes], Plan | PlanningError] = {}
+        self.solves = 0
+        self.failures = 0
+
+    def plan(self, theta: np.ndarray, env: Environment) -> Plan:
+        key = (np.asarray(theta, float).tobytes(), env.key())
+        hit = self._plans.get(key)
+        if hit is None:
+            self.solves += 1
+            try:
+                hit = self.planner.solve(theta, env)
+            except PlanningError as exc:
+                self.failures += 1
+                hit = exc
+            self._plans[key] = hit
+        if isinstance(hit, PlanningError):
+            raise hit
+        return hit
+
+    def observe(self, env: Environment) -> Callable[[np.ndarray], np.ndarray]:
+        """h(θ) = Φ(ξ*(θ, E), E) as the learners' batch callable (n, k) -> (n, k)."""
+
+        def h(thetas: np.ndarray) -> np.ndarray:
+            return np.array([self.plan(t, env).features for t in np.atleast_2d(thetas)])
+
+        return h
+
+
+@dataclass(frozen=True)
+class Target:
+    """The user's side of every environment: θ* and its optimal plans ξ*(θ*, E)."""
+
+    theta_star: np.ndarray
+    plans: tuple[Plan, ...]
+
+    @classmethod
+    def solve(cls, planner: Planner, theta_star, envs: Sequence[Environment]) -> Target:
+        theta = np.asarray(theta_star, float)
+        return cls(theta_star=theta, plans=tuple(planner.solve(theta, e) for e in envs))
+
+
+def evaluate(
+    book: PlanBook, target: Target, envs: Sequence[Environment], theta_hat: np.ndarray
+) -> tuple[float, float, int]:
+    """(regret, paper regret, failed environments) of θ̂ summed over ``envs``.
+
+    An environment whose plan fails is left out of both sums and counted instead.
+    """
+    lam = book.planner.config.smoothness
+    full = paper = 0.0
+    failed = 0
+    for env, star in zip(envs, target.plans, strict=True):
+        try:
+            plan = book.plan(theta_hat, env)
+        except PlanningError:
+            failed += 1
+            continue
+        f, p = regret_terms(
+            target.theta_star,
+            star.features,
+            smoothness_cost(star.trajectory),
+            plan.features,
+            smoothness_cost(plan.trajectory),
+            lam,
+        )
+        full += f
+        paper += p
+    return full, paper, failed
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """Records of one learner run and the Kalman gains it used (for PP's learning rate)."""
+
+    records: tuple[dict, ...]
+    gains: np.ndarray  # (iterations, k, k); NaN where no update happened
+    solves: int
+
+
+def run_learner(
+    learner: str,
+    run: int,
+    settings: StudySettings,
+    planner: Planner,
+    envs: Sequence[Environment],
+    target: Target,
+    user,
+    rng: np.random.Generator,
+    alphas: np.ndarray | None = None,
+) -> RunResult:
+    """One run of ``learner`` ("PP", "KF" or "AL") for ``settings.iterations`` corrections.
+
+    Args:
+        alphas: PP's learning rate per iteration (iterations,); required for "PP".
+        rng: this run's generator: draws the environments (PP, KF) and the user's noise.
+    """
+    if learner not in LEARNERS:
+        raise ValueError(f"learner {learner!r} must be one of {LEARNERS}")
+    if learner == "PP" and alphas is None:
+        raise ValueError("alphas: PP needs a learning rate per iteration")
+    book = PlanBook(planner)
+    names = planner.config.features
+    noise, sigma = settings.noise(), settings.sigma()
+    belief = settings.prior()
+    k, n_iter = settings.k, settings.iterations
+    # Drawn up front so PP and KF run r see the same environments (common random numbers).
+    draws = rng.integers(len(envs), size=n_iter)
+    gains = np.full((n_iter, k, k), np.nan)
+    records = []
+
+    def record(t: int, env_name: str, skipped: str) -> None:
+        regret, paper, failed = evaluate(book, target, envs, belief.theta)
+        rec = {
+            "learner": learner,
+            "run": run,
+            "iteration": t,
+            "environment": env_name,
+            "estimate_error": estimate_error(belief.theta, target.theta_star),
+            "regret": regret,
+            "regret_paper": paper,
+            "regret_failures": failed,
+            "update_skipped": skipped,
+        }
+        for i in range(k):
+            rec[f"theta_{i}"] = float(belief.theta[i])
+        for i in range(k):
+            rec[f"cov_{i}{i}"] = float(belief.cov[i, i])
+        records.append(rec)
+
+    record(0, "", "")
+    for t in range(n_iter):
+        if learner == "AL":
+            covs = []
+            for env in envs:
+                try:
+                    covs.append(ukf_predicted_covariance(belief, book.observe(env), noise, sigma))
+                except PlanningError:
+                    covs.append(np.full((k, k), np.inf))
+            idx = select_environment(covs)
+        else:
+            idx = int(draws[t])
+        env = envs[idx]
+        skipped = ""
+        try:
+            mine = book.plan(belief.theta, env)
+            phi_h = user.correction_features(
+                mine.trajectory, target.plans[idx].trajectory, env.params(), names, rng
+            )
+            if learner == "PP":
+                belief = perceptron_update(belief, mine.features, phi_h, float(alphas[t]))
+            else:
+                step = ukf_update(
+                    belief, book.observe(env), phi_h, noise, sigma, reference=mine.features
+                )
+                belief, gains[t] = step.belief, step.gain
+        except PlanningError as exc:
+            skipped = str(exc).splitlines()[0]
+        record(t + 1, env.name, skipped)
+    return RunResult(records=tuple(records), gains=gains, solves=book.solves)
