@@ -1,0 +1,370 @@
+"""Benchmarks of the trajectory optimizer: ``python -m corrections_sim.bench planner``.
+
+Solves a fixed, seeded set of (θ, E) problems in the ways the rest of the program does
+(cold, default multi-start, warm from a nearby θ), compares the default solve with the best of
+many random restarts, and a subset with SciPy's SLSQP on numeric features and finite
+differences. It prints a table with targets beside the measured values; it never asserts.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from functools import partial
+
+import numpy as np
+
+from corrections_sim.environments import Environment, paper_environments
+from corrections_sim.features import feature_counts
+from corrections_sim.planner import (
+    Plan,
+    Planner,
+    PlannerConfig,
+    PlanningError,
+    clearance,
+    initial_guesses,
+    smoothness_cost,
+)
+from corrections_sim.robot import N_ARM_JOINTS, joint_limits
+
+THETA_RANGE = (-1.5, 1.5)
+WARM_THETA_STEP = 0.05  # std of the θ perturbation a warm start comes from
+RESTART_BUMP_STD = 0.4  # rad, std of each sine coefficient of a random restart
+RESTART_MODES = 3  # sine modes per joint in a random restart's perturbation
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One benchmark problem: weights θ (k,) and the index of a paper environment."""
+
+    theta: np.ndarray
+    env_index: int
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """One solve: wall time (s), IPOPT iterations of the kept start, reward; ``error`` is
+    ``"planning"`` for a PlanningError, the exception's repr for anything else, else None."""
+
+    time: float
+    iterations: int = 0
+    reward: float = float("nan")
+    error: str | None = None
+
+
+def make_problems(n: int, k: int, n_envs: int, rng: np.random.Generator) -> list[Problem]:
+    """``n`` problems: θ uniform in ``THETA_RANGE``^k, environment index uniform."""
+    thetas = rng.uniform(*THETA_RANGE, size=(n, k))
+    indices = rng.integers(0, n_envs, size=n)
+    return [Problem(t, int(i)) for t, i in zip(thetas, indices, strict=True)]
+
+
+def random_restarts(
+    env: Environment, n_waypoints: int, count: int, rng: np.random.Generator
+) -> list[np.ndarray]:
+    """The straight joint-space line, then ``count - 1`` smooth random bends of it.
+
+    A bend adds Σ_m a_m sin(mπs) per joint (s ∈ [0, 1] along the path, m = 1..RESTART_MODES,
+    a_m ~ N(0, (RESTART_BUMP_STD/m)²)), so start and goal stay fixed; clipped to the limits.
+    """
+    s = np.linspace(0.0, 1.0, n_waypoints)[:, None]  # (T, 1)
+    line = (1 - s) * env.q_start + s * env.q_goal  # (T, 7)
+    lo, hi = joint_limits()
+    modes = np.arange(1, RESTART_MODES + 1)
+    out = [line]
+    for _ in range(count - 1):
+        coeffs = rng.normal(0.0, RESTART_BUMP_STD / modes[:, None], (RESTART_MODES, N_ARM_JOINTS))
+        bend = np.sin(np.pi * s * modes) @ coeffs  # (T, 7)
+        out.append(np.clip(line + bend, lo, hi))
+    return out
+
+
+def timed(solve: Callable[[], Plan]) -> tuple[Outcome, Plan | None]:
+    """Run one solve, timing it and classifying its failure instead of raising."""
+    t0 = time.perf_counter()
+    try:
+        plan = solve()
+    except PlanningError:
+        return Outcome(time.perf_counter() - t0, error="planning"), None
+    except Exception as exc:  # noqa: BLE001 - the benchmark counts, it does not crash
+        return Outcome(time.perf_counter() - t0, error=repr(exc)), None
+    return Outcome(time.perf_counter() - t0, plan.iterations, plan.reward), plan
+
+
+def percentiles(values: Sequence[float]) -> tuple[float, float]:
+    """(median, 95th percentile) of the finite values; NaN when there are none."""
+    v = np.asarray(values, float)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return float("nan"), float("nan")
+    return float(np.median(v)), float(np.percentile(v, 95))
+
+
+def relative_gap(best: float, value: float) -> float:
+    """(best − value)/|best|: how much worse ``value`` is than ``best`` (< 0 if better)."""
+    return (best - value) / abs(best)
+
+
+@dataclass(frozen=True)
+class SlsqpResult:
+    """SLSQP's solve: wall time (s), iterations, reward, smallest constraint value, success."""
+
+    time: float
+    iterations: int
+    reward: float
+    min_clearance: float
+    success: bool
+
+
+def solve_slsqp(
+    theta: np.ndarray, env: Environment, config: PlannerConfig, init: np.ndarray
+) -> SlsqpResult:
+    """The same problem with SciPy SLSQP: numeric features, finite-difference gradients.
+
+    Objective −(θ·Φ − λS) over the T − 2 free waypoints, joint-limit bounds, and the planner's
+    hard constraints (smallest table gap and laptop keep-out level per waypoint, via
+    ``planner.clearance``) as inequalities ≥ 0.
+    """
+    from scipy.optimize import minimize
+
+    T = config.n_waypoints
+    params = env.params()
+
+    def path(x: np.ndarray) -> np.ndarray:
+        return np.vstack([env.q_start, x.reshape(T - 2, N_ARM_JOINTS), env.q_goal])
+
+    def cost(x: np.ndarray) -> float:
+        xi = path(x)
+        phi = feature_counts(xi, params, config.features)
+        return -(theta @ phi - config.smoothness * smoothness_cost(xi))
+
+    def constraints(x: np.ndarray) -> np.ndarray:
+        return np.concatenate([clearance(q, env) for q in x.reshape(T - 2, N_ARM_JOINTS)])
+
+    lo, hi = joint_limits()
+    bounds = list(zip(np.tile(lo, T - 2), np.tile(hi, T - 2), strict=True))
+    t0 = time.perf_counter()
+    res = minimize(
+        cost,
+        init[1:-1].ravel(),
+        method="SLSQP",
+        bounds=bounds,
+        constraints=[{"type": "ineq", "fun": constraints}],
+        options={"maxiter": 500, "ftol": 1e-9},
+    )
+    elapsed = time.perf_counter() - t0
+    return SlsqpResult(
+        elapsed, int(res.nit), float(-res.fun), float(constraints(res.x).min()), bool(res.success)
+    )
+
+
+# --- the planner benchmark -------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class PlannerBench:
+    """Raw measurements over the problem set (one entry per problem, same order)."""
+
+    cold: list[Outcome]
+    default: list[Outcome]
+    warm: list[Outcome]
+    best_restart: list[float]  # best reward over the random restarts, NaN if none converged
+    restart_errors: int  # problems where no random restart converged
+    slsqp: list[SlsqpResult]
+    slsqp_ipopt: list[Outcome]  # the default solves of the SLSQP subset
+
+
+def run_planner_bench(
+    planner: Planner,
+    envs: Sequence[Environment],
+    problems: Sequence[Problem],
+    *,
+    n_restarts: int,
+    n_slsqp: int,
+    rng: np.random.Generator,
+    progress: Callable[[str], None] = lambda _: None,
+) -> PlannerBench:
+    """Measure every mode on every problem (SLSQP on the first ``n_slsqp``)."""
+    T = planner.config.n_waypoints
+    cold, default, warm, best_restart = [], [], [], []
+    restart_errors = 0
+    for n, prob in enumerate(problems):
+        env, theta = envs[prob.env_index], prob.theta
+        line = initial_guesses(env, T, 1)
+        cold.append(timed(partial(planner.solve, theta, env, inits=line))[0])
+        outcome, _ = timed(partial(planner.solve, theta, env))
+        default.append(outcome)
+        nearby = theta + rng.normal(0.0, WARM_THETA_STEP, theta.shape)
+        _, previous = timed(partial(planner.solve, nearby, env))
+        inits = [previous.trajectory] if previous is not None else line
+        warm.append(timed(partial(planner.solve, theta, env, inits=inits))[0])
+        restarts = random_restarts(env, T, n_restarts, rng)
+        outcome, _ = timed(partial(planner.solve, theta, env, inits=restarts))
+        restart_errors += outcome.error is not None
+        best_restart.append(outcome.reward)
+        if (n + 1) % 10 == 0:
+            progress(f"  {n + 1}/{len(problems)} problems")
+    slsqp = []
+    for n, prob in enumerate(problems[:n_slsqp]):
+        env = envs[prob.env_index]
+        slsqp.append(solve_slsqp(prob.theta, env, planner.config, initial_guesses(env, T, 1)[0]))
+        progress(f"  SLSQP {n + 1}/{n_slsqp}: {slsqp[-1].time:.2f} s")
+    return PlannerBench(cold, default, warm, best_restart, restart_errors, slsqp, default[:n_slsqp])
+
+
+def _failures(outcomes: Sequence[Outcome]) -> tuple[int, int]:
+    planning = sum(o.error == "planning" for o in outcomes)
+    other = sum(o.error is not None and o.error != "planning" for o in outcomes)
+    return planning, other
+
+
+def _verdict(ok: bool) -> str:
+    return "PASS" if ok else "MISS"
+
+
+def report_planner_bench(bench: PlannerBench) -> list[str]:
+    """The printed table, as lines."""
+    lines = [
+        f"{'mode':<34}{'median':>10}{'p95':>10}{'iters med*':>11}{'iters p95*':>11}"
+        f"{'PlanningError':>15}{'other exc':>11}"
+    ]
+    medians = {}
+    for name, outcomes in (
+        ("cold (straight line, 1 start)", bench.cold),
+        ("default (config n_starts)", bench.default),
+        ("warm (from nearby theta)", bench.warm),
+    ):
+        ok = [o for o in outcomes if o.error is None]
+        t_med, t_p95 = percentiles([1e3 * o.time for o in ok])
+        i_med, i_p95 = percentiles([o.iterations for o in ok])
+        planning, other = _failures(outcomes)
+        medians[name.split()[0]] = t_med
+        lines.append(
+            f"{name:<34}{t_med:>8.2f}ms{t_p95:>8.2f}ms{i_med:>11.0f}{i_p95:>11.0f}"
+            f"{planning:>15d}{other:>11d}"
+        )
+    lines += [
+        "  times: wall time of planner.solve (IPOPT + MuJoCo check of the result + features)",
+        "  * IPOPT iterations of the kept start (default mode runs n_starts starts)",
+        "",
+    ]
+
+    gaps = np.array(
+        [
+            relative_gap(best, d.reward)
+            for best, d in zip(bench.best_restart, bench.default, strict=True)
+            if np.isfinite(best) and d.error is None
+        ]
+    )
+    g_med, g_p95 = percentiles(gaps)
+    within = float(np.mean(gaps <= 0.01)) if gaps.size else float("nan")
+    better = float(np.mean(gaps < -1e-6)) if gaps.size else float("nan")
+    lines += [
+        f"optimality gap of default vs best of random restarts ({gaps.size} problems, "
+        f"{bench.restart_errors} with no converged restart):",
+        f"  median {100 * g_med:.3f}%   p95 {100 * g_p95:.3f}%   within 1%: {100 * within:.1f}%"
+        f"   default better than all restarts: {100 * better:.1f}%",
+        "",
+    ]
+
+    slsqp_t = [r.time for r in bench.slsqp]
+    ipopt_t = [o.time for o in bench.slsqp_ipopt if o.error is None]
+    s_med = percentiles(slsqp_t)[0]
+    ratio = s_med / percentiles(ipopt_t)[0]
+    rel = [
+        relative_gap(o.reward, r.reward)
+        for r, o in zip(bench.slsqp, bench.slsqp_ipopt, strict=True)
+        if o.error is None
+    ]
+    lines += [
+        f"SciPy SLSQP (numeric FK/features, finite differences) on {len(bench.slsqp)} problems:",
+        f"  median time {s_med:.2f} s (p95 {percentiles(slsqp_t)[1]:.2f} s), median iterations "
+        f"{percentiles([r.iterations for r in bench.slsqp])[0]:.0f}, "
+        f"converged {sum(r.success for r in bench.slsqp)}/{len(bench.slsqp)}, "
+        f"min constraint {min((r.min_clearance for r in bench.slsqp), default=np.nan):+.4f}",
+        f"  speed ratio SLSQP / IPOPT default (medians): {ratio:.0f}x",
+        "  SLSQP reward relative to IPOPT default, (ipopt − slsqp)/|ipopt| "
+        "(> 0: SLSQP worse): " + ", ".join(f"{100 * v:+.2f}%" for v in rel),
+        "",
+    ]
+
+    unhandled = sum(_failures(o)[1] for o in (bench.cold, bench.default, bench.warm))
+    targets = [
+        ("warm median <= 4 ms", f"{medians['warm']:.2f} ms", medians["warm"] <= 4.0),
+        ("cold median <= 10 ms", f"{medians['cold']:.2f} ms", medians["cold"] <= 10.0),
+        (">= 100x faster than SLSQP", f"{ratio:.0f}x", ratio >= 100),
+        (
+            "within 1% of best restart on >= 95%",
+            f"{100 * within:.1f}%",
+            within >= 0.95,
+        ),
+        ("0 unhandled failures", f"{unhandled}", unhandled == 0),
+    ]
+    lines.append(f"{'target':<40}{'measured':>12}  verdict")
+    lines += [f"{name:<40}{value:>12}  {_verdict(ok)}" for name, value, ok in targets]
+    others = sorted(
+        {o.error for o in (*bench.cold, *bench.default, *bench.warm)} - {None, "planning"}
+    )
+    lines += [f"  unhandled: {e}" for e in others]
+    return lines
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(
+        prog="python -m corrections_sim.bench",
+        description="Benchmarks of corrections_sim. 'planner': solve times, iterations, "
+        "failures and optimality of the trajectory optimizer over seeded (theta, E) problems.",
+    )
+    parser.add_argument("what", choices=["planner"], help="which benchmark to run")
+    parser.add_argument(
+        "--problems", type=int, default=60, help="number of (theta, E) problems (default 60)"
+    )
+    parser.add_argument("--seed", type=int, default=0, help="seed of the problem set (default 0)")
+    parser.add_argument(
+        "--restarts",
+        type=int,
+        default=20,
+        help="random restarts per problem for the optimality gap (default 20)",
+    )
+    parser.add_argument(
+        "--slsqp",
+        type=int,
+        default=10,
+        help="problems also solved with SciPy SLSQP, the first N of the set (default 10)",
+    )
+    args = parser.parse_args(argv)
+    if args.problems < 1 or args.restarts < 1 or args.slsqp < 0:
+        parser.error("--problems and --restarts must be >= 1, --slsqp >= 0")
+
+    t0 = time.perf_counter()
+    planner = Planner()
+    envs = paper_environments()
+    rng = np.random.default_rng(args.seed)
+    problems = make_problems(args.problems, planner.config.k, len(envs), rng)
+    cfg = planner.config
+    print(
+        f"planner benchmark: {args.problems} problems (seed {args.seed}), theta uniform in "
+        f"{list(THETA_RANGE)}^{cfg.k}, {len(envs)} environments; features {cfg.features}, "
+        f"T={cfg.n_waypoints}, lambda={cfg.smoothness}, n_starts={cfg.n_starts}, jit={cfg.jit}"
+        f"; planner ready in {time.perf_counter() - t0:.2f} s",
+        flush=True,
+    )
+    planner.solve(problems[0].theta, envs[problems[0].env_index])  # first-call overheads
+    bench = run_planner_bench(
+        planner,
+        envs,
+        problems,
+        n_restarts=args.restarts,
+        n_slsqp=min(args.slsqp, args.problems),
+        rng=rng,
+        progress=lambda line: print(line, flush=True),
+    )
+    print()
+    print("\n".join(report_planner_bench(bench)))
+    print(f"\ntotal {time.perf_counter() - t0:.0f} s")
+
+
+if __name__ == "__main__":
+    main()
