@@ -87,8 +87,13 @@ class StudySettings:
         unknown = [n for n in self.learners if n not in LEARNERS]
         if unknown or not self.learners:
             raise ValueError(f"learners: {list(self.learners)} must be names from {LEARNERS}")
-        # Validates P⁰ (symmetric positive definite) and θ̂⁰ where they enter.
-        self.prior()
+        # Validates P⁰ (symmetric positive definite) and θ̂⁰ where they enter, under the
+        # names the caller used rather than Belief's.
+        try:
+            self.prior()
+        except ValueError as exc:
+            message = str(exc).replace("Belief.theta", "theta0").replace("Belief.cov", "cov0")
+            raise ValueError(message) from None
 
     @property
     def k(self) -> int:
