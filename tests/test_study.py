@@ -1,0 +1,315 @@
+"""The study loop (paper §6) on a small problem: settings refuse bad input, plans are solved
+once per run, regret vanishes at θ*, and PP, KF and AL runs produce the documented records,
+improve on an easy setting, and are reproducible from the seed."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from corrections_sim.environments import Environment, paper_environments
+from corrections_sim.human import BiasedUser, NoisyOptimalUser
+from corrections_sim.planner import Planner, PlannerConfig, PlanningError
+from corrections_sim.study import PlanBook, StudySettings, Target, evaluate, run_learner
+
+THETA_STAR = (1.0, -1.0)
+THETA0 = (0.0, 0.0)
+COV0 = ((1.0, 0.0), (0.0, 1.0))
+ITERATIONS = 3
+ALPHA = 0.1
+# Five of the 48 environments: every start, all table positions, every laptop pose.
+ENV_NAMES = ("s0-t0-l0", "s0-t2-l1", "s1-t1-l2", "s2-t0-l3", "s3-t0-l0")
+COLUMNS = {
+    "learner",
+    "run",
+    "iteration",
+    "environment",
+    "estimate_error",
+    "regret",
+    "regret_paper",
+    "regret_failures",
+    "update_skipped",
+    "theta_0",
+    "theta_1",
+    "cov_00",
+    "cov_11",
+}
+
+
+def settings(**overrides) -> StudySettings:
+    values = dict(
+        theta_star=THETA_STAR,
+        theta0=THETA0,
+        cov0=COV0,
+        iterations=ITERATIONS,
+        runs=1,
+        seed=0,
+        fixed_alpha=ALPHA,
+    )
+    values.update(overrides)
+    return StudySettings(**values)
+
+
+@pytest.fixture(scope="module")
+def planner() -> Planner:
+    return Planner()
+
+
+@pytest.fixture(scope="module")
+def failing_planner() -> Planner:
+    # jit=False: a one-off config builds in a fraction of a second without gcc; one IPOPT
+    # iteration never converges, so every solve raises PlanningError.
+    return Planner(PlannerConfig(max_iter=1, jit=False))
+
+
+@pytest.fixture(scope="module")
+def envs() -> tuple[Environment, ...]:
+    by_name = {e.name: e for e in paper_environments()}
+    return tuple(by_name[n] for n in ENV_NAMES)
+
+
+@pytest.fixture(scope="module")
+def target(planner, envs) -> Target:
+    return Target.solve(planner, THETA_STAR, envs)
+
+
+def run(learner, planner, envs, target, seed=0, user=None, s=None):
+    s = s or settings()
+    return run_learner(
+        learner,
+        0,
+        s,
+        planner,
+        envs,
+        target,
+        user or BiasedUser(),
+        np.random.default_rng(seed),
+        alphas=np.full(s.iterations, ALPHA) if learner == "PP" else None,
+    )
+
+
+@pytest.fixture(scope="module")
+def kf_run(planner, envs, target):
+    return run("KF", planner, envs, target)
+
+
+@pytest.fixture(scope="module")
+def pp_run(planner, envs, target):
+    return run("PP", planner, envs, target)
+
+
+# --------------------------------------------------------------------------- settings
+
+
+@pytest.mark.parametrize(
+    ("overrides", "field"),
+    [
+        ({"iterations": 0}, "iterations"),
+        ({"iterations": -3}, "iterations"),
+        ({"runs": 0}, "runs"),
+        ({"runs": -1}, "runs"),
+        ({"theta0": (0.0, 0.0, 0.0)}, "theta0"),
+        ({"theta0": (0.0,)}, "theta0"),
+        ({"theta0": (0.0, float("nan"))}, "theta0"),
+        ({"cov0": ((1.0, 2.0), (2.0, 1.0))}, "cov0"),  # symmetric, eigenvalues 3 and −1
+        ({"cov0": ((1.0, 0.0), (0.0, 0.0))}, "cov0"),  # singular
+        ({"cov0": ((1.0, 0.5), (0.0, 1.0))}, "cov0"),  # not symmetric
+        ({"cov0": ((1.0, 0.0, 0.0),) * 3}, "cov0"),  # wrong shape
+        ({"learners": ("KF", "UKF")}, "learners"),
+        ({"learners": ()}, "learners"),
+        ({"process_noise": -1e-4}, "process_noise"),
+        ({"observation_noise": -0.25}, "observation_noise"),
+        ({"observation_noise": 0.0}, "observation_noise"),
+        ({"process_noise": float("nan")}, "process_noise"),
+        ({"fixed_alpha": 0.0}, "fixed_alpha"),
+    ],
+)
+def test_settings_refuse_bad_values_naming_the_field(overrides, field):
+    with pytest.raises(ValueError, match=field):
+        settings(**overrides)
+
+
+def test_settings_build_the_filters_values():
+    s = settings(process_noise=1e-3, observation_noise=0.5, runs=4)
+    assert s.k == 2
+    np.testing.assert_array_equal(s.prior().theta, THETA0)
+    np.testing.assert_array_equal(s.prior().cov, np.eye(2))
+    np.testing.assert_array_equal(s.noise().process, 1e-3 * np.eye(2))
+    np.testing.assert_array_equal(s.noise().observation, 0.5 * np.eye(2))
+    assert s.learners == ("PP", "KF", "AL")
+    settings(process_noise=0.0)  # preferences exactly constant is allowed
+
+
+# --------------------------------------------------------------------------- PlanBook
+
+
+def test_plan_book_solves_each_problem_once(planner, envs):
+    book = PlanBook(planner)
+    first = book.plan(np.array([0.5, -0.5]), envs[0])
+    again = book.plan([0.5, -0.5], envs[0])  # a list with the same values is the same key
+    assert again is first
+    assert (book.solves, book.failures) == (1, 0)
+    book.plan(np.array([0.5, -0.5]), envs[1])
+    book.plan(np.array([0.5, -0.4]), envs[0])
+    assert book.solves == 3
+    # A copy of an environment (equal contents) hits the cache too.
+    twin = Environment(
+        q_start=envs[0].q_start, q_goal=envs[0].q_goal, laptop=envs[0].laptop, table=envs[0].table
+    )
+    assert book.plan(np.array([0.5, -0.5]), twin) is first
+    assert book.solves == 3
+
+
+def test_plan_book_observe_is_the_memoized_batch_of_features(planner, envs):
+    book = PlanBook(planner)
+    h = book.observe(envs[2])
+    thetas = np.array([[0.0, 0.0], [1.0, -1.0], [0.0, 0.0]])
+    out = h(thetas)
+    assert out.shape == (3, 2)
+    np.testing.assert_array_equal(out[0], book.plan(thetas[0], envs[2]).features)
+    np.testing.assert_array_equal(out[0], out[2])
+    assert book.solves == 2
+    np.testing.assert_array_equal(h(np.array([1.0, -1.0])), out[1:2])  # one θ: (1, k)
+    assert book.solves == 2
+
+
+def test_plan_book_memoizes_failures(failing_planner, envs):
+    book = PlanBook(failing_planner)
+    with pytest.raises(PlanningError, match="no start converged") as first:
+        book.plan(np.array([0.0, 0.0]), envs[0])
+    assert (book.solves, book.failures) == (1, 1)
+    with pytest.raises(PlanningError) as second:
+        book.plan(np.array([0.0, 0.0]), envs[0])
+    assert second.value is first.value
+    assert (book.solves, book.failures) == (1, 1)
+
+
+# --------------------------------------------------------------------------- evaluate
+
+
+def test_regret_vanishes_at_theta_star(planner, envs, target):
+    book = PlanBook(planner)
+    regret, paper, failed = evaluate(book, target, envs, np.array(THETA_STAR))
+    lam = planner.config.smoothness
+    theta = np.array(THETA_STAR)
+    scale = sum(
+        abs(theta @ p.features) + lam * np.sum(np.diff(p.trajectory, axis=0) ** 2)
+        for p in target.plans
+    )
+    assert failed == 0
+    assert abs(regret) < 1e-6 * scale
+    assert abs(paper) < 1e-6 * scale
+    # Regret is never meaningfully negative: ξ*(θ*) is the optimum of the full objective.
+    assert regret >= -planner.config.tol * scale
+    assert book.solves == len(envs)
+
+
+def test_regret_is_positive_away_from_theta_star(planner, envs, target):
+    regret, paper, failed = evaluate(PlanBook(planner), target, envs, np.array(THETA0))
+    assert failed == 0
+    assert regret > 1.0
+    assert paper > regret  # the robot's (0, 0) paths are smoother, which full regret credits
+
+
+def test_evaluate_counts_failed_environments_instead_of_summing_them(failing_planner, envs, target):
+    book = PlanBook(failing_planner)
+    assert evaluate(book, target, envs, np.array(THETA0)) == (0.0, 0.0, len(envs))
+    assert book.failures == len(envs)
+
+
+# --------------------------------------------------------------------------- run_learner
+
+
+@pytest.mark.parametrize("learner", ["KF", "PP"])
+def test_records_have_the_documented_columns_and_start_at_the_prior(
+    learner, kf_run, pp_run, planner, envs, target
+):
+    result = {"KF": kf_run, "PP": pp_run}[learner]
+    records = result.records
+    assert len(records) == ITERATIONS + 1
+    assert [r["iteration"] for r in records] == list(range(ITERATIONS + 1))
+    for r in records:
+        assert set(r) == COLUMNS
+        assert r["learner"] == learner and r["run"] == 0
+        assert r["regret_failures"] == 0 and r["update_skipped"] == ""
+    assert {r["environment"] for r in records[1:]} <= set(ENV_NAMES)
+
+    first = records[0]
+    regret0, paper0, _ = evaluate(PlanBook(planner), target, envs, np.array(THETA0))
+    assert first["environment"] == ""
+    assert (first["theta_0"], first["theta_1"]) == THETA0
+    assert (first["cov_00"], first["cov_11"]) == (1.0, 1.0)
+    assert first["estimate_error"] == 2.0
+    assert first["regret"] == regret0 and first["regret_paper"] == paper0
+    assert result.solves > 0
+
+
+def test_kf_cov_shrinks_and_gains_are_recorded(kf_run):
+    records = kf_run.records
+    q = settings().process_noise
+    for i in range(2):
+        cov = [r[f"cov_{i}{i}"] for r in records]
+        # Each update can add at most M before it shrinks P.
+        assert all(b <= a + q for a, b in zip(cov, cov[1:], strict=False)), cov
+        assert cov[-1] < 0.25 * cov[0], cov
+    assert kf_run.gains.shape == (ITERATIONS, 2, 2)
+    assert np.all(np.isfinite(kf_run.gains))
+
+
+def test_pp_carries_the_prior_covariance_and_keeps_no_gains(pp_run):
+    for r in pp_run.records:
+        assert (r["cov_00"], r["cov_11"]) == (1.0, 1.0)
+    assert np.all(np.isnan(pp_run.gains))
+
+
+@pytest.mark.parametrize("learner", ["KF", "PP"])
+def test_learners_improve_on_an_easy_setting(learner, kf_run, pp_run):
+    """θ* = (+1, −1) from θ̂⁰ = (0, 0): every correction pulls the cup toward the laptop and
+    away from the table, so the estimate moves toward θ* and regret falls."""
+    records = {"KF": kf_run, "PP": pp_run}[learner].records
+    first, last = records[0], records[-1]
+    assert last["estimate_error"] < first["estimate_error"]
+    assert last["regret"] < first["regret"]
+    # The estimate moves in the right direction on both weights.
+    assert last["theta_0"] > 0.0 > last["theta_1"]
+
+
+def test_kf_learns_faster_than_pp_with_a_small_fixed_rate(kf_run, pp_run):
+    # Same seed, so both see the same environments (common random numbers).
+    assert [r["environment"] for r in kf_run.records] == [r["environment"] for r in pp_run.records]
+    assert kf_run.records[-1]["estimate_error"] < pp_run.records[-1]["estimate_error"]
+
+
+def test_active_learning_picks_environments_deterministically(planner, envs, target):
+    a = run("AL", planner, envs, target, seed=0).records
+    b = run("AL", planner, envs, target, seed=1).records  # the rng draws nothing AL uses
+    assert list(a) == list(b)
+    assert len(a) == ITERATIONS + 1
+    assert {r["environment"] for r in a[1:]} <= set(ENV_NAMES)
+    assert a[-1]["estimate_error"] < a[0]["estimate_error"]
+
+
+def test_same_seed_same_records(planner, envs, target, kf_run):
+    again = run("KF", planner, envs, target, seed=0)
+    assert list(again.records) == list(kf_run.records)
+    # With a noisy user the generator also draws the observations' noise.
+    user = NoisyOptimalUser(noise=0.1)
+    a = run("KF", planner, envs, target, seed=5, user=user).records
+    b = run("KF", planner, envs, target, seed=5, user=user).records
+    assert list(a) == list(b)
+
+
+def test_different_seed_draws_different_environments(planner, envs, target, kf_run):
+    other = run("KF", planner, envs, target, seed=1)
+    assert [r["environment"] for r in other.records] != [r["environment"] for r in kf_run.records]
+
+
+def test_run_learner_refuses_unknown_learner_and_pp_without_rates(planner, envs, target):
+    with pytest.raises(ValueError, match="learner"):
+        run_learner(
+            "UKF", 0, settings(), planner, envs, target, BiasedUser(), np.random.default_rng(0)
+        )
+    with pytest.raises(ValueError, match="alphas"):
+        run_learner(
+            "PP", 0, settings(), planner, envs, target, BiasedUser(), np.random.default_rng(0)
+        )
