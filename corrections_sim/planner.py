@@ -20,6 +20,7 @@ import hashlib
 import inspect
 import json
 import os
+import subprocess
 import tempfile
 import time
 from collections.abc import Sequence
@@ -115,7 +116,7 @@ class PlannerConfig:
         max_wall_time: IPOPT wall-time limit per start, seconds.
         tol: IPOPT convergence tolerance.
         jit: compile the NLP's functions with gcc (≈ 8× faster evaluations, ≈ 30 s once per
-            machine; the compiled solver is cached on disk, see :func:`cache_dir`).
+            machine and setting; the library is cached on disk, see :func:`cache_dir`).
     """
 
     features: tuple[str, ...] = ("laptop", "table")
@@ -230,6 +231,26 @@ _IPOPT_OPTIONS = {
 }
 
 
+def _compile_library(solver: ca.Function, library: Path) -> None:
+    """C code of the solver's NLP functions, compiled by gcc into ``library`` (atomically)."""
+    library.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=library.parent) as scratch:
+        source = Path(scratch) / "trajopt_nlp.c"
+        cwd = os.getcwd()
+        os.chdir(scratch)  # generate_dependencies writes into the working directory
+        try:
+            solver.generate_dependencies(source.name)
+        finally:
+            os.chdir(cwd)
+        tmp = Path(scratch) / library.name
+        subprocess.run(
+            ["gcc", "-O1", "-fPIC", "-shared", str(source), "-o", str(tmp), "-lm"],
+            check=True,
+            capture_output=True,
+        )
+        os.replace(tmp, library)
+
+
 class Planner:
     """ξ*(θ, E) for one :class:`PlannerConfig`; build once per process, solve many times."""
 
@@ -240,27 +261,20 @@ class Planner:
         self._lbx = np.tile(lo, self._n_free)
         self._ubx = np.tile(hi, self._n_free)
         self._checker = CollisionChecker()
+        nlp, opts = self._nlp(self.config)
         if not self.config.jit:
-            self._solver = self._build(self.config)
+            self._solver = ca.nlpsol("trajopt", "ipopt", nlp, opts)
             return
-        path = cache_dir() / f"trajopt-{build_key(self.config)}.casadi"
-        if path.is_file():
-            self._solver = ca.Function.load(str(path))
-            return
-        path.parent.mkdir(parents=True, exist_ok=True)
-        # gcc's scratch files go to a private folder, not the working directory.
-        with tempfile.TemporaryDirectory(dir=path.parent) as scratch:
-            built = self._build(self.config, scratch)
-            # Write then rename, so a concurrent process never loads a half-written file.
-            tmp = path.with_suffix(f".{os.getpid()}.tmp")
-            built.save(str(tmp))
-            os.replace(tmp, path)
-            del built  # CasADi removes its scratch files when the function goes
-        self._solver = ca.Function.load(str(path))
+        library = cache_dir() / f"trajopt-{build_key(self.config)}.so"
+        if not library.is_file():
+            _compile_library(ca.nlpsol("trajopt", "ipopt", nlp, opts), library)
+        # IPOPT evaluates the NLP through the compiled library; every process dlopens the
+        # same finished file, which nobody rewrites (a fresh build goes to a new name).
+        self._solver = ca.nlpsol("trajopt", "ipopt", str(library), opts)
 
     @staticmethod
-    def _build(cfg: PlannerConfig, scratch: str | None = None) -> ca.Function:
-        """The IPOPT solver of the NLP; parameters p = (θ, e, q_start, q_goal)."""
+    def _nlp(cfg: PlannerConfig) -> tuple[dict, dict]:
+        """The NLP (parameters p = (θ, e, q_start, q_goal)) and the solver options."""
         n_free = cfg.n_waypoints - 2
         x = ca.SX.sym("x", n_free * N_ARM_JOINTS)
         theta = ca.SX.sym("theta", cfg.k)
@@ -294,14 +308,7 @@ class Planner:
                 "tol": cfg.tol,
             },
         }
-        if cfg.jit:
-            opts.update(
-                jit=True,
-                compiler="shell",
-                jit_options={"flags": ["-O1"], "verbose": False, "directory": scratch or "."},
-                jit_serialize="embed",
-            )
-        return ca.nlpsol("trajopt", "ipopt", nlp, opts)
+        return nlp, opts
 
     def _params(self, theta: np.ndarray, env: Environment) -> np.ndarray:
         return np.concatenate([theta, env.params(), env.q_start, env.q_goal])
