@@ -44,3 +44,55 @@ def save_scene_figure(
         return save_atomically(fig, path, dpi=100)
     finally:
         plt.close(fig)
+
+
+LEARNER_STYLE = {
+    "PP": ("#7f7f7f", "Preference Perceptron (PP)"),
+    "KF": ("#1f77b4", "Kalman filter (KF)"),
+    "AL": ("#d62728", "Active learning (AL)"),
+}
+
+
+def mean_sem(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and standard error over axis 0 (runs); SEM is 0 for a single run."""
+    mean = np.nanmean(values, axis=0)
+    n = np.sum(np.isfinite(values), axis=0)
+    sem = np.where(n > 1, np.nanstd(values, axis=0, ddof=1) / np.sqrt(np.maximum(n, 1)), 0.0)
+    return mean, sem
+
+
+def plot_learning_curves(curves: dict[str, dict[str, np.ndarray]], title: str, paths) -> None:
+    """Estimate error and regret against iteration, mean ± SEM as shaded bands.
+
+    Args:
+        curves: learner -> {"estimate_error": (runs, T+1), "regret": (runs, T+1),
+            "regret_paper": (runs, T+1)}.
+        paths: files to write (PNG, PDF, …).
+    """
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
+    panels = (
+        ("estimate_error", "Estimate error ‖θ̂ − θ*‖₁"),
+        ("regret", "Regret (full objective), Σ over 48 envs"),
+        ("regret_paper", "Regret θ*·Φ only (paper), Σ over 48 envs"),
+    )
+    for ax, (key, label) in zip(axes, panels, strict=True):
+        for learner, data in curves.items():
+            color, name = LEARNER_STYLE[learner]
+            values = data[key]
+            mean, sem = mean_sem(values)
+            t = np.arange(mean.size)
+            n = values.shape[0]
+            ax.plot(t, mean, color=color, lw=2, label=f"{name}, N = {n}")
+            ax.fill_between(t, mean - sem, mean + sem, color=color, alpha=0.25, lw=0)
+        ax.set_xlabel("iteration (corrections)")
+        ax.xaxis.get_major_locator().set_params(integer=True)
+        ax.set_title(label, fontsize=10)
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    fig.suptitle(title, fontsize=11)
+    fig.tight_layout()
+    try:
+        for path in paths:
+            save_atomically(fig, path, dpi=150)
+    finally:
+        plt.close(fig)
