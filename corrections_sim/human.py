@@ -32,7 +32,7 @@ class BiasedUser:
 
     def __post_init__(self) -> None:
         if not 0.0 < self.step <= 1.0:
-            raise ValueError(f"user step = {self.step} must lie in (0, 1]")
+            raise ValueError(f"user_step = {self.step} must lie in (0, 1]")
 
     def corrected_trajectory(self, robot: np.ndarray, intended: np.ndarray) -> np.ndarray:
         """ξ_h (T, 7): ``robot`` (T, 7) with its worst waypoint moved toward ``intended``."""

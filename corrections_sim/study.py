@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from corrections_sim.environments import Environment
+from corrections_sim.human import BiasedUser
 from corrections_sim.learners import (
     Belief,
     KalmanNoise,
@@ -72,10 +73,12 @@ class StudySettings:
             raise ValueError(
                 f"theta0: expected {k} weights like theta_star, got {len(self.theta0)}"
             )
-        if self.iterations < 1:
-            raise ValueError(f"iterations = {self.iterations} must be >= 1")
-        if self.runs < 1:
-            raise ValueError(f"runs = {self.runs} must be >= 1")
+        if not np.all(np.isfinite(np.asarray(self.theta_star, float))):
+            raise ValueError(f"theta_star: all weights must be finite, got {self.theta_star}")
+        for name in ("iterations", "runs"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 1:
+                raise ValueError(f"{name} = {v!r} must be an integer >= 1")
         for name in ("process_noise", "observation_noise"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
@@ -87,6 +90,10 @@ class StudySettings:
         unknown = [n for n in self.learners if n not in LEARNERS]
         if unknown or not self.learners:
             raise ValueError(f"learners: {list(self.learners)} must be names from {LEARNERS}")
+        # The user and the sigma points validate their own parameters; build them here so
+        # a bad value is refused where it enters, not in the middle of a run.
+        BiasedUser(step=self.user_step)
+        self.sigma()
         # Validates P⁰ (symmetric positive definite) and θ̂⁰ where they enter, under the
         # names the caller used rather than Belief's.
         try:
