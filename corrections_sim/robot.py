@@ -197,7 +197,8 @@ ARM_SPHERES: tuple[Sphere, ...] = (
     Sphere("panda_link6", (0.0, 0.0, -0.07), 0.08),
     Sphere("panda_link7", (0.0, 0.0, 0.08), 0.07),
     Sphere("panda_link7", (0.0, 0.0, -0.06), 0.07),
-    Sphere("panda_link7", (0.04, 0.04, 0.09), 0.045),
+    Sphere("panda_link7", (0.043535534, 0.043535534, 0.09), 0.045),
+    Sphere("panda_link7", (0.036464466, 0.036464466, 0.09), 0.045),
     Sphere("panda_hand", (0.0, -0.075, 0.03), 0.05),
     Sphere("panda_hand", (0.0, 0.075, 0.03), 0.05),
     # The open fingers (prismatic joints at FINGER_OPENING), one sphere each in hand frame.

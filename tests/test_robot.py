@@ -71,23 +71,7 @@ def test_own_spheres_are_the_fingers_and_the_cup():
 SPHERE_FRAMES = tuple(dict.fromkeys(s.frame for s in robot.ARM_SPHERES))
 
 
-@pytest.mark.parametrize(
-    "frame",
-    [
-        pytest.param(
-            f,
-            marks=pytest.mark.xfail(
-                strict=True,
-                reason="ARM_SPHERES replaces link7's two URDF spheres at (0.0435, 0.0435, "
-                "0.09) and (0.0365, 0.0365, 0.09), r 0.045, by one at their midpoint: "
-                "5 mm short of the URDF's union along the diagonal (reported)",
-            ),
-        )
-        if f == "panda_link7"
-        else f
-        for f in SPHERE_FRAMES
-    ],
-)
+@pytest.mark.parametrize("frame", SPHERE_FRAMES)
 def test_arm_spheres_are_the_urdf_spheres(frame):
     urdf = _urdf_spheres()[frame]
     ours = [s for s in robot.ARM_SPHERES if s.frame == frame and not _own(s)]
