@@ -56,9 +56,10 @@ LEARNER_STYLE = {
 def mean_sem(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Mean and standard error over axis 0 (runs); SEM is 0 for a single run."""
     mean = np.nanmean(values, axis=0)
+    if values.shape[0] < 2:
+        return mean, np.zeros_like(mean)
     n = np.sum(np.isfinite(values), axis=0)
-    sem = np.where(n > 1, np.nanstd(values, axis=0, ddof=1) / np.sqrt(np.maximum(n, 1)), 0.0)
-    return mean, sem
+    return mean, np.nanstd(values, axis=0, ddof=1) / np.sqrt(np.maximum(n, 1))
 
 
 def plot_learning_curves(curves: dict[str, dict[str, np.ndarray]], title: str, paths) -> None:
