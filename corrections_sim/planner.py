@@ -130,6 +130,10 @@ class PlannerConfig:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "features", check_feature_names(self.features))
+        for name in ("n_waypoints", "n_starts", "max_iter"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | np.integer):
+                raise ValueError(f"{name} = {value!r} must be an integer")
         if not 3 <= self.n_waypoints <= 200:
             raise ValueError(f"n_waypoints = {self.n_waypoints} must lie in [3, 200]")
         if not (np.isfinite(self.smoothness) and self.smoothness > 0):
@@ -344,6 +348,8 @@ class Planner:
         T = self.config.n_waypoints
         if inits is None:
             inits = initial_guesses(env, T, self.config.n_starts)
+        elif len(inits) == 0:
+            raise ValueError("inits: give at least one initial trajectory, or None")
         p = self._params(theta, env)
         t0 = time.perf_counter()
         best, statuses = None, []
