@@ -8,9 +8,9 @@ the table top and outside the laptop's keep-out ellipsoid inflated by its radius
 
 The NLP is built once per :class:`Planner` with θ, the environment and the end points as
 *parameters*, so one IPOPT instance serves every (θ, E). A solve tries a small deterministic
-set of initial guesses (or the caller's warm start) and keeps the best converged one; the
-result carries IPOPT's status, and a failure raises :class:`PlanningError` instead of
-returning a trajectory.
+set of initial guesses (or the caller's warm start) and keeps the best converged one whose
+joint-space interpolation MuJoCo finds collision-free; the result carries IPOPT's status, and
+a failure raises :class:`PlanningError` instead of returning a trajectory.
 """
 
 from __future__ import annotations

@@ -112,7 +112,7 @@ def run_learning_figure(args: argparse.Namespace) -> list[Path]:
     from concurrent.futures import ProcessPoolExecutor
 
     from corrections_sim.figures import learning
-    from corrections_sim.plotting import plot_learning_curves
+    from corrections_sim.plotting import mean_sem, plot_learning_curves
 
     for name in ("runs", "iterations", "workers"):
         value = getattr(args, name)
@@ -149,11 +149,10 @@ def run_learning_figure(args: argparse.Namespace) -> list[Path]:
         for learner, data in curves.items():
             stats = {}
             for key, values in data.items():
-                last = values[:, -1]
-                sem = float(np.std(last, ddof=1) / np.sqrt(len(last))) if len(last) > 1 else 0.0
+                mean, sem = mean_sem(values[:, -1:])
                 stats[key] = {
-                    "mean": float(np.mean(last)),
-                    "sem": sem,
+                    "mean": float(mean[0]),
+                    "sem": float(sem[0]),
                     "auc_mean": float(np.mean(values.sum(axis=1))),
                 }
             final_stats[learner] = stats
