@@ -255,6 +255,79 @@ def _compile_library(solver: ca.Function, library: Path) -> None:
         os.replace(tmp, library)
 
 
+@dataclass(frozen=True, eq=False)
+class TrajectoryTerms:
+    """The symbolic pieces of a trajectory NLP over the free waypoints of one config.
+
+    :class:`Planner` maximizes θ·Φ − λ·S subject to ``constraints >= 0``; other planners
+    (e.g. the risk-averse one of :mod:`corrections_sim.risk`) reuse the same terms with their
+    own objective, so every planner keeps the arm out of the table and laptop alike.
+
+    Attributes:
+        x: decision variables, the free waypoints q¹ … q^{T−2} stacked, SX (7 (T − 2),).
+        env: environment parameters (laptop x, y, yaw, table x, y), SX (5,).
+        q_start: fixed first waypoint, SX (7,).
+        q_goal: fixed last waypoint, SX (7,).
+        features: Φ(ξ, E) summed over the free waypoints, SX (k,).
+        smoothness: S(ξ) = Σ_i ‖q^{i+1} − q^i‖² over the whole path, SX scalar.
+        constraints: per free waypoint the soft-min table gap and laptop keep-out level,
+            SX (2 (T − 2),); all must be >= 0.
+    """
+
+    x: ca.SX
+    env: ca.SX
+    q_start: ca.SX
+    q_goal: ca.SX
+    features: ca.SX
+    smoothness: ca.SX
+    constraints: ca.SX
+
+
+def trajectory_terms(cfg: PlannerConfig) -> TrajectoryTerms:
+    """Build the symbols and expressions every trajectory NLP of ``cfg`` shares."""
+    n_free = cfg.n_waypoints - 2
+    x = ca.SX.sym("x", n_free * N_ARM_JOINTS)
+    env = ca.SX.sym("env", N_ENV_PARAMS)
+    q_start = ca.SX.sym("q_start", N_ARM_JOINTS)
+    q_goal = ca.SX.sym("q_goal", N_ARM_JOINTS)
+    qs = ca.reshape(x, N_ARM_JOINTS, n_free)
+
+    frames = tuple(dict.fromkeys(s.frame for s in ARM_SPHERES))
+    phi_sum = ca.SX.zeros(cfg.k)
+    constraints = []
+    for i in range(n_free):
+        poses = symbolic_fk(qs[:, i], frames)
+        rot_h, pos_h = poses["panda_hand"]
+        phi_sum += symbolic_features(rot_h, pos_h, env, cfg.features)
+        table_gaps, laptop_gaps = _gaps(poses, env)
+        constraints.append(_soft_min(table_gaps))
+        constraints.append(_soft_min(laptop_gaps))
+    path = ca.horzcat(q_start, qs, q_goal)
+    return TrajectoryTerms(
+        x=x,
+        env=env,
+        q_start=q_start,
+        q_goal=q_goal,
+        features=phi_sum,
+        smoothness=ca.sumsqr(path[:, 1:] - path[:, :-1]),
+        constraints=ca.vertcat(*constraints),
+    )
+
+
+def solver_options(cfg: PlannerConfig) -> dict:
+    """``nlpsol`` options for IPOPT with the config's limits (errors reported in stats)."""
+    return {
+        "print_time": False,
+        "error_on_fail": False,
+        "ipopt": {
+            **_IPOPT_OPTIONS,
+            "max_iter": cfg.max_iter,
+            "max_wall_time": cfg.max_wall_time,
+            "tol": cfg.tol,
+        },
+    }
+
+
 class Planner:
     """ξ*(θ, E) for one :class:`PlannerConfig`; build once per process, solve many times."""
 
@@ -279,40 +352,12 @@ class Planner:
     @staticmethod
     def _nlp(cfg: PlannerConfig) -> tuple[dict, dict]:
         """The NLP (parameters p = (θ, e, q_start, q_goal)) and the solver options."""
-        n_free = cfg.n_waypoints - 2
-        x = ca.SX.sym("x", n_free * N_ARM_JOINTS)
+        terms = trajectory_terms(cfg)
         theta = ca.SX.sym("theta", cfg.k)
-        env = ca.SX.sym("env", N_ENV_PARAMS)
-        q_start = ca.SX.sym("q_start", N_ARM_JOINTS)
-        q_goal = ca.SX.sym("q_goal", N_ARM_JOINTS)
-        qs = ca.reshape(x, N_ARM_JOINTS, n_free)
-
-        frames = tuple(dict.fromkeys(s.frame for s in ARM_SPHERES))
-        phi_sum = ca.SX.zeros(cfg.k)
-        constraints = []
-        for i in range(n_free):
-            poses = symbolic_fk(qs[:, i], frames)
-            rot_h, pos_h = poses["panda_hand"]
-            phi_sum += symbolic_features(rot_h, pos_h, env, cfg.features)
-            table_gaps, laptop_gaps = _gaps(poses, env)
-            constraints.append(_soft_min(table_gaps))
-            constraints.append(_soft_min(laptop_gaps))
-        path = ca.horzcat(q_start, qs, q_goal)
-        smooth = ca.sumsqr(path[:, 1:] - path[:, :-1])
-        objective = -ca.dot(theta, phi_sum) + cfg.smoothness * smooth
-        params = ca.vertcat(theta, env, q_start, q_goal)
-        nlp = {"x": x, "p": params, "f": objective, "g": ca.vertcat(*constraints)}
-        opts = {
-            "print_time": False,
-            "error_on_fail": False,
-            "ipopt": {
-                **_IPOPT_OPTIONS,
-                "max_iter": cfg.max_iter,
-                "max_wall_time": cfg.max_wall_time,
-                "tol": cfg.tol,
-            },
-        }
-        return nlp, opts
+        objective = -ca.dot(theta, terms.features) + cfg.smoothness * terms.smoothness
+        params = ca.vertcat(theta, terms.env, terms.q_start, terms.q_goal)
+        nlp = {"x": terms.x, "p": params, "f": objective, "g": terms.constraints}
+        return nlp, solver_options(cfg)
 
     def _params(self, theta: np.ndarray, env: Environment) -> np.ndarray:
         return np.concatenate([theta, env.params(), env.q_start, env.q_goal])
