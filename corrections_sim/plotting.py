@@ -49,6 +49,7 @@ def save_scene_figure(
 LEARNER_STYLE = {
     "PP": ("#7f7f7f", "Preference Perceptron (PP)"),
     "KF": ("#1f77b4", "Kalman filter (KF)"),
+    "EKF": ("#2ca02c", "Extended Kalman filter (EKF)"),
     "AL": ("#d62728", "Active learning (AL)"),
 }
 

@@ -11,6 +11,7 @@ output folder is overwritten by a run that failed.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import json
 import os
@@ -18,10 +19,16 @@ import shutil
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import Executor
 from pathlib import Path
 
 import numpy as np
+
+#: Seconds to wait for a Dask scheduler before giving up (--scheduler).
+SCHEDULER_TIMEOUT_S = 5
+#: New process pools to try when a worker process dies mid-run (finished runs are kept).
+WORKER_DEATH_RETRIES = 2
 
 
 class UsageError(Exception):
@@ -76,20 +83,42 @@ def run_scene(args: argparse.Namespace) -> list[Path]:
     return [save_scene_figure(out / "scene.png", image, title, legend)]
 
 
-def _progress_printer(label: str) -> Callable[[int, int], None]:
-    start = time.perf_counter()
-    tty = sys.stderr.isatty()
+class Progress:
+    """Progress of a batch: a tqdm bar with rate and ETA on a terminal, otherwise a plain
+    line at most every ``every`` seconds (and at the end), for CI logs."""
 
-    def show(done: int, total: int) -> None:
-        elapsed = time.perf_counter() - start
-        eta = elapsed / done * (total - done)
-        line = f"{label}: {done}/{total} runs, {elapsed:.0f} s elapsed, ETA {eta:.0f} s"
-        if tty:
-            print("\r" + line, end="\n" if done == total else "", file=sys.stderr, flush=True)
-        else:
-            print(line, file=sys.stderr, flush=True)
+    def __init__(self, label: str, *, every: float = 15.0, stream=None) -> None:
+        self.label = label
+        self.every = every
+        self.stream = stream or sys.stderr
+        self._bar = None
+        self._start = time.perf_counter()
+        self._last = -np.inf
 
-    return show
+    def __call__(self, done: int, total: int) -> None:
+        if self.stream.isatty():
+            if self._bar is None:
+                from tqdm import tqdm
+
+                self._bar = tqdm(
+                    total=total, initial=done, desc=self.label, unit="run", file=self.stream
+                )
+            self._bar.update(done - self._bar.n)
+            if done == total:
+                self._bar.close()
+            return
+        now = time.perf_counter()
+        if done < total and now - self._last < self.every:
+            return
+        self._last = now
+        elapsed = now - self._start
+        rate = done / elapsed if elapsed > 0 else 0.0
+        eta = f"{(total - done) / rate:.0f} s" if 0 < rate and done < total else "-"
+        print(
+            f"{self.label}: {done}/{total} runs, {elapsed:.0f} s elapsed, ETA {eta}",
+            file=self.stream,
+            flush=True,
+        )
 
 
 def _write_csv(path: Path, rows: list[dict]) -> None:
@@ -107,34 +136,142 @@ def _versions() -> dict[str, str]:
     return {n: version(n) for n in names}
 
 
-def run_learning_figure(args: argparse.Namespace) -> list[Path]:
-    """Figs. 4/5: PP, KF, AL learning curves, CSV, summary and plots."""
-    from concurrent.futures import ProcessPoolExecutor
+def _code_fingerprint() -> str:
+    """Hash of this package's sources and the solver versions: part of the run cache's key,
+    so runs made by other code never mix with these."""
+    import hashlib
 
-    from corrections_sim.figures import learning
-    from corrections_sim.plotting import mean_sem, plot_learning_curves
+    digest = hashlib.sha256()
+    root = Path(__file__).resolve().parent
+    for path in sorted(root.rglob("*.py")):
+        digest.update(str(path.relative_to(root)).encode())
+        digest.update(path.read_bytes())
+    for name, value in sorted(_versions().items()):
+        digest.update(f"{name}={value}".encode())
+    return digest.hexdigest()[:16]
 
+
+def _floats(option: str, text: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise UsageError(f"{option} {text!r}: expected comma-separated numbers") from None
+    if not all(np.isfinite(values)):
+        raise UsageError(f"{option} {text!r}: every value must be finite")
+    return values
+
+
+def _matrix(option: str, text: str) -> tuple[tuple[float, ...], ...]:
+    """'a,b' is diag(a, b); 'a,b;c,d' is a full matrix, rows separated by ';'."""
+    rows = [_floats(option, row) for row in text.split(";")]
+    if len(rows) == 1:
+        return tuple(
+            tuple(v if i == j else 0.0 for j in range(len(rows[0]))) for i, v in enumerate(rows[0])
+        )
+    if any(len(r) != len(rows) for r in rows):
+        raise UsageError(f"{option} {text!r}: expected a square matrix, rows separated by ';'")
+    return tuple(rows)
+
+
+def _learning_overrides(args: argparse.Namespace) -> dict:
     for name in ("runs", "iterations", "workers"):
         value = getattr(args, name)
         if value is not None and value < 1:
             raise UsageError(f"--{name} {value}: must be a positive integer")
+    overrides = {"runs": args.runs, "iterations": args.iterations, "seed": args.seed}
+    if args.theta_star is not None:
+        overrides["theta_star"] = _floats("--theta-star", args.theta_star)
+    if args.theta0 is not None:
+        overrides["theta0"] = _floats("--theta0", args.theta0)
+    if args.cov0 is not None:
+        overrides["cov0"] = _matrix("--cov0", args.cov0)
+    if args.learners is not None:
+        overrides["learners"] = tuple(n.strip() for n in args.learners.split(","))
+    if args.user is not None:
+        overrides["user"] = args.user
+    return overrides
+
+
+@contextlib.contextmanager
+def _executor(args: argparse.Namespace) -> Iterator[tuple[Executor, str]]:
+    """The executor the runs go to: a Dask cluster's (--scheduler) or a local process pool."""
+    if args.scheduler is None:
+        from concurrent.futures import ProcessPoolExecutor
+
+        workers = args.workers or os.cpu_count() or 1
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            yield pool, f"process pool, {workers} workers"
+        return
+    if args.workers is not None:
+        raise UsageError("--workers: not with --scheduler (the cluster has its own workers)")
+    from distributed import Client
+
+    try:
+        client = Client(args.scheduler, timeout=f"{SCHEDULER_TIMEOUT_S}s", set_as_default=False)
+    except (OSError, TimeoutError, ValueError) as exc:
+        message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise UsageError(f"--scheduler {args.scheduler}: cannot connect ({message})") from None
+    try:
+        n = len(client.scheduler_info(n_workers=-1).get("workers", {}))
+        yield client.get_executor(pure=False), f"dask {args.scheduler}, {n} workers"
+    finally:
+        client.close()
+
+
+def run_learning_figure(args: argparse.Namespace) -> list[Path]:
+    """Figs. 4/5: learning curves, CSV, summary and plots; resumable (see README)."""
+    from corrections_sim.figures import learning
+    from corrections_sim.store import CorruptRun, RunStore, StoreLocked
+
     try:
         settings = learning.load_settings(
-            args.figure,
-            quick=args.quick,
-            overrides={"runs": args.runs, "iterations": args.iterations, "seed": args.seed},
+            args.figure, quick=args.quick, overrides=_learning_overrides(args)
         )
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     out = _writable_dir(Path(args.out))
     final = out / args.figure
-    staging = Path(tempfile.mkdtemp(prefix=f".{args.figure}-", dir=out))
+    resolved = settings.as_dict()
+    store = RunStore(
+        out / ".runs" / args.figure,
+        {"figure": args.figure, "settings": resolved, "code": _code_fingerprint()},
+    )
     try:
-        t0 = time.perf_counter()
-        with ProcessPoolExecutor(max_workers=args.workers or os.cpu_count()) as pool:
-            result = learning.run(settings, pool, _progress_printer(args.figure))
-        wall = time.perf_counter() - t0
-        s = settings.study
+        with store.lock():
+            return _learning_figure(args, settings, store, final)
+    except StoreLocked as exc:
+        raise UsageError(f"--out {out}: {exc}") from None
+    except CorruptRun as exc:
+        raise RuntimeError(str(exc)) from None
+
+
+def _learning_figure(args, settings, store, final: Path) -> list[Path]:
+    from concurrent.futures.process import BrokenProcessPool
+
+    from corrections_sim.figures import learning
+    from corrections_sim.plotting import mean_sem, plot_learning_curves
+
+    s = settings.study
+    t0 = time.perf_counter()
+    progress = Progress(args.figure)
+    for attempt in range(1, WORKER_DEATH_RETRIES + 2):
+        try:
+            with _executor(args) as (executor, where):
+                result = learning.run(settings, executor, progress, cache=store)
+            break
+        except BrokenProcessPool:
+            # A worker process died (killed, out of memory): its run was lost, the finished
+            # ones are in the store; a fresh pool resumes from them.
+            if attempt > WORKER_DEATH_RETRIES:
+                raise RuntimeError(
+                    f"{args.figure}: worker processes died {attempt} times; the finished runs "
+                    f"are kept in {store.folder}, run the command again to resume"
+                ) from None
+            print(f"{args.figure}: a worker died; resuming on a new pool", file=sys.stderr)
+    wall = time.perf_counter() - t0
+
+    staging = Path(tempfile.mkdtemp(prefix=f".{args.figure}-", dir=final.parent))
+    try:
         _write_csv(staging / "curves.csv", result.records)
         _write_csv(staging / "mean_estimate.csv", result.mean_estimate)
         curves = {}
@@ -161,10 +298,12 @@ def run_learning_figure(args: argparse.Namespace) -> list[Path]:
             "preset": "quick" if args.quick else "paper",
             "settings": settings.as_dict(),
             "seed": s.seed,
-            "workers": args.workers or os.cpu_count(),
+            "executor": where,
             "versions": _versions(),
             "wall_time_s": round(wall, 1),
             "planner_solves": result.solves,
+            "resumed_runs": result.resumed,
+            "run_cache": str(store.folder),
             "pp_learning_rate": result.alphas,
             "final": final_stats,
             "regret_failures": int(sum(r["regret_failures"] for r in result.records)),
@@ -177,7 +316,7 @@ def run_learning_figure(args: argparse.Namespace) -> list[Path]:
 
         title = (
             f"{args.figure}: θ* = {fmt(s.theta_star)}, θ̂⁰ = {fmt(s.theta0)}, "
-            f"P⁰ = diag{fmt(np.diag(np.array(s.cov0)))}; mean ± SEM; biased user"
+            f"P⁰ = diag{fmt(np.diag(np.array(s.cov0)))}; mean ± SEM; {s.user} user"
         )
         plot_learning_curves(
             curves, title, [staging / f"{args.figure}.png", staging / f"{args.figure}.pdf"]
@@ -199,10 +338,20 @@ COMMANDS: dict[str, tuple[Callable[[argparse.Namespace], list[Path]], str]] = {
 }
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse, but a bad option is one line on stderr (no usage block), exit status 2."""
+
+    def error(self, message: str):
+        self.exit(2, f"error: {message} (see --help)\n")
+
+
 def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = _Parser(
         prog="python -m corrections_sim.run",
-        description="Reproduce a figure of Losey & O'Malley (CoRL 2018) headless.",
+        description="Reproduce a figure of Losey & O'Malley (CoRL 2018) headless. "
+        "Figures 4 and 5 are resumable: finished runs are kept in OUT/.runs/<figure>/ "
+        "(keyed by a hash of the settings and the code) and an interrupted command, run "
+        "again, only computes what is missing.",
     )
     p.add_argument(
         "figure",
@@ -214,10 +363,35 @@ def parser() -> argparse.ArgumentParser:
         "--env", default="s0-t0-l1", help="environment name for 'scene' (default: s0-t0-l1)"
     )
     p.add_argument("--quick", action="store_true", help="the figure's quick preset (CI size)")
-    p.add_argument("--runs", type=int, help="runs of PP and KF (default: the preset's)")
-    p.add_argument("--iterations", type=int, help="corrections per run (default: the preset's)")
-    p.add_argument("--seed", type=int, help="root seed of every random draw (default: preset's)")
-    p.add_argument("--workers", type=int, help="worker processes (default: the number of cores)")
+    g = p.add_argument_group("learning figures (fig4, fig5); defaults come from the preset")
+    g.add_argument("--runs", type=int, help="runs of PP, KF and EKF (AL runs once)")
+    g.add_argument("--iterations", type=int, help="corrections per run")
+    g.add_argument("--seed", type=int, help="root seed of every random draw")
+    g.add_argument("--theta-star", metavar="W,W", help="the user's true weights θ*, e.g. 1,-1")
+    g.add_argument("--theta0", metavar="W,W", help="the robot's initial estimate θ̂⁰, e.g. 0,0")
+    g.add_argument(
+        "--cov0",
+        metavar="P",
+        help="initial covariance P⁰: 'a,b' for diag(a, b) or 'a,b;c,d' row by row "
+        "(symmetric positive definite)",
+    )
+    g.add_argument(
+        "--learners", metavar="L,L", help="which learners, from PP, KF, EKF, AL (e.g. PP,KF,EKF)"
+    )
+    g.add_argument(
+        "--user",
+        choices=("biased", "noisy"),
+        help="biased: moves the worst waypoint (paper); noisy: Φ(ξ*) + Gaussian noise",
+    )
+    x = p.add_argument_group("where the runs execute")
+    x.add_argument(
+        "--workers", type=int, help="local worker processes (default: the number of cores)"
+    )
+    x.add_argument(
+        "--scheduler",
+        metavar="tcp://HOST:PORT",
+        help="run on an existing Dask cluster instead of local processes",
+    )
     return p
 
 
@@ -229,8 +403,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except RuntimeError as exc:  # a missing GL backend, a planner failure: one line, no trace
-        print(f"error: {exc}", file=sys.stderr)
+        print(f"error: {str(exc).splitlines()[0]}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:
+        print(
+            "interrupted: finished runs are kept; run the command again to resume", file=sys.stderr
+        )
+        return 130
     for path in written:
         print(f"wrote {path}")
     return 0

@@ -1,12 +1,19 @@
 """One learner, one simulated user, N iterations of corrections -> tidy records (paper §6).
 
-Each iteration t: the environment Eᵗ is drawn (PP, KF: uniformly at random; AL: eq. (A1)),
+Each iteration t: the environment Eᵗ is drawn (PP, KF, EKF: uniformly at random; AL: eq. (A1)),
 the robot plans ξᵗ = ξ*(θ̂ᵗ, Eᵗ), the user corrects it, the learner updates its belief. Every
 record describes the belief *after* t corrections (t = 0 is the prior): estimate error and
 regret summed over all environments (see :mod:`corrections_sim.metrics`).
 
 Planner solves are memoized per run (:class:`PlanBook`): the robot's own trajectory, the
-UKF's mean sigma point and the regret in Eᵗ are one solve, not three.
+UKF's mean sigma point and the regret in Eᵗ are one solve, not three. Plans every run shares
+(those of the common prior θ̂⁰) can be solved once and handed to each run's book.
+
+Learners: "PP" (eq. B5), "KF" (the UKF the paper simulates), "EKF" (eqs. K4–K7 as written,
+with H = ∂Φ(ξ*(θ, E))/∂θ by central differences of the planner, step ``ekf_step``; the
+solution's parametric sensitivity from CasADi was not used because the kept start of a
+multi-start solve and MuJoCo's verification sit outside the NLP), and "AL" (the UKF with
+Eᵗ chosen by eq. A1).
 Everything random flows from ``np.random.Generator`` objects made from the study's seed.
 """
 
@@ -18,11 +25,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from corrections_sim.environments import Environment
-from corrections_sim.human import BiasedUser
+from corrections_sim.human import BiasedUser, NoisyOptimalUser
 from corrections_sim.learners import (
     Belief,
     KalmanNoise,
     SigmaPoints,
+    ekf_update,
+    finite_difference_jacobian,
     perceptron_update,
     select_environment,
     ukf_predicted_covariance,
@@ -31,7 +40,10 @@ from corrections_sim.learners import (
 from corrections_sim.metrics import estimate_error, regret_terms
 from corrections_sim.planner import Plan, Planner, PlanningError, smoothness_cost
 
-LEARNERS = ("PP", "KF", "AL")
+LEARNERS = ("PP", "KF", "EKF", "AL")
+#: The paper's three; the EKF is opt-in (``learners`` in the settings, ``--learners``).
+DEFAULT_LEARNERS = ("PP", "KF", "AL")
+USERS = ("biased", "noisy")
 
 
 @dataclass(frozen=True)
@@ -48,8 +60,12 @@ class StudySettings:
         process_noise: M = process_noise · I.
         observation_noise: N = observation_noise · I.
         sigma_alpha, sigma_beta, sigma_kappa: UKF sigma-point parameters.
+        user: "biased" (the paper's one-waypoint user, :class:`~corrections_sim.human.BiasedUser`)
+            or "noisy" (Φ(ξ*) plus Gaussian noise of covariance N, the filter's own model).
         user_step: fraction of the way the biased user moves its worst waypoint.
+        ekf_step: central-difference step δ of the EKF's Jacobian H (in θ units).
         fixed_alpha: if set, PP's learning rate; otherwise αᵗ = mean diag(Kᵗ) over KF runs.
+        learners: which learners the study runs, names from ``LEARNERS``.
     """
 
     theta_star: tuple[float, ...]
@@ -63,9 +79,11 @@ class StudySettings:
     sigma_alpha: float = 1.0
     sigma_beta: float = 2.0
     sigma_kappa: float = 0.0
+    user: str = "biased"
     user_step: float = 1.0
+    ekf_step: float = 0.05
     fixed_alpha: float | None = None
-    learners: tuple[str, ...] = field(default=LEARNERS)
+    learners: tuple[str, ...] = field(default=DEFAULT_LEARNERS)
 
     def __post_init__(self) -> None:
         k = len(self.theta_star)
@@ -88,8 +106,14 @@ class StudySettings:
         if self.fixed_alpha is not None and not self.fixed_alpha > 0:
             raise ValueError(f"fixed_alpha = {self.fixed_alpha} must be > 0")
         unknown = [n for n in self.learners if n not in LEARNERS]
-        if unknown or not self.learners:
-            raise ValueError(f"learners: {list(self.learners)} must be names from {LEARNERS}")
+        if unknown or not self.learners or len(set(self.learners)) != len(self.learners):
+            raise ValueError(
+                f"learners: {list(self.learners)} must be distinct names from {LEARNERS}"
+            )
+        if self.user not in USERS:
+            raise ValueError(f"user = {self.user!r} must be one of {USERS}")
+        if not (np.isfinite(self.ekf_step) and self.ekf_step > 0):
+            raise ValueError(f"ekf_step = {self.ekf_step} must be finite and > 0")
         # The user and the sigma points validate their own parameters; build them here so
         # a bad value is refused where it enters, not in the middle of a run.
         BiasedUser(step=self.user_step)
@@ -118,21 +142,41 @@ class StudySettings:
     def sigma(self) -> SigmaPoints:
         return SigmaPoints(alpha=self.sigma_alpha, beta=self.sigma_beta, kappa=self.sigma_kappa)
 
+    def make_user(self) -> BiasedUser | NoisyOptimalUser:
+        """The simulated user these settings name; the noisy one's std is √N per feature."""
+        if self.user == "noisy":
+            return NoisyOptimalUser(noise=float(np.sqrt(self.observation_noise)))
+        return BiasedUser(step=self.user_step)
+
+
+PlanEntries = dict[tuple[bytes, bytes], "Plan | PlanningError"]
+"""Memoized solves: (θ bytes, environment key) -> the plan or the failure."""
+
 
 class PlanBook:
     """Memoized ξ*(θ, E) for one run: identical problems are solved once.
 
     Failures are memoized too (as the exception), so a failing problem costs one solve.
+    ``known`` seeds the book with plans solved elsewhere (e.g. the shared prior's, see
+    :meth:`entries`); they count as neither solves nor failures here.
     """
 
-    def __init__(self, planner: Planner) -> None:
+    def __init__(self, planner: Planner, known: PlanEntries | None = None) -> None:
         self.planner = planner
-        self._plans: dict[tuple[bytes, bytes], Plan | PlanningError] = {}
+        self._plans: dict[tuple[bytes, bytes], Plan | PlanningError] = dict(known or {})
         self.solves = 0
         self.failures = 0
 
+    @staticmethod
+    def _key(theta: np.ndarray, env: Environment) -> tuple[bytes, bytes]:
+        return (np.asarray(theta, float).tobytes(), env.key())
+
+    def entries(self) -> PlanEntries:
+        """Everything solved so far (plans and failures), to seed other books with."""
+        return dict(self._plans)
+
     def plan(self, theta: np.ndarray, env: Environment) -> Plan:
-        key = (np.asarray(theta, float).tobytes(), env.key())
+        key = self._key(theta, env)
         hit = self._plans.get(key)
         if hit is None:
             self.solves += 1
@@ -216,18 +260,21 @@ def run_learner(
     user,
     rng: np.random.Generator,
     alphas: np.ndarray | None = None,
+    known: PlanEntries | None = None,
 ) -> RunResult:
-    """One run of ``learner`` ("PP", "KF" or "AL") for ``settings.iterations`` corrections.
+    """One run of ``learner`` (one of ``LEARNERS``) for ``settings.iterations`` corrections.
 
     Args:
         alphas: PP's learning rate per iteration (iterations,); required for "PP".
-        rng: this run's generator: draws the environments (PP, KF) and the user's noise.
+        rng: this run's generator: draws the environments (PP, KF, EKF) and the user's noise.
+        known: plans solved before the run (see :class:`PlanBook`); the results are the same
+            with or without them, only the solve count differs.
     """
     if learner not in LEARNERS:
         raise ValueError(f"learner {learner!r} must be one of {LEARNERS}")
     if learner == "PP" and alphas is None:
         raise ValueError("alphas: PP needs a learning rate per iteration")
-    book = PlanBook(planner)
+    book = PlanBook(planner, known)
     names = planner.config.features
     noise, sigma = settings.noise(), settings.sigma()
     belief = settings.prior()
@@ -277,6 +324,10 @@ def run_learner(
             )
             if learner == "PP":
                 belief = perceptron_update(belief, mine.features, phi_h, float(alphas[t]))
+            elif learner == "EKF":
+                jac = finite_difference_jacobian(book.observe(env), belief.theta, settings.ekf_step)
+                step = ekf_update(belief, jac, mine.features, phi_h, noise)
+                belief, gains[t] = step.belief, step.gain
             else:
                 step = ukf_update(
                     belief, book.observe(env), phi_h, noise, sigma, reference=mine.features
