@@ -66,3 +66,37 @@ def test_every_learner_improves_and_no_solve_fails(quick_run):
         for key in ("estimate_error", "regret"):
             curve = _mean_curves(result.records, learner, key)
             assert curve[-1] < curve[0], f"{figure} {learner} {key} did not fall: {curve}"
+
+
+def _auc(records: list[dict], learner: str, key: str) -> float:
+    """Area under the mean curve (sum over iterations of the mean over runs)."""
+    return float(np.sum(_mean_curves(records, learner, key)))
+
+
+def test_fig5_paper_claims_hold_active_learning_best_and_kalman_below_perceptron(quick_run):
+    """Paper §6, fig. 5: KF learns faster than PP, and AL fastest, in error and regret."""
+    figure, _, result, _ = quick_run
+    if figure != "fig5":
+        pytest.skip("the paper's ordering is asserted on fig. 5; fig. 4's is not reproduced")
+    for key in ("estimate_error", "regret"):
+        pp, kf, al = (_auc(result.records, name, key) for name in ("PP", "KF", "AL"))
+        assert al < kf < pp, f"{key}: AUC AL {al:.3f}, KF {kf:.3f}, PP {pp:.3f}"
+
+
+def test_active_learning_shrinks_the_covariance_fastest(quick_run):
+    """What AL optimizes, eq. (A1): its final P is smaller than the random-environment KF's.
+
+    In fig. 4 this is also why the paper's ordering does not reproduce here (see README):
+    AL's P collapses so fast that its later gains vanish, and KF and PP end within a few
+    percent of each other, so no ordering of fig. 4 is asserted.
+    """
+    _, settings, result, _ = quick_run
+    last = settings.study.iterations
+
+    def trace(learner: str) -> float:
+        rows = [r for r in result.records if r["learner"] == learner and r["iteration"] == last]
+        return float(
+            np.mean([sum(r[f"cov_{i}{i}"] for i in range(settings.study.k)) for r in rows])
+        )
+
+    assert trace("AL") < trace("KF")

@@ -1,0 +1,181 @@
+"""The command line of figs. 4/5: bad input, determinism across executors, resuming.
+
+Every run here is a tiny variant of the quick preset (2 runs, 2 corrections) so the whole
+module costs well under a minute on two cores.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import pytest
+
+from corrections_sim import run as cli
+from corrections_sim.figures import learning
+from corrections_sim.store import RunStore
+
+TINY = ["fig4", "--quick", "--runs", "2", "--iterations", "2"]
+SENTINEL = "results made earlier, which a failed command must not touch\n"
+
+
+def _main(argv: list[str]) -> int:
+    try:
+        return cli.main(argv)
+    except SystemExit as exc:  # argparse's own errors
+        return int(exc.code)
+
+
+@pytest.fixture
+def earlier(tmp_path: Path) -> Path:
+    """An output folder that already holds a fig. 4."""
+    folder = tmp_path / "fig4"
+    folder.mkdir()
+    (folder / "curves.csv").write_text(SENTINEL)
+    return tmp_path
+
+
+@pytest.mark.parametrize(
+    ("argv", "names"),
+    [
+        (["fig9"], "fig9"),
+        (["fig4", "--runs", "0"], "--runs"),
+        (["fig4", "--iterations", "-3"], "--iterations"),
+        (["fig4", "--workers", "0"], "--workers"),
+        (["fig4", "--theta-star", "1,-1,0.5"], "theta_star"),
+        (["fig4", "--theta0", "0,0,0"], "theta0"),
+        (["fig4", "--theta0", "zero,0"], "--theta0"),
+        (["fig4", "--cov0", "1,2;2,1"], "cov0"),
+        (["fig4", "--cov0", "1,-1"], "cov0"),
+        (["fig4", "--cov0", "1,0;0"], "--cov0"),
+        (["fig4", "--learners", "PP,XX"], "learners"),
+        (["fig4", "--user", "lazy"], "--user"),
+        (["fig4", "--scheduler", "tcp://127.0.0.1:1", "--workers", "2"], "--workers"),
+    ],
+)
+def test_bad_input_is_one_line_exit_2_and_leaves_results_alone(earlier, capsys, argv, names):
+    status = _main([*argv, "--out", str(earlier)])
+    err = capsys.readouterr().err
+    assert status == 2
+    assert err.count("\n") == 1 and err.startswith("error: ") and names in err, err
+    assert "Traceback" not in err
+    assert (earlier / "fig4" / "curves.csv").read_text() == SENTINEL
+
+
+def test_an_unwritable_output_folder_is_named(tmp_path, capsys):
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a folder")
+    assert _main([*TINY, "--out", str(blocker / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--out" in err and "cannot create" in err
+
+
+def test_an_unreachable_scheduler_fails_within_seconds(tmp_path, capsys):
+    start = time.perf_counter()
+    status = _main([*TINY, "--out", str(tmp_path), "--scheduler", "tcp://127.0.0.1:9"])
+    assert status == 2
+    assert time.perf_counter() - start < cli.SCHEDULER_TIMEOUT_S + 5
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--scheduler tcp://127.0.0.1:9: cannot connect" in err
+
+
+def test_a_second_command_on_the_same_folder_is_refused(earlier, capsys):
+    settings = learning.load_settings("fig4", quick=True)
+    store = RunStore(earlier / ".runs" / "fig4", {"other": settings.as_dict()})
+    with store.lock():
+        status = _main([*TINY, "--out", str(earlier)])
+    err = capsys.readouterr().err
+    assert status == 2 and "another run" in err and err.count("\n") == 1
+    assert (earlier / "fig4" / "curves.csv").read_text() == SENTINEL
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory) -> bytes:
+    """curves.csv of the tiny run, one worker, nothing cached."""
+    out = tmp_path_factory.mktemp("uninterrupted")
+    assert cli.main([*TINY, "--workers", "1", "--out", str(out)]) == 0
+    return (out / "fig4" / "curves.csv").read_bytes()
+
+
+def test_same_bytes_with_two_workers_and_on_a_dask_cluster(uninterrupted, tmp_path):
+    from distributed import LocalCluster
+
+    assert cli.main([*TINY, "--workers", "2", "--out", str(tmp_path / "two")]) == 0
+    assert (tmp_path / "two" / "fig4" / "curves.csv").read_bytes() == uninterrupted
+    with LocalCluster(
+        n_workers=2,
+        threads_per_worker=1,
+        processes=True,
+        host="127.0.0.1",
+        dashboard_address=None,
+    ) as cluster:
+        argv = [*TINY, "--scheduler", cluster.scheduler_address, "--out", str(tmp_path / "dask")]
+        assert cli.main(argv) == 0
+    assert (tmp_path / "dask" / "fig4" / "curves.csv").read_bytes() == uninterrupted
+    summary = json.loads((tmp_path / "dask" / "fig4" / "summary.json").read_text())
+    assert summary["executor"].startswith("dask tcp://127.0.0.1")
+
+
+def test_sigkill_part_way_then_resume_gives_the_same_bytes(uninterrupted, tmp_path):
+    out = tmp_path / "killed"
+    command = [sys.executable, "-m", "corrections_sim.run", *TINY, "--workers", "1"]
+    proc = subprocess.Popen(
+        [*command, "--out", str(out)],
+        start_new_session=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    runs = out / ".runs" / "fig4"
+    deadline = time.monotonic() + 120
+    try:
+        while len(list(runs.glob("*/*-*.json"))) < 2:
+            assert proc.poll() is None, "the command ended before it could be killed"
+            assert time.monotonic() < deadline, "no run finished within 120 s"
+            time.sleep(0.05)
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+    finished = {p.name for p in runs.glob("*/*-*.json")}
+    assert 2 <= len(finished) < 5  # 2 KF + 1 AL + 2 PP runs in all
+    assert not (out / "fig4").exists()  # no half-written figure
+
+    assert cli.main([*TINY, "--workers", "1", "--out", str(out)]) == 0
+    assert (out / "fig4" / "curves.csv").read_bytes() == uninterrupted
+    summary = json.loads((out / "fig4" / "summary.json").read_text())
+    assert summary["resumed_runs"] == len(finished)
+
+
+def _die(*args, **kwargs):
+    os._exit(1)
+
+
+def test_a_worker_that_dies_is_replaced_and_its_run_redone(uninterrupted, tmp_path, monkeypatch):
+    pools = []
+
+    class KillsOnce(ProcessPoolExecutor):
+        def submit(self, fn, *args, **kwargs):
+            if fn is learning.run_one and len(pools) == 1 and not self.killed:
+                self.killed = True
+                fn = _die
+            return super().submit(fn, *args, **kwargs)
+
+    @contextlib.contextmanager
+    def executor(args):
+        pool = KillsOnce(max_workers=1)
+        pool.killed = False
+        pools.append(pool)
+        with pool:
+            yield pool, "test pool"
+
+    monkeypatch.setattr(cli, "_executor", executor)
+    assert cli.main([*TINY, "--out", str(tmp_path)]) == 0
+    assert len(pools) == 2
+    assert (tmp_path / "fig4" / "curves.csv").read_bytes() == uninterrupted
