@@ -64,6 +64,9 @@ class StudySettings:
             or "noisy" (Φ(ξ*) plus Gaussian noise of covariance N, the filter's own model).
         user_step: fraction of the way the biased user moves its worst waypoint.
         ekf_step: central-difference step δ of the EKF's Jacobian H (in θ units).
+        warm_start: start each new solve of a run from its nearest solved θ in the same
+            environment (see :class:`PlanBook`); faster, and history-dependent at the
+            level of the solver's tolerance.
         fixed_alpha: if set, PP's learning rate; otherwise αᵗ = mean diag(Kᵗ) over KF runs.
         learners: which learners the study runs, names from ``LEARNERS``.
     """
@@ -82,6 +85,7 @@ class StudySettings:
     user: str = "biased"
     user_step: float = 1.0
     ekf_step: float = 0.05
+    warm_start: bool = False
     fixed_alpha: float | None = None
     learners: tuple[str, ...] = field(default=DEFAULT_LEARNERS)
 
@@ -159,11 +163,25 @@ class PlanBook:
     Failures are memoized too (as the exception), so a failing problem costs one solve.
     ``known`` seeds the book with plans solved elsewhere (e.g. the shared prior's, see
     :meth:`entries`); they count as neither solves nor failures here.
+
+    With ``warm_start``, a new problem starts from the book's plan in the same environment
+    whose θ is nearest (Euclidean; the first solved wins a tie), and falls back to the
+    planner's cold starts if that fails. Along a run θ̂ moves in small steps, so this saves
+    IPOPT iterations; the answer can then depend on what was solved before (the same local
+    optimum up to the solver's tolerance when the landscape has one basin nearby, see README).
     """
 
-    def __init__(self, planner: Planner, known: PlanEntries | None = None) -> None:
+    def __init__(
+        self, planner: Planner, known: PlanEntries | None = None, *, warm_start: bool = False
+    ) -> None:
         self.planner = planner
+        self.warm_start = warm_start
         self._plans: dict[tuple[bytes, bytes], Plan | PlanningError] = dict(known or {})
+        # Per environment, the converged plans in the order they were solved: (θ (k,), plan).
+        self._by_env: dict[bytes, list[tuple[np.ndarray, Plan]]] = {}
+        for (theta, env_key), plan in self._plans.items():
+            if isinstance(plan, Plan):
+                self._by_env.setdefault(env_key, []).append((np.frombuffer(theta), plan))
         self.solves = 0
         self.failures = 0
 
@@ -175,13 +193,26 @@ class PlanBook:
         """Everything solved so far (plans and failures), to seed other books with."""
         return dict(self._plans)
 
+    def _solve(self, theta: np.ndarray, env: Environment) -> Plan:
+        near = self._by_env.get(env.key()) if self.warm_start else None
+        if near:
+            distances = [float(np.sum((t - theta) ** 2)) for t, _ in near]
+            start = near[int(np.argmin(distances))][1].trajectory
+            try:
+                return self.planner.solve(theta, env, inits=[start])
+            except PlanningError:
+                self.solves += 1  # the warm start failed; the cold starts get their chance
+        return self.planner.solve(theta, env)
+
     def plan(self, theta: np.ndarray, env: Environment) -> Plan:
+        theta = np.asarray(theta, float)
         key = self._key(theta, env)
         hit = self._plans.get(key)
         if hit is None:
             self.solves += 1
             try:
-                hit = self.planner.solve(theta, env)
+                hit = self._solve(theta, env)
+                self._by_env.setdefault(key[1], []).append((theta.copy(), hit))
             except PlanningError as exc:
                 self.failures += 1
                 hit = exc
@@ -274,7 +305,7 @@ def run_learner(
         raise ValueError(f"learner {learner!r} must be one of {LEARNERS}")
     if learner == "PP" and alphas is None:
         raise ValueError("alphas: PP needs a learning rate per iteration")
-    book = PlanBook(planner, known)
+    book = PlanBook(planner, known, warm_start=settings.warm_start)
     names = planner.config.features
     noise, sigma = settings.noise(), settings.sigma()
     belief = settings.prior()

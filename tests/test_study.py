@@ -173,6 +173,18 @@ def test_plan_book_observe_is_the_memoized_batch_of_features(planner, envs):
     assert book.solves == 2
 
 
+def test_plan_book_warm_start_reaches_the_cold_optimum_in_fewer_iterations(planner, envs):
+    """Warm start from the nearest solved θ: same optimum (tolerance), fewer iterations."""
+    cold, warm = PlanBook(planner), PlanBook(planner, warm_start=True)
+    for env in envs[:4]:
+        warm.plan(np.array([0.6, -0.6]), env)  # the neighbour to start from
+        near = np.array([0.65, -0.62])
+        a, b = cold.plan(near, env), warm.plan(near, env)
+        assert abs(a.reward - b.reward) <= 1e-5 * abs(a.reward)
+        assert b.iterations <= a.iterations
+    assert warm.solves == 8 and warm.failures == 0
+
+
 def test_plan_book_memoizes_failures(failing_planner, envs):
     book = PlanBook(failing_planner)
     with pytest.raises(PlanningError, match="no start converged") as first:
