@@ -1,4 +1,5 @@
-"""Benchmarks of the trajectory optimizer: ``python -m corrections_sim.bench planner``.
+"""Benchmarks: ``python -m corrections_sim.bench planner`` (the trajectory optimizer, here) and
+``python -m corrections_sim.bench fig4`` (a whole figure, :mod:`corrections_sim.bench_batch`).
 
 Solves a fixed, seeded set of (θ, E) problems in the ways the rest of the program does
 (cold, default multi-start, warm from a nearby θ), compares the default solve with the best of
@@ -318,9 +319,23 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
         prog="python -m corrections_sim.bench",
         description="Benchmarks of corrections_sim. 'planner': solve times, iterations, "
-        "failures and optimality of the trajectory optimizer over seeded (theta, E) problems.",
+        "failures and optimality of the trajectory optimizer over seeded (theta, E) problems. "
+        "'fig4': wall time of paper-scale fig. 4, solves per second, 1 -> 2 worker speed-up, "
+        "Dask against the process pool, peak memory per worker.",
     )
-    parser.add_argument("what", choices=["planner"], help="which benchmark to run")
+    parser.add_argument("what", choices=["planner", "fig4"], help="which benchmark to run")
+    parser.add_argument(
+        "--slice-runs",
+        type=int,
+        default=8,
+        help="fig4: runs of PP and KF in the slice for the speed-up and Dask (default 8)",
+    )
+    parser.add_argument(
+        "--iterations", type=int, help="fig4: corrections per run (default: the paper's 12)"
+    )
+    parser.add_argument(
+        "--skip-full", action="store_true", help="fig4: only the slice, not the paper-scale run"
+    )
     parser.add_argument(
         "--problems", type=int, default=60, help="number of (theta, E) problems (default 60)"
     )
@@ -338,6 +353,19 @@ def main(argv: Sequence[str] | None = None) -> None:
         help="problems also solved with SciPy SLSQP, the first N of the set (default 10)",
     )
     args = parser.parse_args(argv)
+    if args.what == "fig4":
+        from corrections_sim.bench_batch import run_bench
+
+        if args.slice_runs < 1 or (args.iterations is not None and args.iterations < 1):
+            parser.error("--slice-runs and --iterations must be >= 1")
+        t0 = time.perf_counter()
+        lines = run_bench(
+            full=not args.skip_full, slice_runs=args.slice_runs, iterations=args.iterations
+        )
+        print()
+        print("\n".join(lines))
+        print(f"\ntotal {time.perf_counter() - t0:.0f} s")
+        return
     if args.problems < 1 or args.restarts < 1 or args.slsqp < 0:
         parser.error("--problems and --restarts must be >= 1, --slsqp >= 0")
 

@@ -207,7 +207,7 @@ def _executor(args: argparse.Namespace) -> Iterator[tuple[Executor, str]]:
 
         workers = args.workers or os.cpu_count() or 1
         with ProcessPoolExecutor(max_workers=workers) as pool:
-            yield pool, f"process pool, {workers} workers"
+            yield pool, f"process pool, {workers} worker{'s' if workers != 1 else ''}"
         return
     if args.workers is not None:
         raise UsageError("--workers: not with --scheduler (the cluster has its own workers)")

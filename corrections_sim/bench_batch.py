@@ -1,0 +1,164 @@
+"""Benchmark of a whole figure: ``python -m corrections_sim.bench fig4``.
+
+Runs the real command (``corrections_sim.run``, fresh output folder, nothing cached) and
+prints, with the issue's targets beside them:
+
+* the wall time of paper-scale fig. 4 (PP and KF 100 runs each, AL once, 12 corrections,
+  regret over all 48 environments at every iteration) on the default process pool;
+* planner solves per second over that run;
+* the speed-up from 1 to 2 workers and Dask ``LocalCluster`` against the process pool, both
+  on a slice of the same figure (``--slice-runs`` runs of PP and KF, same iterations);
+* the peak resident memory of a worker process.
+
+It never asserts; a missed target is printed as MISS.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import resource
+import tempfile
+import time
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from corrections_sim import run as cli
+
+TARGET_WALL_S = 300.0
+TARGET_SPEEDUP = 1.8
+TARGET_DASK_RATIO = 1.15
+TARGET_WORKER_MIB = 1024.0
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """One command: wall time of the runs (s, from summary.json), the command's own wall
+    time (s, planner loading and plotting included), planner solves, and how it executed."""
+
+    label: str
+    runs_wall: float
+    command_wall: float
+    solves: int
+    executor: str
+
+    @property
+    def solves_per_second(self) -> float:
+        return self.solves / self.runs_wall
+
+
+def _children_peak_mib() -> float:
+    """Largest resident set of any finished child process so far (Linux: ru_maxrss in KiB)."""
+    return resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0
+
+
+def measure(label: str, argv: Sequence[str]) -> Measurement:
+    """Run ``python -m corrections_sim.run <argv>`` in a fresh folder; read its summary."""
+    with tempfile.TemporaryDirectory(prefix="bench-") as out:
+        t0 = time.perf_counter()
+        status = cli.main([*argv, "--out", out])
+        wall = time.perf_counter() - t0
+        if status != 0:
+            raise RuntimeError(f"{label}: the command failed with exit status {status}")
+        figure = argv[0]
+        summary = json.loads((Path(out) / figure / "summary.json").read_text())
+    return Measurement(
+        label=label,
+        runs_wall=float(summary["wall_time_s"]),
+        command_wall=wall,
+        solves=int(summary["planner_solves"]),
+        executor=summary["executor"],
+    )
+
+
+@contextlib.contextmanager
+def local_cluster(n_workers: int) -> Iterator[tuple[str, object]]:
+    """A Dask LocalCluster on loopback (one thread per worker process) and a client to it."""
+    from distributed import Client, LocalCluster
+
+    with (
+        LocalCluster(
+            n_workers=n_workers,
+            threads_per_worker=1,
+            processes=True,
+            host="127.0.0.1",
+            dashboard_address=None,
+        ) as cluster,
+        Client(cluster) as client,
+    ):
+        yield cluster.scheduler_address, client
+
+
+def _worker_peak_mib() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def _verdict(ok: bool) -> str:
+    return "PASS" if ok else "MISS"
+
+
+def run_bench(*, full: bool, slice_runs: int, iterations: int | None) -> list[str]:
+    """Measure and return the report's lines (printed as they come, too)."""
+
+    def say(line: str) -> None:
+        print(line, flush=True)
+
+    lines: list[str] = []
+    rows: list[tuple[str, str, str]] = []
+    extra = ["--iterations", str(iterations)] if iterations else []
+    if full:
+        say("paper-scale fig. 4 on the default process pool (this takes minutes) ...")
+        m = measure("paper fig4", ["fig4", *extra])
+        peak_pool = _children_peak_mib()
+        lines.append(
+            f"paper-scale fig4: {m.runs_wall:.1f} s for the runs ({m.command_wall:.1f} s "
+            f"the whole command), {m.solves} planner solves, {m.solves_per_second:.0f} "
+            f"solves/s, {m.executor}"
+        )
+        rows.append(
+            (
+                f"paper fig4 <= {TARGET_WALL_S:.0f} s",
+                f"{m.runs_wall:.0f} s",
+                _verdict(m.runs_wall <= TARGET_WALL_S),
+            )
+        )
+        say(lines[-1])
+    slice_argv = ["fig4", "--runs", str(slice_runs), "--learners", "PP,KF", *extra]
+    say(f"slice: {slice_runs} runs each of PP and KF, on 1 worker, 2 workers, Dask ...")
+    one = measure("1 worker", [*slice_argv, "--workers", "1"])
+    two = measure("2 workers", [*slice_argv, "--workers", "2"])
+    peak_pool = _children_peak_mib()
+    with local_cluster(2) as (address, client):
+        dask = measure("dask", [*slice_argv, "--scheduler", address])
+        peak_dask = max(client.run(_worker_peak_mib).values())
+    speedup = one.runs_wall / two.runs_wall
+    ratio = dask.runs_wall / two.runs_wall
+    for m in (one, two, dask):
+        lines.append(
+            f"slice, {m.executor}: {m.runs_wall:.1f} s, {m.solves} solves, "
+            f"{m.solves_per_second:.0f} solves/s"
+        )
+        say(lines[-1])
+    lines.append(f"peak RSS per worker: process pool {peak_pool:.0f} MiB, Dask {peak_dask:.0f} MiB")
+    rows += [
+        (
+            f"speed-up 1 -> 2 workers >= {TARGET_SPEEDUP}x",
+            f"{speedup:.2f}x",
+            _verdict(speedup >= TARGET_SPEEDUP),
+        ),
+        (
+            f"Dask within {100 * (TARGET_DASK_RATIO - 1):.0f}% of the pool",
+            f"{100 * (ratio - 1):+.1f}%",
+            _verdict(ratio <= TARGET_DASK_RATIO),
+        ),
+        (
+            f"<= {TARGET_WORKER_MIB:.0f} MiB per worker",
+            f"{max(peak_pool, peak_dask):.0f} MiB",
+            _verdict(max(peak_pool, peak_dask) <= TARGET_WORKER_MIB),
+        ),
+    ]
+    lines.append("")
+    lines.append(f"{'target':<40}{'measured':>12}  verdict")
+    lines += [f"{name:<40}{value:>12}  {verdict}" for name, value, verdict in rows]
+    return lines
