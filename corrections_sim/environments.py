@@ -149,3 +149,65 @@ def paper_environments() -> tuple[Environment, ...]:
                     )
                 )
     return tuple(envs)
+
+
+# --- grids of environments (figs. 1-2) ---------------------------------------------------------
+
+#: Bounding box ((x), (y), (z) ranges, m) of the cup positions the arm may reach with the hand
+#: down. Every reachable position lies inside; a position inside may still be unreachable
+#: (:func:`configuration_at` raises), which grids mark per point.
+CUP_WORKSPACE = ((-0.85, 0.85), (-0.85, 0.85), (0.1, 0.6))
+
+# The laptop's allowed range is shrunk by this much (m), so a point on its edge cannot put
+# the keyboard off the table by a rounding error in the validation of :class:`Environment`.
+_EDGE_MARGIN = 1e-6
+
+
+def _laptop_extent(yaw: float) -> np.ndarray:
+    """Half extents (x, y) of the keyboard's footprint at ``yaw``, m."""
+    return np.max(np.abs(g.laptop_base_corners_xy(0.0, 0.0, yaw)), axis=0)
+
+
+def laptop_range(yaw: float) -> tuple[tuple[float, float], tuple[float, float]]:
+    """Where the laptop's centre (x, y) can be at ``yaw``, on a table anywhere in its range.
+
+    The range is exact up to 1 µm (it is shrunk by that much against rounding).
+
+    Returns:
+        ((x_min, x_max), (y_min, y_max)), m.
+    """
+    slack = np.array(g.TABLE_HALF_SIZE) - _laptop_extent(yaw) - _EDGE_MARGIN
+    (x0, x1), (y0, y1) = g.TABLE_X_RANGE, g.TABLE_Y_RANGE
+    return (
+        (float(x0 - slack[0]), float(x1 + slack[0])),
+        (float(y0 - slack[1]), float(y1 + slack[1])),
+    )
+
+
+def table_holding(laptop, table) -> tuple[float, float]:
+    """The table centre nearest to ``table`` whose top holds the laptop's keyboard.
+
+    The table moves only as far as it must (per axis) and stays within its allowed range,
+    so the result is ``table`` itself whenever the laptop already fits.
+
+    Args:
+        laptop: (x, y, yaw) of the keyboard centre.
+        table: preferred table centre (x, y).
+
+    Raises:
+        ValueError: if no allowed table position holds the laptop (see :func:`laptop_range`).
+    """
+    lx, ly, yaw = (float(v) for v in laptop)
+    slack = np.array(g.TABLE_HALF_SIZE) - _laptop_extent(yaw) - _EDGE_MARGIN
+    out = []
+    for axis, value, centre, s, (lo, hi) in (
+        ("x", lx, table[0], slack[0], g.TABLE_X_RANGE),
+        ("y", ly, table[1], slack[1], g.TABLE_Y_RANGE),
+    ):
+        if not lo - s <= value <= hi + s:
+            raise ValueError(
+                f"laptop.{axis} = {value:.6g} m: no table within [{lo}, {hi}] m holds it "
+                f"(allowed [{lo - s:.6g}, {hi + s:.6g}] m)"
+            )
+        out.append(float(np.clip(np.clip(centre, value - s, value + s), lo, hi)))
+    return out[0], out[1]

@@ -24,6 +24,7 @@ import numpy as np  # noqa: E402
 
 from corrections_sim import scene  # noqa: E402
 from corrections_sim.environments import Environment  # noqa: E402
+from corrections_sim.robot import cup_pose  # noqa: E402
 
 _FIX_HINT = (
     "install libegl1 libegl-mesa0 libopengl0 libgl1-mesa-dri (MUJOCO_GL=egl) "
@@ -51,9 +52,24 @@ class Camera:
 #: Looks from the table's far corner back at the robot: pedestal, arm, table, laptop, and
 #: cup positions anywhere over the table are in view.
 DEFAULT_CAMERA = Camera()
+#: Looks from beyond the table's far left corner and lower: heights of cup paths over the
+#: table and the laptop show (the figures' renders).
+SIDE_CAMERA = Camera(lookat=(0.5, 0.0, 0.15), distance=1.6, azimuth=200.0, elevation=-35.0)
+#: Looks down from beyond the table (world y to the right of the image): where the cup
+#: passes over the table and the laptop.
+TOP_CAMERA = Camera(lookat=(0.45, 0.0, 0.1), distance=1.55, azimuth=180.0, elevation=-62.0)
 
-#: A path of the cup: world points (N, 3) and an rgba colour (4,).
-Path3 = tuple[np.ndarray, Sequence[float]]
+#: A path of the cup: world points (N, 3) and an rgba colour (4,), optionally followed by
+#: the radius (m) of the spheres at its points (default: ``render_scene``'s waypoint_radius).
+Path3 = tuple[np.ndarray, Sequence[float]] | tuple[np.ndarray, Sequence[float], float]
+
+
+def cup_path(trajectory: np.ndarray, substeps: int = 6) -> np.ndarray:
+    """Cup centre (N, 3) along the joint-space interpolation of a trajectory (T, 7).
+
+    N = (T − 1) · substeps + 1: the path the cup really follows between waypoints.
+    """
+    return np.array([cup_pose(q)[1] for q in scene.interpolate(trajectory, substeps)])
 
 
 @functools.cache
@@ -124,8 +140,11 @@ def _draw_paths(
     scn: mujoco.MjvScene, paths: Sequence[Path3], radius: float, waypoint_radius: float
 ) -> None:
     """Append each path as capsules between consecutive points and spheres at the points."""
-    for i, (points, rgba) in enumerate(paths):
+    for i, (points, rgba, *size) in enumerate(paths):
         points = np.asarray(points, dtype=float)
+        sphere = float(size[0]) if size else waypoint_radius
+        if len(size) > 1 or not (np.isfinite(sphere) and sphere > 0):
+            raise ValueError(f"paths[{i}]: expected (points, rgba) or (points, rgba, radius > 0)")
         if points.ndim != 2 or points.shape[1] != 3 or not np.all(np.isfinite(points)):
             raise ValueError(f"paths[{i}]: points must be finite with shape (N, 3)")
         color = np.asarray(rgba, dtype=np.float32)
@@ -137,7 +156,7 @@ def _draw_paths(
             geom = _add_geom(scn, mujoco.mjtGeom.mjGEOM_CAPSULE, np.zeros(3), np.zeros(3), color)
             mujoco.mjv_connector(geom, mujoco.mjtGeom.mjGEOM_CAPSULE, radius, a, b)
         for p in points:
-            _add_geom(scn, mujoco.mjtGeom.mjGEOM_SPHERE, np.full(3, waypoint_radius), p, color)
+            _add_geom(scn, mujoco.mjtGeom.mjGEOM_SPHERE, np.full(3, sphere), p, color)
 
 
 def render_scene(
@@ -156,13 +175,15 @@ def render_scene(
 
     Args:
         env: table and laptop poses; ``env.q_start`` is the default configuration.
-        paths: sequence of (points (N, 3) world positions of the cup centre, rgba (4,)).
+        paths: sequence of (points (N, 3) world positions of the cup centre, rgba (4,)),
+            each optionally with a third element, its own sphere radius in metres.
         q: arm configuration (7,) to show; defaults to ``env.q_start``.
         width: image width in pixels (at most 1920).
         height: image height in pixels (at most 1440).
         camera: the free camera.
         path_radius: radius of the capsules joining consecutive points, metres.
-        waypoint_radius: radius of the sphere at each point, metres.
+        waypoint_radius: radius of the sphere at each point, metres (unless the path gives
+            its own).
         show_goal: mark the cup centre at ``env.q_goal`` with a translucent green sphere.
 
     Returns:

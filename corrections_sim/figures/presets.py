@@ -1,0 +1,180 @@
+"""Settings of figs. 1–3 as data: the TOML presets, the fixed scene, and checks of each field.
+
+Every value is checked where it enters, and a bad one is refused with a one-line
+``ValueError`` that names its field as written in ``experiments/<figure>.toml`` (e.g.
+``maps[1].cov``), so a typo never becomes a NaN in a heat map.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from corrections_sim.environments import (
+    CUP_WORKSPACE,
+    Environment,
+    configuration_at,
+    table_holding,
+)
+from corrections_sim.learners import Belief
+
+EXPERIMENTS_DIR = Path(__file__).resolve().parents[2] / "experiments"
+
+
+def read_preset(figure: str, quick: bool) -> dict:
+    """The ``[paper]`` or ``[quick]`` table of ``experiments/<figure>.toml``."""
+    with open(EXPERIMENTS_DIR / f"{figure}.toml", "rb") as fh:
+        presets = tomllib.load(fh)
+    return dict(presets["quick" if quick else "paper"])
+
+
+def take(values: dict, name: str, prefix: str = ""):
+    """Pop a required field; a missing one is refused by name."""
+    if name not in values:
+        raise ValueError(f"{prefix}{name}: missing")
+    return values.pop(name)
+
+
+def reject_unknown(values: dict, prefix: str = "") -> None:
+    """Refuse fields nobody reads (a misspelt key would otherwise be ignored)."""
+    if values:
+        raise ValueError(f"{prefix or 'settings'}: unknown keys {sorted(values)}")
+
+
+def number(name: str, value, *, low: float = -math.inf, high: float = math.inf) -> float:
+    """A finite float in [low, high]."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ValueError(f"{name} = {value!r}: expected a number")
+    if not (math.isfinite(value) and low <= value <= high):
+        raise ValueError(f"{name} = {value!r}: expected a finite number in [{low}, {high}]")
+    return float(value)
+
+
+def integer(name: str, value, *, low: int, high: int) -> int:
+    """An int in [low, high]."""
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ValueError(f"{name} = {value!r}: expected an integer")
+    if not low <= value <= high:
+        raise ValueError(f"{name} = {value}: expected an integer in [{low}, {high}]")
+    return int(value)
+
+
+def vector(name: str, value, length: int | None = None) -> tuple[float, ...]:
+    """A tuple of finite floats, of ``length`` if given."""
+    if not isinstance(value, list | tuple) or not value:
+        raise ValueError(f"{name} = {value!r}: expected a list of numbers")
+    if length is not None and len(value) != length:
+        raise ValueError(f"{name}: expected {length} values, got {len(value)}")
+    return tuple(number(f"{name}[{i}]", v) for i, v in enumerate(value))
+
+
+def bounds(name: str, value, low: float, high: float) -> tuple[float, float]:
+    """(lo, hi) with low <= lo < hi <= high."""
+    lo, hi = vector(name, value, 2)
+    if not lo < hi:
+        raise ValueError(f"{name} = [{lo}, {hi}]: the lower bound must be below the upper")
+    if lo < low or hi > high:
+        raise ValueError(
+            f"{name} = [{lo}, {hi}] m leaves the allowed range [{low:.6g}, {high:.6g}] m"
+        )
+    return lo, hi
+
+
+def covariance(name: str, value, k: int) -> tuple[tuple[float, ...], ...]:
+    """A k × k symmetric positive definite matrix, as nested tuples."""
+    if not isinstance(value, list | tuple) or len(value) != k:
+        raise ValueError(f"{name}: expected a {k} x {k} matrix (a list of {k} rows)")
+    rows = tuple(vector(f"{name}[{i}]", row, k) for i, row in enumerate(value))
+    try:
+        Belief(theta=np.zeros(k), cov=np.array(rows))
+    except ValueError as exc:
+        raise ValueError(str(exc).replace("Belief.cov", name)) from None
+    return rows
+
+
+def cup_position(name: str, value) -> tuple[float, float, float]:
+    """A cup position (x, y, z) inside :data:`CUP_WORKSPACE` that the arm reaches."""
+    point = vector(name, value, 3)
+    for axis, v, (lo, hi) in zip("xyz", point, CUP_WORKSPACE, strict=True):
+        if not lo <= v <= hi:
+            raise ValueError(f"{name}.{axis} = {v} m leaves the arm's workspace [{lo}, {hi}] m")
+    try:
+        configuration_at(point)
+    except ValueError:
+        raise ValueError(
+            f"{name} = {list(point)}: unreachable with the hand down (no IK)"
+        ) from None
+    return point  # type: ignore[return-value]
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A figure's fixed scene: where the cup starts and ends, where laptop and table are.
+
+    Attributes:
+        start: cup centre at the start (x, y, z), m.
+        goal: cup centre at the goal (x, y, z), m.
+        laptop: keyboard centre and yaw (x, y, yaw), m and rad.
+        table: table centre (x, y), m.
+    """
+
+    start: tuple[float, float, float]
+    goal: tuple[float, float, float]
+    laptop: tuple[float, float, float]
+    table: tuple[float, float]
+
+    @classmethod
+    def parse(cls, values: dict) -> Scene:
+        """Take ``start``, ``goal``, ``laptop`` and ``table`` from ``values`` and check them."""
+        scene = cls(
+            start=cup_position("start", take(values, "start")),
+            goal=cup_position("goal", take(values, "goal")),
+            laptop=vector("laptop", take(values, "laptop"), 3),  # type: ignore[arg-type]
+            table=vector("table", take(values, "table"), 2),  # type: ignore[arg-type]
+        )
+        scene.environment()  # the laptop on the table, the table in its range
+        return scene
+
+    def environment(
+        self,
+        *,
+        start: tuple[float, float, float] | None = None,
+        laptop: tuple[float, float, float] | None = None,
+        name: str = "",
+    ) -> Environment:
+        """The scene's environment, optionally with another cup start or laptop position.
+
+        A moved laptop takes the table along only as far as it must to stay on it
+        (:func:`corrections_sim.environments.table_holding`).
+
+        Raises:
+            ValueError: an unreachable start (no IK) or a laptop no table can hold.
+        """
+        if laptop is None:
+            laptop, table = self.laptop, self.table
+        else:
+            table = table_holding(laptop, self.table)
+        return Environment(
+            q_start=_configuration(self.start if start is None else start),
+            q_goal=_configuration(self.goal),
+            laptop=laptop,
+            table=table,
+            name=name,
+        )
+
+
+@functools.cache
+def _cached_configuration(position: tuple[float, ...]) -> np.ndarray:
+    q = configuration_at(position)
+    q.setflags(write=False)
+    return q
+
+
+def _configuration(position) -> np.ndarray:
+    """configuration_at, memoized per process (the goal recurs in every grid cell)."""
+    return _cached_configuration(tuple(float(v) for v in position))
