@@ -87,8 +87,9 @@ class Progress:
     """Progress of a batch: a tqdm bar with rate and ETA on a terminal, otherwise a plain
     line at most every ``every`` seconds (and at the end), for CI logs."""
 
-    def __init__(self, label: str, *, every: float = 15.0, stream=None) -> None:
+    def __init__(self, label: str, *, unit: str = "run", every: float = 15.0, stream=None) -> None:
         self.label = label
+        self.unit = unit
         self.every = every
         self.stream = stream or sys.stderr
         self._bar = None
@@ -101,7 +102,7 @@ class Progress:
                 from tqdm import tqdm
 
                 self._bar = tqdm(
-                    total=total, initial=done, desc=self.label, unit="run", file=self.stream
+                    total=total, initial=done, desc=self.label, unit=self.unit, file=self.stream
                 )
             self._bar.update(done - self._bar.n)
             if done == total:
@@ -115,7 +116,7 @@ class Progress:
         rate = done / elapsed if elapsed > 0 else 0.0
         eta = f"{(total - done) / rate:.0f} s" if 0 < rate and done < total else "-"
         print(
-            f"{self.label}: {done}/{total} runs, {elapsed:.0f} s elapsed, ETA {eta}",
+            f"{self.label}: {done}/{total} {self.unit}s, {elapsed:.0f} s elapsed, ETA {eta}",
             file=self.stream,
             flush=True,
         )
@@ -252,6 +253,20 @@ def run_learning_figure(args: argparse.Namespace) -> list[Path]:
         raise RuntimeError(str(exc)) from None
 
 
+@contextlib.contextmanager
+def _staging(final: Path) -> Iterator[Path]:
+    """A scratch folder beside ``final``; its files replace ``final``'s only if the body
+    succeeds, so a failed command leaves earlier results as they were."""
+    staging = Path(tempfile.mkdtemp(prefix=f".{final.name}-", dir=final.parent))
+    try:
+        yield staging
+        final.mkdir(parents=True, exist_ok=True)
+        for item in sorted(staging.iterdir()):
+            os.replace(item, final / item.name)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+
+
 def _learning_figure(args, settings, store, final: Path) -> list[Path]:
     from concurrent.futures.process import BrokenProcessPool
 
@@ -277,8 +292,7 @@ def _learning_figure(args, settings, store, final: Path) -> list[Path]:
             print(f"{args.figure}: a worker died; resuming on a new pool", file=sys.stderr)
     wall = time.perf_counter() - t0
 
-    staging = Path(tempfile.mkdtemp(prefix=f".{args.figure}-", dir=final.parent))
-    try:
+    with _staging(final) as staging:
         _write_csv(staging / "curves.csv", result.records)
         _write_csv(staging / "mean_estimate.csv", result.mean_estimate)
         curves = {}
@@ -328,20 +342,79 @@ def _learning_figure(args, settings, store, final: Path) -> list[Path]:
         plot_learning_curves(
             curves, title, [staging / f"{args.figure}.png", staging / f"{args.figure}.pdf"]
         )
-        final.mkdir(parents=True, exist_ok=True)
-        written = []
-        for item in sorted(staging.iterdir()):
-            os.replace(item, final / item.name)
-            written.append(final / item.name)
-        return written
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
+        names = sorted(p.name for p in staging.iterdir())
+    return [final / name for name in names]
+
+
+#: Options of the learning figures that figs. 1–3 do not take.
+_LEARNING_ONLY = (
+    "runs",
+    "iterations",
+    "seed",
+    "theta_star",
+    "theta0",
+    "cov0",
+    "learners",
+    "user",
+)
+
+
+def run_uncertainty_figure(args: argparse.Namespace) -> list[Path]:
+    """Figs. 1–3: where to learn (heat maps of eq. A1) and how to deploy (A2–A4)."""
+    from corrections_sim.figures import deployment, selection
+
+    given = [n for n in _LEARNING_ONLY if getattr(args, n) is not None]
+    if given and args.figure != "all":
+        option = "--" + given[0].replace("_", "-")
+        raise UsageError(f"{option}: only for fig4 and fig5, not {args.figure}")
+    for name in ("workers",):
+        value = getattr(args, name)
+        if value is not None and value < 1:
+            raise UsageError(f"--{name} {value}: must be a positive integer")
+    figure = args.figure if args.figure != "all" else args.current
+    module = deployment if figure in deployment.FIGURES else selection
+    try:
+        settings = module.load_settings(figure, quick=args.quick)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    final = _writable_dir(Path(args.out)) / figure
+    t0 = time.perf_counter()
+    with _executor(args) as (executor, where):
+        result = module.run(settings, executor, Progress(figure, unit="task"))
+    wall = time.perf_counter() - t0
+    with _staging(final) as staging:
+        module.write(settings, result, staging)
+        summary = {
+            "figure": figure,
+            "preset": "quick" if args.quick else "paper",
+            "executor": where,
+            "versions": _versions(),
+            "wall_time_s": round(wall, 1),
+        }
+        (staging / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+        names = sorted(p.name for p in staging.iterdir())
+    return [final / name for name in names]
+
+
+def run_all(args: argparse.Namespace) -> list[Path]:
+    """Figs. 1–5 one after the other (the scene render is ``run scene``)."""
+    written = []
+    for figure in ("fig1", "fig2", "fig3"):
+        args.current = figure
+        written += run_uncertainty_figure(args)
+    for figure in ("fig4", "fig5"):
+        written += run_learning_figure(argparse.Namespace(**{**vars(args), "figure": figure}))
+    return written
 
 
 COMMANDS: dict[str, tuple[Callable[[argparse.Namespace], list[Path]], str]] = {
+    "fig1": (run_uncertainty_figure, "where to learn, one feature: heat maps of eq. (A1)"),
+    "fig2": (run_uncertainty_figure, "where to learn, two features: the best start moves"),
+    "fig3": (run_uncertainty_figure, "risk-sensitive deployment, eqs. (A2)-(A4) and exact (A3)"),
     "fig4": (run_learning_figure, "PP vs KF vs AL, equal initial uncertainty"),
     "fig5": (run_learning_figure, "PP vs KF vs AL, laptop known, table uncertain"),
     "scene": (run_scene, "render the scene with optimal paths for two preferences"),
+    "all": (run_all, "fig1 to fig5, one after the other"),
 }
 
 

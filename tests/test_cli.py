@@ -58,6 +58,9 @@ def earlier(tmp_path: Path) -> Path:
         (["fig4", "--learners", "PP,XX"], "learners"),
         (["fig4", "--user", "lazy"], "--user"),
         (["fig4", "--scheduler", "tcp://127.0.0.1:1", "--workers", "2"], "--workers"),
+        (["fig1", "--runs", "3"], "--runs"),
+        (["fig3", "--theta-star", "1,-1"], "--theta-star"),
+        (["fig2", "--workers", "0"], "--workers"),
     ],
 )
 def test_bad_input_is_one_line_exit_2_and_leaves_results_alone(earlier, capsys, argv, names):
