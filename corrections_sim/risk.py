@@ -180,10 +180,7 @@ def refine_a4(
     γ_j also from the other preferences' plans (and, e.g., the (A3) trajectory) can only
     raise them, so the choice of (A4) is then about the rule, not about the local optimizer.
     With the (A3) trajectory among the starts, min_j V(γ_j) ≥ its worst case (weak duality
-    made to hold for the computed values).
-
-    Raises:
-        PlanningError: never for a γ whose original plan exists (the original is kept).
+    made to hold for the computed values). A γ whose re-solve fails keeps its plan.
     """
     plans = []
     for gamma, plan in zip(a4.gammas, a4.plans, strict=True):

@@ -197,6 +197,7 @@ def experiments(tmp_path, monkeypatch):
         (("start = [0.30, 0.40, 0.30]", "start = [0.95, 0.0, 0.30]"), r"start\.x = 0\.95"),
         (("laptop = [0.60, 0.0, 0.0]", "laptop = [0.60, 0.30, 0.0]"), r"laptop = .* off the table"),
         (('vary = "laptop"', 'vary = "table"'), r"maps\[0\]\.vary = 'table'"),
+        (("n_starts = 1", 'n_starts = 1\ncamera = "front"'), r"camera = 'front': choose one of"),
         (
             ("n_starts = 1", "n_starts = 1\nsmoothness = 3"),
             r"settings: unknown keys \['smoothness'\]",

@@ -33,7 +33,6 @@ from pathlib import Path
 
 import numpy as np
 
-from corrections_sim import geometry as g
 from corrections_sim.environments import CUP_WORKSPACE, Environment, laptop_range
 from corrections_sim.features import check_feature_names
 from corrections_sim.figures import presets
@@ -53,6 +52,8 @@ FIGURES = ("fig1", "fig2")
 VARY = ("laptop", "start")
 #: Status of a grid cell; anything but "ok" has a NaN value.
 STATUSES = ("ok", "unreachable", "start_collides", "plan_failed")
+#: Views of the scene render (``render.TOP_CAMERA``, ``render.SIDE_CAMERA``).
+CAMERAS = ("top", "side")
 _MAX_CELLS_PER_AXIS = 80
 
 
@@ -120,6 +121,8 @@ class SelectionSettings:
         observation_noise: N = observation_noise · I.
         sigma_alpha, sigma_beta, sigma_kappa: the UKF's sigma points.
         n_starts: the planner's initial guesses per solve.
+        camera: view of the scene render, one of :data:`CAMERAS` ("top": where the cup
+            passes in the plane; "side": how high it passes over the table).
     """
 
     figure: str
@@ -134,6 +137,7 @@ class SelectionSettings:
     sigma_beta: float = 2.0
     sigma_kappa: float = 0.0
     n_starts: int = 1
+    camera: str = "top"
 
     @property
     def k(self) -> int:
@@ -245,6 +249,11 @@ def load_settings(figure: str, *, quick: bool, overrides: dict | None = None) ->
             optional[name] = presets.number(name, values.pop(name))
     if "n_starts" in values:
         optional["n_starts"] = presets.integer("n_starts", values.pop("n_starts"), low=1, high=3)
+    if "camera" in values:
+        camera = values.pop("camera")
+        if camera not in CAMERAS:
+            raise ValueError(f"camera = {camera!r}: choose one of {', '.join(CAMERAS)}")
+        optional["camera"] = camera
     presets.reject_unknown(values)
     settings = SelectionSettings(
         figure=figure,
@@ -492,7 +501,7 @@ def write(settings: SelectionSettings, result: SelectionResult, folder: Path) ->
         [(render.cup_path(p.trajectory), c) for p, c in zip(scene_paths, colors, strict=True)],
         width=800,
         height=600,
-        camera=render.TOP_CAMERA,
+        camera=render.TOP_CAMERA if settings.camera == "top" else render.SIDE_CAMERA,
     )
     legend = []
     for p, c in zip(scene_paths, colors, strict=True):
@@ -569,13 +578,4 @@ def _title(settings: SelectionSettings) -> str:
     return (
         f"{settings.figure}: where a correction teaches most — predicted ‖Pᵗ⁺¹‖_F (eq. A1, UKF), "
         f"features ({names}), θ̂ = {_fmt(settings.theta)}; lighter = more informative"
-    )
-
-
-def table_outline(table: tuple[float, float]) -> np.ndarray:
-    """Corners (5, 2) of the table top's outline, closed."""
-    hx, hy = g.TABLE_HALF_SIZE
-    x, y = table
-    return np.array(
-        [[x - hx, y - hy], [x + hx, y - hy], [x + hx, y + hy], [x - hx, y + hy], [x - hx, y - hy]]
     )
