@@ -45,14 +45,6 @@ def _writable_dir(path: Path) -> Path:
     return path
 
 
-def _cup_path(trajectory: np.ndarray, substeps: int = 6) -> np.ndarray:
-    """Cup centre (N, 3) along the joint-space interpolation of a trajectory."""
-    from corrections_sim.robot import cup_pose
-    from corrections_sim.scene import interpolate
-
-    return np.array([cup_pose(q)[1] for q in interpolate(trajectory, substeps)])
-
-
 def run_scene(args: argparse.Namespace) -> list[Path]:
     """The scene with the optimal cup paths for θ = (0, 0) and θ = (+1, −1)."""
     from corrections_sim.environments import paper_environments
@@ -73,7 +65,7 @@ def run_scene(args: argparse.Namespace) -> list[Path]:
     from corrections_sim.plotting import save_scene_figure
 
     image = render.render_scene(
-        env, [(_cup_path(p.trajectory), rgba) for p, rgba, _ in plans], q=env.q_start
+        env, [(render.cup_path(p.trajectory), rgba) for p, rgba, _ in plans], q=env.q_start
     )
     legend = [
         (rgba, f"{label}   Φ = (laptop {p.features[0]:.2f}, table {p.features[1]:.2f})")

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from corrections_sim.environments import Environment, paper_environments
-from corrections_sim.features import check_feature_names, feature_counts
+from corrections_sim.features import feature_counts
 from corrections_sim.figures import presets
 from corrections_sim.figures.presets import Scene
 from corrections_sim.learners import Belief
@@ -117,23 +117,8 @@ def load_settings(
         ValueError: a missing, unknown or bad field; the one-line message names it (e.g.
             ``panels[2].cov``, ``theta``).
     """
-    if figure not in FIGURES:
-        raise ValueError(f"figure {figure!r}: choose one of {', '.join(FIGURES)}")
-    values = presets.read_preset(figure, quick)
-    for key, value in (overrides or {}).items():
-        if value is None:
-            continue
-        if key == "seed":
-            raise ValueError(f"seed: {figure} draws no random numbers, it takes no seed")
-        if key not in values or key == "panels":
-            raise ValueError(f"{key}: not a setting of {figure} that can be overridden")
-        values[key] = value
-    features = presets.take(values, "features")
-    if not isinstance(features, list | tuple):
-        raise ValueError(f"features = {features!r}: expected a list of feature names")
-    features = check_feature_names(tuple(features))
+    values, features, theta = presets.load_values(figure, FIGURES, quick, overrides, "panels")
     k = len(features)
-    theta = presets.vector("theta", presets.take(values, "theta"), k)
     scene = Scene.parse(values)
     raw_panels = presets.take(values, "panels")
     if not isinstance(raw_panels, list) or not raw_panels:

@@ -21,6 +21,7 @@ from corrections_sim.environments import (
     configuration_at,
     table_holding,
 )
+from corrections_sim.features import check_feature_names
 from corrections_sim.learners import Belief
 
 EXPERIMENTS_DIR = Path(__file__).resolve().parents[2] / "experiments"
@@ -31,6 +32,40 @@ def read_preset(figure: str, quick: bool) -> dict:
     with open(EXPERIMENTS_DIR / f"{figure}.toml", "rb") as fh:
         presets = tomllib.load(fh)
     return dict(presets["quick" if quick else "paper"])
+
+
+def load_values(
+    figure: str, figures: tuple[str, ...], quick: bool, overrides: dict | None, table: str
+) -> tuple[dict, tuple[str, ...], tuple[float, ...]]:
+    """A figure's preset with overrides applied, and its checked features and θ̂.
+
+    Args:
+        figure: the figure asked for, one of ``figures``.
+        quick: the quick preset instead of the paper-scale one.
+        overrides: top-level fields to replace (None values are ignored); ``table`` (the
+            list of maps or panels) and ``seed`` (these figures draw no random numbers)
+            cannot be overridden.
+
+    Returns:
+        (the remaining fields, the feature names, θ̂ of their length).
+    """
+    if figure not in figures:
+        raise ValueError(f"figure {figure!r}: choose one of {', '.join(figures)}")
+    values = read_preset(figure, quick)
+    for key, value in (overrides or {}).items():
+        if value is None:
+            continue
+        if key == "seed":
+            raise ValueError(f"seed: {figure} draws no random numbers, it takes no seed")
+        if key not in values or key == table:
+            raise ValueError(f"{key}: not a setting of {figure} that can be overridden")
+        values[key] = value
+    features = take(values, "features")
+    if not isinstance(features, list | tuple):
+        raise ValueError(f"features = {features!r}: expected a list of feature names")
+    features = check_feature_names(tuple(features))
+    theta = vector("theta", take(values, "theta"), len(features))
+    return values, features, theta
 
 
 def take(values: dict, name: str, prefix: str = ""):

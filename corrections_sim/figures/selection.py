@@ -34,7 +34,6 @@ from pathlib import Path
 import numpy as np
 
 from corrections_sim.environments import CUP_WORKSPACE, Environment, laptop_range
-from corrections_sim.features import check_feature_names
 from corrections_sim.figures import presets
 from corrections_sim.figures.presets import Scene
 from corrections_sim.learners import (
@@ -202,23 +201,8 @@ def load_settings(figure: str, *, quick: bool, overrides: dict | None = None) ->
         ValueError: unknown figure, missing or unknown key, or a bad value; the one-line
             message names the field (e.g. ``maps[1].cov``, ``maps[0].x``).
     """
-    if figure not in FIGURES:
-        raise ValueError(f"figure {figure!r}: choose one of {', '.join(FIGURES)}")
-    values = presets.read_preset(figure, quick)
-    for key, value in (overrides or {}).items():
-        if value is None:
-            continue
-        if key == "seed":
-            raise ValueError(f"seed: {figure} draws no random numbers, it takes no seed")
-        if key not in values or key == "maps":
-            raise ValueError(f"{key}: not a setting of {figure} that can be overridden")
-        values[key] = value
-    features = presets.take(values, "features")
-    if not isinstance(features, list | tuple):
-        raise ValueError(f"features = {features!r}: expected a list of feature names")
-    features = check_feature_names(tuple(features))
+    values, features, theta = presets.load_values(figure, FIGURES, quick, overrides, "maps")
     k = len(features)
-    theta = presets.vector("theta", presets.take(values, "theta"), k)
     scene = Scene.parse(values)
     maps = []
     raw_maps = presets.take(values, "maps")
