@@ -23,7 +23,7 @@ import os
 import subprocess
 import tempfile
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -328,6 +328,57 @@ def solver_options(cfg: PlannerConfig) -> dict:
     }
 
 
+def check_inits(inits: Sequence[np.ndarray], n_waypoints: int) -> list[np.ndarray]:
+    """Initial trajectories as float arrays (T, 7), refused if empty or of the wrong shape."""
+    if len(inits) == 0:
+        raise ValueError("inits: give at least one initial trajectory, or None")
+    out = [np.asarray(init, float) for init in inits]
+    for init in out:
+        if init.shape != (n_waypoints, N_ARM_JOINTS):
+            raise ValueError(
+                f"inits: expected shape ({n_waypoints}, {N_ARM_JOINTS}), got {init.shape}"
+            )
+    return out
+
+
+def best_start(
+    solver: ca.Function,
+    starts: Sequence[np.ndarray],
+    arguments: dict,
+    trajectory: Callable[[np.ndarray], np.ndarray],
+    checker: CollisionChecker,
+    env: Environment,
+) -> tuple[tuple[float, np.ndarray, str, int] | None, list[str]]:
+    """Solve from each start ``x0``; keep the lowest objective that converged and that
+    MuJoCo finds collision-free along the interpolated ``trajectory(x)``.
+
+    Returns:
+        ((f, x, IPOPT status, iterations) of the kept start, or None), and one status per
+        start (a collision replaces the start's IPOPT status).
+    """
+    best, statuses = None, []
+    for x0 in starts:
+        sol = solver(x0=x0, **arguments)
+        stats = solver.stats()
+        status = stats["return_status"]
+        statuses.append(status)
+        if status not in _CONVERGED:
+            continue
+        f = float(sol["f"])
+        if best is not None and f >= best[0]:
+            continue
+        x = np.array(sol["x"]).ravel()
+        # The NLP keeps spheres clear at the waypoints; MuJoCo checks the full geometry
+        # along the joint-space interpolation between them.
+        report = checker.check_trajectory(trajectory(x), env)
+        if not report.collision_free:
+            c = max(report.contacts, key=lambda c: c.depth)
+            statuses[-1] = f"Collision({c.body_a}-{c.body_b} at waypoint {c.time:.2f})"
+            continue
+        best = (f, x, status, stats["iter_count"])
+    return best, statuses
+
+
 class Planner:
     """ξ*(θ, E) for one :class:`PlannerConfig`; build once per process, solve many times."""
 
@@ -391,42 +442,19 @@ class Planner:
         """
         theta = check_theta(theta, self.config.k)
         T = self.config.n_waypoints
-        if inits is None:
-            inits = initial_guesses(env, T, self.config.n_starts)
-        elif len(inits) == 0:
-            raise ValueError("inits: give at least one initial trajectory, or None")
+        inits = initial_guesses(env, T, self.config.n_starts) if inits is None else inits
+        starts = [init[1:-1].ravel() for init in check_inits(inits, T)]
         p = self._params(theta, env)
         t0 = time.perf_counter()
-        best, statuses = None, []
-        for init in inits:
-            init = np.asarray(init, float)
-            if init.shape != (T, N_ARM_JOINTS):
-                raise ValueError(f"inits: expected shape ({T}, {N_ARM_JOINTS}), got {init.shape}")
-            sol = self._solver(
-                x0=init[1:-1].ravel(),
-                p=p,
-                lbx=self._lbx,
-                ubx=self._ubx,
-                lbg=0.0,
-                ubg=np.inf,
-            )
-            stats = self._solver.stats()
-            status = stats["return_status"]
-            statuses.append(status)
-            if status not in _CONVERGED:
-                continue
-            f = float(sol["f"])
-            if best is not None and f >= best[0]:
-                continue
-            x = np.array(sol["x"]).ravel()
-            # The NLP keeps spheres clear at the waypoints; MuJoCo checks the full geometry
-            # along the joint-space interpolation between them.
-            report = self._checker.check_trajectory(self._trajectory(x, env), env)
-            if not report.collision_free:
-                c = max(report.contacts, key=lambda c: c.depth)
-                statuses[-1] = f"Collision({c.body_a}-{c.body_b} at waypoint {c.time:.2f})"
-                continue
-            best = (f, x, status, stats["iter_count"])
+        arguments = {"p": p, "lbx": self._lbx, "ubx": self._ubx, "lbg": 0.0, "ubg": np.inf}
+        best, statuses = best_start(
+            self._solver,
+            starts,
+            arguments,
+            lambda x: self._trajectory(x, env),
+            self._checker,
+            env,
+        )
         elapsed = time.perf_counter() - t0
         if best is None:
             raise PlanningError(

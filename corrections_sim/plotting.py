@@ -17,9 +17,13 @@ from matplotlib.patches import Rectangle  # noqa: E402
 
 
 def save_atomically(fig: plt.Figure, path: Path, **kwargs) -> Path:
-    """Save ``fig`` to ``path`` through a temporary file, so a crash leaves no half file."""
+    """Save ``fig`` to ``path`` through a temporary file, so a crash leaves no half file.
+
+    A PDF carries no creation date, so the same figure gives the same bytes."""
     path = Path(path)
     tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
+    if path.suffix.lower() == ".pdf":
+        kwargs.setdefault("metadata", {"CreationDate": None})
     fig.savefig(tmp, **kwargs)
     os.replace(tmp, path)
     return path

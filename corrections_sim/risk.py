@@ -46,6 +46,8 @@ from corrections_sim.planner import (
     Planner,
     PlannerConfig,
     PlanningError,
+    best_start,
+    check_inits,
     initial_guesses,
     smoothness_cost,
     solver_options,
@@ -57,10 +59,8 @@ from corrections_sim.scene import CollisionChecker
 #: Deployment attitudes of eq. (A4), in the order figures list them.
 ATTITUDES = ("averse", "neutral", "seeking")
 
+
 #: IPOPT statuses accepted as a converged solve (as in :mod:`corrections_sim.planner`).
-_CONVERGED = {"Solve_Succeeded", "Solved_To_Acceptable_Level"}
-
-
 def matrix_sqrt(cov) -> np.ndarray:
     """Symmetric square root S of a symmetric positive definite P: S = Sᵀ, S S = P.
 
@@ -293,38 +293,31 @@ class WorstCasePlanner:
         gammas = self._check_gammas(gammas)
         cfg = self.config
         T = cfg.n_waypoints
-        if inits is None:
-            inits = initial_guesses(env, T, cfg.n_starts)
-        elif len(inits) == 0:
-            raise ValueError("inits: give at least one initial trajectory, or None")
+        inits = check_inits(initial_guesses(env, T, cfg.n_starts) if inits is None else inits, T)
         ends = np.vstack([env.q_start, env.q_goal])
         fixed = waypoint_features(ends, env.params(), cfg.features).sum(axis=0)
         p = np.concatenate([gammas.ravel(order="F"), env.params(), env.q_start, env.q_goal, fixed])
         lbg = np.zeros(self._n_clearance + self.n_gammas)
+        # Each start's epigraph variable t begins at its trajectory's worst case over Γ.
+        starts = [
+            np.concatenate(
+                [
+                    init[1:-1].ravel(),
+                    [np.min(gammas @ feature_counts(init, env.params(), cfg.features))],
+                ]
+            )
+            for init in inits
+        ]
         t0 = time.perf_counter()
-        best, statuses = None, []
-        for init in inits:
-            init = np.asarray(init, float)
-            if init.shape != (T, N_ARM_JOINTS):
-                raise ValueError(f"inits: expected shape ({T}, {N_ARM_JOINTS}), got {init.shape}")
-            phi0 = feature_counts(init, env.params(), cfg.features)
-            x0 = np.concatenate([init[1:-1].ravel(), [np.min(gammas @ phi0)]])
-            sol = self._solver(x0=x0, p=p, lbx=self._lbx, ubx=self._ubx, lbg=lbg, ubg=np.inf)
-            stats = self._solver.stats()
-            status = stats["return_status"]
-            statuses.append(status)
-            if status not in _CONVERGED:
-                continue
-            f = float(sol["f"])
-            if best is not None and f >= best[0]:
-                continue
-            x = np.array(sol["x"]).ravel()
-            report = self._checker.check_trajectory(self._trajectory(x, env), env)
-            if not report.collision_free:
-                c = max(report.contacts, key=lambda c: c.depth)
-                statuses[-1] = f"Collision({c.body_a}-{c.body_b} at waypoint {c.time:.2f})"
-                continue
-            best = (f, x, status, stats["iter_count"])
+        arguments = {"p": p, "lbx": self._lbx, "ubx": self._ubx, "lbg": lbg, "ubg": np.inf}
+        best, statuses = best_start(
+            self._solver,
+            starts,
+            arguments,
+            lambda x: self._trajectory(x, env),
+            self._checker,
+            env,
+        )
         elapsed = time.perf_counter() - t0
         if best is None:
             raise PlanningError(

@@ -189,6 +189,8 @@ def _learning_overrides(args: argparse.Namespace) -> dict:
         overrides["learners"] = tuple(n.strip() for n in args.learners.split(","))
     if args.user is not None:
         overrides["user"] = args.user
+    if args.warm_start:
+        overrides["warm_start"] = True
     return overrides
 
 
@@ -348,6 +350,7 @@ _LEARNING_ONLY = (
     "cov0",
     "learners",
     "user",
+    "warm_start",
 )
 
 
@@ -454,6 +457,13 @@ def parser() -> argparse.ArgumentParser:
         "--user",
         choices=("biased", "noisy"),
         help="biased: moves the worst waypoint (paper); noisy: Φ(ξ*) + Gaussian noise",
+    )
+    g.add_argument(
+        "--warm-start",
+        action="store_true",
+        default=None,
+        help="start each solve from the run's nearest solved θ (faster; results move at the "
+        "solver's tolerance, see README)",
     )
     x = p.add_argument_group("where the runs execute")
     x.add_argument(
