@@ -473,3 +473,10 @@ class Planner:
             solve_time=elapsed,
             starts=len(statuses),
         )
+
+
+@functools.cache
+def shared_planner(config: PlannerConfig) -> Planner:
+    """This process's planner for ``config``, built (or its compiled solver loaded) once and
+    shared by every figure's worker tasks."""
+    return Planner(config)

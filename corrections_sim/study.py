@@ -138,10 +138,7 @@ class StudySettings:
         return Belief(theta=np.array(self.theta0, float), cov=np.array(self.cov0, float))
 
     def noise(self) -> KalmanNoise:
-        eye = np.eye(self.k)
-        return KalmanNoise(
-            process=self.process_noise * eye, observation=self.observation_noise * eye
-        )
+        return KalmanNoise.isotropic(self.k, self.process_noise, self.observation_noise)
 
     def sigma(self) -> SigmaPoints:
         return SigmaPoints(alpha=self.sigma_alpha, beta=self.sigma_beta, kappa=self.sigma_kappa)

@@ -37,6 +37,7 @@ from corrections_sim.planner import (
     PlannerConfig,
     PlanningError,
     initial_guesses,
+    shared_planner,
     smoothness_cost,
 )
 from corrections_sim.risk import (
@@ -157,8 +158,8 @@ def load_settings(
 
 @functools.cache
 def _planners(config: PlannerConfig) -> tuple[Planner, WorstCasePlanner]:
-    """The (A4) planner and the (A3) planner, built once per process and config."""
-    return Planner(config), WorstCasePlanner(config)
+    """The (A4) planner (this process's shared one) and the (A3) planner, built once."""
+    return shared_planner(config), WorstCasePlanner(config)
 
 
 @dataclass(frozen=True, eq=False)

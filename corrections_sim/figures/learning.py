@@ -16,7 +16,6 @@ are loaded instead of recomputed, and each new one is handed to it the moment it
 
 from __future__ import annotations
 
-import functools
 import tomllib
 from collections.abc import Callable, Mapping
 from concurrent.futures import Executor, Future, as_completed
@@ -28,7 +27,7 @@ import numpy as np
 
 from corrections_sim.environments import paper_environments
 from corrections_sim.learners import learning_rate_schedule
-from corrections_sim.planner import Planner, PlannerConfig
+from corrections_sim.planner import PlannerConfig, shared_planner
 from corrections_sim.study import (
     PlanBook,
     PlanEntries,
@@ -95,12 +94,6 @@ def load_settings(figure: str, *, quick: bool, overrides: dict | None = None) ->
     return settings
 
 
-@functools.cache
-def _planner(config: PlannerConfig) -> Planner:
-    """The planner of this process: built (or its compiled library loaded) once per worker."""
-    return Planner(config)
-
-
 @dataclass(frozen=True)
 class Shared:
     """What every run needs and nobody should solve twice.
@@ -119,7 +112,7 @@ class Shared:
 def prepare(settings: FigureSettings) -> Shared:
     """Solve the shared plans; a task for a worker (the caller needs no planner)."""
     s = settings.study
-    planner = _planner(settings.planner_config())
+    planner = shared_planner(settings.planner_config())
     envs = paper_environments()
     target = Target.solve(planner, np.array(s.theta_star), envs)
     book = PlanBook(planner)
@@ -137,7 +130,7 @@ def run_one(
         learner,
         run,
         s,
-        _planner(settings.planner_config()),
+        shared_planner(settings.planner_config()),
         paper_environments(),
         shared.target,
         s.make_user(),
@@ -151,7 +144,7 @@ def mean_estimate_point(
     settings: FigureSettings, shared: Shared, theta: tuple[float, ...]
 ) -> tuple[float, float, int, int]:
     """(regret, paper regret, failed environments, solves) of one θ; a worker task."""
-    book = PlanBook(_planner(settings.planner_config()), shared.prior)
+    book = PlanBook(shared_planner(settings.planner_config()), shared.prior)
     regret, paper, failed = evaluate(book, shared.target, paper_environments(), np.array(theta))
     return regret, paper, failed, book.solves
 

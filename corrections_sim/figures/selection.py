@@ -25,7 +25,6 @@ the records do not depend on the executor or the number of workers.
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Callable
 from concurrent.futures import Executor
 from dataclasses import dataclass
@@ -43,7 +42,7 @@ from corrections_sim.learners import (
     frobenius,
     ukf_predicted_covariance,
 )
-from corrections_sim.planner import Planner, PlannerConfig, PlanningError
+from corrections_sim.planner import PlannerConfig, PlanningError, shared_planner
 from corrections_sim.scene import check_configuration
 from corrections_sim.study import PlanBook
 
@@ -146,10 +145,7 @@ class SelectionSettings:
         return PlannerConfig(features=self.features, n_starts=self.n_starts)
 
     def noise(self) -> KalmanNoise:
-        eye = np.eye(self.k)
-        return KalmanNoise(
-            process=self.process_noise * eye, observation=self.observation_noise * eye
-        )
+        return KalmanNoise.isotropic(self.k, self.process_noise, self.observation_noise)
 
     def sigma(self) -> SigmaPoints:
         return SigmaPoints(alpha=self.sigma_alpha, beta=self.sigma_beta, kappa=self.sigma_kappa)
@@ -255,12 +251,6 @@ def load_settings(figure: str, *, quick: bool, overrides: dict | None = None) ->
 # --- computation -----------------------------------------------------------------------------
 
 
-@functools.cache
-def _planner(config: PlannerConfig) -> Planner:
-    """One planner per process and config (the compiled solver is loaded once)."""
-    return Planner(config)
-
-
 def cell_environment(settings: SelectionSettings, index: int, x: float, y: float) -> Environment:
     """The environment of grid point (x, y) of map ``index``.
 
@@ -293,7 +283,7 @@ def _cell(settings: SelectionSettings, index: int, ix: int, iy: int) -> dict:
     if not check_configuration(env.q_start, env).collision_free:
         row["status"] = "start_collides"
         return {**row, **values}
-    book = PlanBook(_planner(settings.planner_config()))
+    book = PlanBook(shared_planner(settings.planner_config()))
     belief = settings.belief(index)
     try:
         cov = ukf_predicted_covariance(
@@ -340,7 +330,7 @@ def plan_path(
 ) -> DrawnPath | None:
     """ξ*(θ, E) as a :class:`DrawnPath`, or None if the planner fails (a worker task)."""
     try:
-        plan = _planner(settings.planner_config()).solve(np.array(theta), env)
+        plan = shared_planner(settings.planner_config()).solve(np.array(theta), env)
     except PlanningError:
         return None
     return DrawnPath(label, map_name, tuple(theta), env, plan.trajectory, plan.features)

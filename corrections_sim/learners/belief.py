@@ -148,6 +148,12 @@ class KalmanNoise:
         object.__setattr__(self, "process", _freeze(process))
         object.__setattr__(self, "observation", _freeze(observation))
 
+    @classmethod
+    def isotropic(cls, k: int, process: float, observation: float) -> KalmanNoise:
+        """M = process · I and N = observation · I, both (k, k)."""
+        eye = np.eye(k)
+        return cls(process=process * eye, observation=observation * eye)
+
     @property
     def dim(self) -> int:
         """Number of features k."""
