@@ -58,6 +58,8 @@ SIDE_CAMERA = Camera(lookat=(0.5, 0.0, 0.15), distance=1.6, azimuth=200.0, eleva
 #: Looks down from beyond the table (world y to the right of the image): where the cup
 #: passes over the table and the laptop.
 TOP_CAMERA = Camera(lookat=(0.45, 0.0, 0.1), distance=1.55, azimuth=180.0, elevation=-62.0)
+#: The views by name; ``models/scene.xml`` has a fixed camera of each name.
+CAMERAS = {"overview": DEFAULT_CAMERA, "side": SIDE_CAMERA, "top": TOP_CAMERA}
 
 #: A path of the cup: world points (N, 3) and an rgba colour (4,), optionally followed by
 #: the radius (m) of the spheres at its points (default: ``render_scene``'s waypoint_radius).

@@ -391,16 +391,18 @@ class CollisionChecker:
     SRDF's disabled pairs (and :data:`EXTRA_EXCLUDES`) are never reported.
     """
 
-    def __init__(self, *, tolerance: float = 0.0) -> None:
+    def __init__(self, *, tolerance: float = 0.0, model: mujoco.MjModel | None = None) -> None:
         """Build the checker.
 
         Args:
             tolerance: penetration depth (metres, >= 0) ignored as numerical contact.
+            model: the scene to check in (a private copy is taken); default the collision
+                model of :func:`build_model` (``models/scene.xml`` loads as another).
         """
         if not np.isfinite(tolerance) or tolerance < 0:
             raise ValueError(f"tolerance: expected a finite value >= 0, got {tolerance}")
         self.tolerance = float(tolerance)
-        self.model = build_model(visual=False)
+        self.model = build_model(visual=False) if model is None else copy.copy(model)
         self.data = mujoco.MjData(self.model)
         self._body_names = tuple(self.model.body(i).name for i in range(self.model.nbody))
         self._geom_body = np.array(self.model.geom_bodyid)
