@@ -38,6 +38,7 @@ MESH_DIR = "meshes"
 #: The environment whose table and laptop poses and start/goal keyframes the file shows.
 SCENE_ENV = "s0-t0-l1"
 
+#: An XML comment may not contain two hyphens in a row (lxml, dm_control.mjcf refuse it).
 _HEADER = (
     "<!-- The corrections_sim scene (Losey & O'Malley, CoRL 2018): Panda, pedestal, table, "
     "laptop, cup.\n"
@@ -46,7 +47,7 @@ _HEADER = (
     "     and example-robot-data's panda_collision.urdf; do not edit by hand: "
     "tests/test_models.py fails on drift.\n"
     "     Geom groups: 0 props, 2 robot meshes (visual only), 3 robot collision primitives.\n"
-    "     Open with: python -m mujoco.viewer --mjcf models/scene.xml -->\n"
+    "     Open it in MuJoCo's viewer as the README says (section models/). -->\n"
 )
 
 

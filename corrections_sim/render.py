@@ -58,8 +58,15 @@ SIDE_CAMERA = Camera(lookat=(0.5, 0.0, 0.15), distance=1.6, azimuth=200.0, eleva
 #: Looks down from beyond the table (world y to the right of the image): where the cup
 #: passes over the table and the laptop.
 TOP_CAMERA = Camera(lookat=(0.45, 0.0, 0.1), distance=1.55, azimuth=180.0, elevation=-62.0)
+#: SIDE_CAMERA from further back: the whole arm stays in view while it moves (the video).
+VIDEO_CAMERA = Camera(lookat=(0.4, 0.0, 0.3), distance=2.1, azimuth=205.0, elevation=-28.0)
 #: The views by name; ``models/scene.xml`` has a fixed camera of each name.
-CAMERAS = {"overview": DEFAULT_CAMERA, "side": SIDE_CAMERA, "top": TOP_CAMERA}
+CAMERAS = {
+    "overview": DEFAULT_CAMERA,
+    "side": SIDE_CAMERA,
+    "top": TOP_CAMERA,
+    "video": VIDEO_CAMERA,
+}
 
 #: A path of the cup: world points (N, 3) and an rgba colour (4,), optionally followed by
 #: the radius (m) of the spheres at its points (default: ``render_scene``'s waypoint_radius).
@@ -114,14 +121,15 @@ class _Offscreen:
         self.gl.free()
 
 
-_OFFSCREEN: dict[str, _Offscreen] = {}
+#: One context per (backend, model): a render context holds its model's meshes and textures.
+_OFFSCREEN: dict[tuple[str, int], _Offscreen] = {}
 
 
 def _offscreen(model: mujoco.MjModel) -> _Offscreen:
-    backend = os.environ.get("MUJOCO_GL", "egl").lower()
-    if backend not in _OFFSCREEN:
-        _OFFSCREEN[backend] = _Offscreen(model)
-    offscreen = _OFFSCREEN[backend]
+    key = (os.environ.get("MUJOCO_GL", "egl").lower(), id(model))
+    if key not in _OFFSCREEN:
+        _OFFSCREEN[key] = _Offscreen(model)
+    offscreen = _OFFSCREEN[key]
     offscreen.gl.make_current()
     return offscreen
 
@@ -172,6 +180,7 @@ def render_scene(
     path_radius: float = 0.004,
     waypoint_radius: float = 0.012,
     show_goal: bool = True,
+    model: mujoco.MjModel | None = None,
 ) -> np.ndarray:
     """Render the arm at ``q`` in ``env`` with the cup paths drawn over the scene.
 
@@ -187,6 +196,8 @@ def render_scene(
         waypoint_radius: radius of the sphere at each point, metres (unless the path gives
             its own).
         show_goal: mark the cup centre at ``env.q_goal`` with a translucent green sphere.
+        model: the scene to draw, kept alive by the caller (e.g. ``models/scene.xml`` loaded
+            by :func:`corrections_sim.models.load_model`); default the scene built in code.
 
     Returns:
         RGB image, shape (height, width, 3), uint8.
@@ -194,7 +205,7 @@ def render_scene(
     Raises:
         RuntimeError: when no OpenGL context can be made with ``MUJOCO_GL``'s backend.
     """
-    model = _visual_model()
+    model = _visual_model() if model is None else model
     max_w, max_h = model.vis.global_.offwidth, model.vis.global_.offheight
     if not (0 < width <= max_w and 0 < height <= max_h):
         raise ValueError(f"width, height: expected within (0, {max_w}] x (0, {max_h}]")

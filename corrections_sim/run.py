@@ -75,6 +75,29 @@ def run_scene(args: argparse.Namespace) -> list[Path]:
     return [save_scene_figure(out / "scene.png", image, title, legend)]
 
 
+def run_video(args: argparse.Namespace) -> list[Path]:
+    """An MP4/GIF of a recorded fig. 4/5 run: plan, correction, learned plan (see video.py)."""
+    from corrections_sim import video
+    from corrections_sim.models import ModelFileError
+
+    try:
+        result = video.make_video(
+            Path(args.out),
+            args.source,
+            learner=args.learner,
+            run=args.run,
+            corrections=args.corrections,
+            model_path=None if args.model is None else Path(args.model),
+            video_file=None if args.video_file is None else Path(args.video_file),
+        )
+    except ModelFileError as exc:
+        raise UsageError(f"--model {exc}") from None
+    except video.VideoInputError as exc:
+        raise UsageError(str(exc)) from None
+    print(f"{result.frames} frames, {result.seconds:.1f} s", file=sys.stderr)
+    return [result.path]
+
+
 class Progress:
     """Progress of a batch: a tqdm bar with rate and ETA on a terminal, otherwise a plain
     line at most every ``every`` seconds (and at the end), for CI logs."""
@@ -125,12 +148,21 @@ def _write_csv(path: Path, rows: list[dict]) -> None:
 def _versions() -> dict[str, str]:
     from importlib.metadata import version
 
-    names = ("corrections_sim", "mujoco", "casadi", "pin", "numpy", "dm-control")
+    names = ("corrections_sim", "mujoco", "casadi", "pin", "numpy")
     return {n: version(n) for n in names}
 
 
 #: Modules that cannot change a learning run's numbers (files, plots, CLI, other figures).
-_EDGE_MODULES = ("run.py", "store.py", "plotting.py", "render.py", "bench.py")
+_EDGE_MODULES = (
+    "run.py",
+    "store.py",
+    "plotting.py",
+    "render.py",
+    "bench.py",
+    "bench_ik.py",
+    "models.py",
+    "video.py",
+)
 
 
 def _code_fingerprint() -> str:
@@ -410,6 +442,7 @@ COMMANDS: dict[str, tuple[Callable[[argparse.Namespace], list[Path]], str]] = {
     "fig5": (run_learning_figure, "PP vs KF vs AL, laptop known, table uncertain"),
     "scene": (run_scene, "render the scene with optimal paths for two preferences"),
     "all": (run_all, "fig1 to fig5, one after the other"),
+    "video": (run_video, "animate corrections of a recorded fig4/fig5 run (MP4 or GIF)"),
 }
 
 
@@ -464,6 +497,19 @@ def parser() -> argparse.ArgumentParser:
         default=None,
         help="start each solve from the run's nearest solved θ (faster; results move at the "
         "solver's tolerance, see README)",
+    )
+    v = p.add_argument_group("video (reads OUT/<figure>/curves.csv of a finished fig4/fig5)")
+    v.add_argument("--from", dest="source", default="fig4", help="fig4 or fig5 (default fig4)")
+    v.add_argument("--learner", default="KF", help="whose run to show (default KF)")
+    v.add_argument("--run", type=int, default=0, help="the run's index (default 0)")
+    v.add_argument(
+        "--corrections",
+        metavar="T,T",
+        help="iterations to show, e.g. 1,6,12 (default: first, middle, last)",
+    )
+    v.add_argument("--model", help="the MJCF to render (default models/scene.xml)")
+    v.add_argument(
+        "--video-file", help="an .mp4 or .gif (default OUT/video/<figure>-<learner>-run<N>.mp4)"
     )
     x = p.add_argument_group("where the runs execute")
     x.add_argument(

@@ -66,6 +66,14 @@ def test_fk_and_collision_verdicts_equal_the_planners_checker(from_file, rng):
     assert n_colliding > 50  # the comparison saw many contacts, not only free space
 
 
+def test_is_well_formed_xml():
+    """Strict XML (MuJoCo's own parser is lenient, lxml and dm_control.mjcf are not)."""
+    import xml.etree.ElementTree as ET
+
+    root = ET.parse(SCENE_XML).getroot()
+    assert root.tag == "mujoco" and root.find("worldbody") is not None
+
+
 def test_keyframes_and_props_are_the_named_environment(from_file):
     env = {e.name: e for e in paper_environments()}[models.SCENE_ENV]
     np.testing.assert_allclose(from_file.key("start").qpos, env.q_start, atol=1e-5)
