@@ -128,28 +128,48 @@ def _outline(corners: np.ndarray) -> np.ndarray:
     return closed[:, ::-1]
 
 
-def plot_heat_map(ax: plt.Axes, spec: dict) -> QuadMesh:
-    """One map of predicted ‖Pᵗ⁺¹‖_F over a grid, seen from above and beyond the table.
+#: Fonts of figs. 1-3, sized for the README's width (a figure is shown ~1000 px wide).
+FIGURE_FONTS = {
+    "font.size": 12,
+    "axes.titlesize": 13,
+    "axes.labelsize": 12,
+    "xtick.labelsize": 11,
+    "ytick.labelsize": 11,
+    "legend.fontsize": 10.5,
+    "figure.titlesize": 14,
+}
+#: The heat maps' shared colour bar.
+RELATIVE_LABEL = (
+    "uncertainty left after one correction, ‖Pᵗ⁺¹‖_F / ‖P + M‖_F "
+    "(1 = learns nothing, lower = learns more)"
+)
+
+
+def relative_uncertainty(spec: dict) -> np.ndarray:
+    """A map's predicted ‖Pᵗ⁺¹‖_F divided by ‖P + M‖_F (its value when nothing is learned),
+    so maps with different P share one scale; NaN where the cell has no value."""
+    return np.asarray(spec["values"], float) / float(spec["no_information"])
+
+
+def plot_heat_map(ax: plt.Axes, spec: dict, vmin: float) -> QuadMesh:
+    """One map of the relative uncertainty left over a grid, seen from above and beyond the table.
 
     Args:
         ax: the axes.
-        spec: ``grid`` (xs, ys, vary), ``values`` (nx, ny) with NaN where missing,
-            ``status`` (nx, ny) strings, ``no_information`` (the colour scale's top),
+        spec: ``grid`` (xs, ys, vary), ``values`` (nx, ny) predicted ‖Pᵗ⁺¹‖_F with NaN where
+            missing, ``status`` (nx, ny) strings, ``no_information`` (‖P + M‖_F),
             ``overlay`` cup path (N, 2) or None, ``laptop`` (x, y, yaw) or None, ``table``
             (x, y), ``start`` / ``goal`` cup positions or None, ``title``.
+        vmin: bottom of the colour scale (shared by every map of the figure); the top is 1.
     """
     from corrections_sim import geometry as g
 
     grid = spec["grid"]
-    values = np.asarray(spec["values"], float)
+    values = relative_uncertainty(spec)
     status = spec["status"]
     xe, ye = _edges(grid.xs), _edges(grid.ys)
     finite = values[np.isfinite(values)]
-    top = spec["no_information"]
-    low = float(finite.min()) if finite.size else 0.0
-    mesh = ax.pcolormesh(
-        ye, xe, np.ma.masked_invalid(values), cmap="magma_r", vmin=min(low, top), vmax=top
-    )
+    mesh = ax.pcolormesh(ye, xe, np.ma.masked_invalid(values), cmap="magma_r", vmin=vmin, vmax=1.0)
     dx, dy = xe[1] - xe[0], ye[1] - ye[0]
     seen = set()
     for (i, j), s in np.ndenumerate(status):
@@ -196,7 +216,7 @@ def plot_heat_map(ax: plt.Axes, spec: dict) -> QuadMesh:
             ms=17,
             mec="k",
             mew=1.2,
-            label=f"argmin {values[i, j]:.3f}",
+            label="most informative cell",
         )
     # Seen from above and beyond the table, like the renders: the robot at the top.
     ax.set_xlim(min(ye[0], spec["goal"][1] - 0.05), max(ye[-1], spec["goal"][1] + 0.05))
@@ -204,8 +224,9 @@ def plot_heat_map(ax: plt.Axes, spec: dict) -> QuadMesh:
     ax.set_aspect("equal")
     ax.set_xlabel("world y (m), robot's left →")
     ax.set_ylabel("world x (m), robot ↑")
-    ax.set_title(spec["title"], fontsize=10)
-    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2, frameon=False)
+    best = f"\nmost informative: {np.nanmin(values):.2f}" if finite.size else ""
+    ax.set_title(spec["title"] + best)
+    ax.legend()
     return mesh
 
 
@@ -215,31 +236,73 @@ def plot_selection_figure(
     maps: Sequence[dict],
     title: str,
     paths: Sequence[Path],
+    legend_title: str | None = None,
 ) -> None:
-    """Figs. 1–2: the scene render with its paths, then one heat map per ``maps`` entry."""
+    """Figs. 1–2: the scene render with its paths, then one heat map per ``maps`` entry, all
+    on one colour scale (the relative uncertainty left, :func:`relative_uncertainty`) with
+    one colour bar and one legend."""
     n = len(maps)
-    fig = plt.figure(figsize=(5.6 * (n + 1), 6.6))
-    grid = fig.add_gridspec(1, n + 1, width_ratios=[1.25] + [1.0] * n)
-    ax = fig.add_subplot(grid[0])
-    ax.imshow(image)
-    ax.set_axis_off()
-    ax.set_title("scene: optimal cup paths", fontsize=10)
-    handles = [Line2D([0], [0], color=rgba[:3], lw=3, label=text) for rgba, text in legend]
-    ax.legend(
-        handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.01), fontsize=8, frameon=False
-    )
-    for m, spec in enumerate(maps):
-        ax = fig.add_subplot(grid[m + 1])
-        mesh = plot_heat_map(ax, spec)
-        bar = fig.colorbar(mesh, ax=ax, shrink=0.8, pad=0.02)
-        bar.set_label("predicted ‖Pᵗ⁺¹‖_F  (top: ‖P + M‖_F, no information)", fontsize=8)
-    fig.suptitle(title, fontsize=11)
-    fig.tight_layout()
-    try:
-        for path in paths:
-            save_atomically(fig, path, dpi=110)
-    finally:
-        plt.close(fig)
+    lows = [np.nanmin(v) for v in map(relative_uncertainty, maps) if np.isfinite(v).any()]
+    vmin = float(np.floor(min(lows, default=0.0) * 20) / 20)
+    with plt.rc_context(FIGURE_FONTS):
+        fig = plt.figure(figsize=(4.9 * n + 5.6, 6.6))
+        grid = fig.add_gridspec(
+            3,
+            n + 1,
+            width_ratios=[1.3] + [1.0] * n,
+            height_ratios=[1.0, 0.045, 0.3],
+            left=0.03,
+            right=0.99,
+            top=0.87,
+            bottom=0.01,
+            wspace=0.2,
+            hspace=0.35,
+        )
+        ax = fig.add_subplot(grid[0:2, 0])
+        ax.imshow(image)
+        ax.set_axis_off()
+        ax.set_title("the scene: the robot's optimal cup paths")
+        handles = [Line2D([0], [0], color=rgba[:3], lw=3, label=text) for rgba, text in legend]
+        box = fig.add_subplot(grid[2, 0])
+        box.set_axis_off()
+        box.legend(handles=handles, title=legend_title, loc="upper center", frameon=False)
+        heat = [fig.add_subplot(grid[0, m + 1]) for m in range(n)]
+        for ax, spec in zip(heat, maps, strict=True):
+            mesh = plot_heat_map(ax, spec, vmin)
+        labelled = {}
+        for ax in heat:
+            for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+                labelled.setdefault(label, handle)
+            ax.get_legend().remove()
+        cax = fig.add_subplot(grid[1, 1:])
+        bar = fig.colorbar(mesh, cax=cax, orientation="horizontal")
+        bar.set_label(RELATIVE_LABEL)
+        box = fig.add_subplot(grid[2, 1:])
+        box.set_axis_off()
+        box.legend(
+            list(labelled.values()),
+            list(labelled),
+            loc="upper center",
+            bbox_to_anchor=(0.5, 0.8),
+            ncol=3,
+            frameon=False,
+        )
+        fig.suptitle(title)
+        try:
+            for path in paths:
+                save_atomically(fig, path, dpi=100)
+        finally:
+            plt.close(fig)
+
+
+#: Line styles of fig. 3's insets, so that coinciding paths stay distinguishable.
+PATH_LINES = {
+    "averse": {"ls": "-", "lw": 2.4},
+    "neutral": {"ls": "--", "lw": 2.0},
+    "seeking": {"ls": "-.", "lw": 2.0},
+    "A3": {"ls": ":", "lw": 3.2},
+}
+_SAME_PATH_M = 0.005
 
 
 def _deployment_table(ax: plt.Axes, rows: Sequence[dict], features, styles: dict) -> None:
@@ -248,13 +311,13 @@ def _deployment_table(ax: plt.Axes, rows: Sequence[dict], features, styles: dict
     cells, colours = [], []
     for r in rows:
         gamma = (
-            "max-min"
+            "—"
             if r["rule"] == "A3"
             else "(" + ", ".join(f"{r[f'gamma_{n}']:+.3g}" for n in features) + ")"
         )
         cells.append(
             [
-                r["style"],
+                "max-min" if r["style"] == "A3" else r["style"],
                 gamma,
                 *[f"{r[f'phi_{n}']:.2f}" for n in features],
                 f"{r['reward_theta_hat']:.2f}",
@@ -268,20 +331,79 @@ def _deployment_table(ax: plt.Axes, rows: Sequence[dict], features, styles: dict
         cellText=cells, colLabels=header, cellColours=colours, loc="upper center", cellLoc="center"
     )
     table.auto_set_font_size(False)
-    table.set_fontsize(8)
-    table.scale(1.0, 1.35)
+    table.set_fontsize(10)
+    table.auto_set_column_width(list(range(len(header))))
+    table.scale(1.0, 1.5)
 
 
-def _plot_comparison(ax: plt.Axes, comparison: Sequence[dict]) -> None:
-    """Worst-case gain of (A3) over (A4)'s averse plan per panel: against the paper's (A4)
-    (grey) and against (A4) with refined plans (black), one dot per study environment."""
+def _plot_cup_paths(
+    top: plt.Axes, side: plt.Axes, paths: dict[str, np.ndarray], styles: dict, scene: dict
+) -> None:
+    """A panel's cup paths seen from above (world x over y, robot at the top) and as height
+    above the table top over y, one line style per trajectory."""
+    from corrections_sim import geometry as g
+
+    hx, hy = g.TABLE_HALF_SIZE
+    tx, ty = scene["table"]
+    table = np.array(
+        [[tx - hx, ty - hy], [tx + hx, ty - hy], [tx + hx, ty + hy], [tx - hx, ty + hy]]
+    )
+    top.plot(*_outline(table).T, color="#8b5a2b", lw=1.2, ls="--")
+    keyboard = g.laptop_base_corners_xy(*scene["laptop"])[[0, 1, 3, 2]]
+    top.fill(*_outline(keyboard).T, color="#1f4e9a", alpha=0.25, lw=1.5, ec="#1f4e9a")
+    laptop_corners = g.laptop_base_corners_xy(*scene["laptop"])
+    side.axvspan(
+        laptop_corners[:, 1].min(), laptop_corners[:, 1].max(), color="#1f4e9a", alpha=0.15, lw=0
+    )
+    side.axhline(0.0, color="#8b5a2b", lw=1.2, ls="--")
+    for label, points in paths.items():
+        rgba = styles[label][0]
+        color = "#c89b00" if label == "A3" else rgba[:3]
+        kw = {**PATH_LINES[label], "color": color}
+        top.plot(points[:, 1], points[:, 0], **kw)
+        side.plot(points[:, 1], points[:, 2] - g.TABLE_TOP_Z, **kw)
+    points = np.vstack([table, *(p[:, :2] for p in paths.values())])
+    (x0, y0), (x1, y1) = points.min(axis=0) - 0.03, points.max(axis=0) + 0.03
+    top.set_xlim(y0, y1)
+    # The robot at the top, as in the renders and figs. 1-2. No equal aspect, so that the
+    # x axis stays aligned with the height plot below; the box is close to 1:1 anyway.
+    top.set_ylim(x1, x0)
+    top.set_ylabel("world x (m)")
+    top.set_title("seen from above", fontsize=11)
+    side.set_ylabel("height over\ntable top (m)")
+    side.set_xlabel("world y (m), robot's left →")
+    top.tick_params(labelbottom=False)
+    for ax in (top, side):
+        ax.grid(alpha=0.3)
+    same = _same_as_averse(paths)
+    if same:
+        side.annotate(
+            "exact max-min = averse (within 5 mm)",
+            (0.02, 0.05),
+            xycoords="axes fraction",
+            va="bottom",
+            fontsize=10,
+        )
+
+
+def _same_as_averse(paths: dict[str, np.ndarray]) -> bool:
+    a, b = paths.get("A3"), paths.get("averse")
+    if a is None or b is None or a.shape != b.shape:
+        return False
+    return bool(np.max(np.linalg.norm(a - b, axis=1)) < _SAME_PATH_M)
+
+
+def _plot_comparison(ax: plt.Axes, comparison: Sequence[dict], labels: dict[str, str]) -> None:
+    """Worst-case gain of the exact max-min over the paper's averse plan, per panel: against
+    the paper's rule (grey) and against it with refined plans (black), one dot per study
+    environment."""
     panels = list(dict.fromkeys(r["panel"] for r in comparison))
     for i, panel in enumerate(panels):
         rows = [r for r in comparison if r["panel"] == panel]
         lines = []
         for key, offset, color, label in (
-            ("gain", -0.18, "#9a9a9a", "vs A4 (paper: the planner's usual starts)"),
-            ("gain_refined", 0.18, "#111111", "vs A4 refined (every plan re-solved from all)"),
+            ("gain", -0.18, "#9a9a9a", "vs the paper's rule (the planner's usual starts)"),
+            ("gain_refined", 0.18, "#111111", "vs the paper's rule, every plan re-solved from all"),
         ):
             gains = np.array([r[key] for r in rows], float)
             ok = np.isfinite(gains)
@@ -289,7 +411,7 @@ def _plot_comparison(ax: plt.Axes, comparison: Sequence[dict]) -> None:
             ax.scatter(
                 i + offset + jitter[ok],
                 gains[ok],
-                s=12,
+                s=14,
                 color=color,
                 alpha=0.8,
                 label=label if i == 0 else None,
@@ -301,19 +423,19 @@ def _plot_comparison(ax: plt.Axes, comparison: Sequence[dict]) -> None:
             xycoords=("data", "axes fraction"),
             ha="center",
             va="bottom",
-            fontsize=8,
+            fontsize=10,
         )
     ax.axhline(0.0, color="k", lw=0.8)
-    ax.set_xticks(range(len(panels)), panels)
+    ax.set_xticks(range(len(panels)), [labels.get(p, p) for p in panels], fontsize=10)
     ax.set_xlim(-0.6, len(panels) - 0.4)
-    ax.set_ylabel("worst case over Γ: A3 − A4 (averse)")
+    ax.set_ylabel("gain in the worst case over Γ (reward units)")
     n_env = len(comparison) // max(len(panels), 1)
     ax.set_title(
-        f"A3 gain over A4 in {n_env} study environments\n(count > 1e-4 above)",
-        fontsize=10,
-        pad=16,
+        f"exact max-min vs the paper's averse rule\nin {n_env} environments; on top: how many\n"
+        "gain more than 1e-4 (grey | black)",
+        pad=22,
     )
-    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.06), frameon=False)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.08), frameon=False, fontsize=10)
     ax.grid(alpha=0.3, axis="y")
 
 
@@ -326,36 +448,73 @@ def plot_deployment_figure(
     comparison: Sequence[dict],
     title: str,
     paths: Sequence[Path],
+    *,
+    cup_paths: Sequence[dict[str, np.ndarray]],
+    scene: dict,
+    panel_labels: dict[str, str],
 ) -> None:
-    """Fig. 3: per panel a render with the deployed paths and a table of their features;
-    on the right, the worst-case gain of the exact max-min (A3) over (A4)'s averse plan."""
+    """Fig. 3: per panel a render with the deployed paths, the same paths seen from above and
+    as heights (one line style each), and a table of their features; on the right, the
+    worst-case gain of the exact max-min over the paper's averse plan.
+
+    Args:
+        cup_paths: per panel, the cup's points (N, 3) of each drawn trajectory by label.
+        scene: ``table`` (x, y) and ``laptop`` (x, y, yaw) for the outlines.
+        panel_labels: a short label of each panel by name, for the comparison's axis.
+    """
     n = len(images)
     extra = 1 if comparison else 0
-    fig = plt.figure(figsize=(5.4 * n + 4.2 * extra, 6.6))
-    grid = fig.add_gridspec(
-        2, n + extra, height_ratios=[3.2, 1.3], width_ratios=[1.0] * n + [0.8] * extra
-    )
-    for i, (image, panel_title, rows) in enumerate(zip(images, titles, tables, strict=True)):
-        ax = fig.add_subplot(grid[0, i])
-        ax.imshow(image)
-        ax.set_axis_off()
-        ax.set_title(panel_title, fontsize=10)
-        _deployment_table(fig.add_subplot(grid[1, i]), rows, features, styles)
-    handles = [Line2D([0], [0], color=rgba[:3], lw=4, label=text) for rgba, text in styles.values()]
-    fig.legend(
-        handles=handles,
-        loc="upper center",
-        bbox_to_anchor=(0.5, 0.93),
-        ncol=len(handles),
-        fontsize=9,
-        frameon=False,
-    )
-    if comparison:
-        _plot_comparison(fig.add_subplot(grid[:, n]), comparison)
-    fig.suptitle(title, fontsize=11)
-    fig.tight_layout(rect=(0, 0, 1, 0.92))
-    try:
-        for path in paths:
-            save_atomically(fig, path, dpi=110)
-    finally:
-        plt.close(fig)
+    with plt.rc_context(FIGURE_FONTS):
+        fig = plt.figure(figsize=(5.6 * n + 5.0 * extra, 13.0))
+        grid = fig.add_gridspec(
+            4,
+            n + extra,
+            height_ratios=[3.0, 1.5, 1.3, 1.25],
+            width_ratios=[1.0] * n + [0.85] * extra,
+            left=0.04,
+            right=0.99,
+            top=0.85,
+            bottom=0.02,
+            wspace=0.3,
+            hspace=0.25,
+        )
+        for i, (image, panel_title, rows) in enumerate(zip(images, titles, tables, strict=True)):
+            ax = fig.add_subplot(grid[0, i])
+            ax.imshow(image)
+            ax.set_axis_off()
+            ax.set_title(panel_title)
+            top = fig.add_subplot(grid[1, i])
+            side = fig.add_subplot(grid[2, i], sharex=top)
+            _plot_cup_paths(top, side, cup_paths[i], styles, scene)
+            _deployment_table(fig.add_subplot(grid[3, i]), rows, features, styles)
+        handles = [
+            Line2D(
+                [0],
+                [0],
+                color="#c89b00" if label == "A3" else rgba[:3],
+                label=text,
+                **PATH_LINES[label],
+            )
+            for label, (rgba, text) in styles.items()
+        ]
+        handles += [
+            Line2D([0], [0], color="#8b5a2b", lw=1.2, ls="--", label="table top"),
+            Rectangle((0, 0), 1, 1, color="#1f4e9a", alpha=0.25, label="laptop"),
+        ]
+        left, right = grid[0, 0].get_position(fig).x0, grid[0, n - 1].get_position(fig).x1
+        fig.legend(
+            handles=handles,
+            loc="upper center",
+            bbox_to_anchor=((left + right) / 2, 0.93),
+            ncol=3,
+            frameon=False,
+            handlelength=3.5,
+        )
+        if comparison:
+            _plot_comparison(fig.add_subplot(grid[:3, n]), comparison, panel_labels)
+        fig.suptitle(title)
+        try:
+            for path in paths:
+                save_atomically(fig, path, dpi=100)
+        finally:
+            plt.close(fig)

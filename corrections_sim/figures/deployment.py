@@ -386,10 +386,10 @@ def run(
 #: Colours of the trajectories in renders and tables; (A3) is drawn as a wide translucent
 #: sleeve, so it stays visible where it coincides with the averse path.
 STYLE = {
-    "averse": ((0.15, 0.7, 0.3, 1.0), "risk-averse (A4)"),
+    "averse": ((0.15, 0.7, 0.3, 1.0), "risk-averse (paper's rule)"),
     "neutral": ((0.15, 0.4, 0.95, 1.0), "risk-neutral, ξ*(θ̂)"),
-    "seeking": ((0.9, 0.25, 0.2, 1.0), "risk-seeking (A4)"),
-    "A3": ((1.0, 0.8, 0.0, 0.35), "risk-averse, exact max-min (A3)"),
+    "seeking": ((0.9, 0.25, 0.2, 1.0), "risk-seeking (paper's rule)"),
+    "A3": ((1.0, 0.8, 0.0, 0.35), "risk-averse, exact max-min over Γ"),
 }
 
 
@@ -426,13 +426,15 @@ def write(settings: DeploymentSettings, result: DeploymentResult, folder: Path) 
             )
     written.append(write_csv(folder / "paths.csv", rows))
     env = settings.scene.environment(name="scene")
-    images, tables = [], []
+    images, tables, cup_paths = [], [], []
     for panel, d in zip(settings.panels, result.deployments, strict=True):
-        paths = []
+        paths, points_of = [], {}
         for label in DRAWN:
             rgba, _ = STYLE[label]
             points = render.cup_path(d.trajectory("A3" if label == "A3" else "A4", label))
+            points_of[label] = points
             paths.append((points, rgba, 0.022) if label == "A3" else (points, rgba))
+        cup_paths.append(points_of)
         images.append(
             render.render_scene(env, paths, width=720, height=540, camera=render.SIDE_CAMERA)
         )
@@ -453,6 +455,9 @@ def write(settings: DeploymentSettings, result: DeploymentResult, folder: Path) 
         list(result.comparison),
         _title(settings),
         figures,
+        cup_paths=cup_paths,
+        scene={"table": settings.scene.table, "laptop": settings.scene.laptop},
+        panel_labels={p.name: p.title[p.title.find("P = ") :] for p in settings.panels},
     )
     return written + figures
 
@@ -461,6 +466,8 @@ def _title(settings: DeploymentSettings) -> str:
     theta = ", ".join(f"{v:g}" for v in settings.theta)
     names = ", ".join(settings.features)
     return (
-        f"fig3: risk-sensitive deployment with Γ = θ̂ ± columns of √P (eq. A2), θ̂ = ({theta}) "
-        f"over ({names}); A4 (paper) and the exact max-min A3"
+        f"fig3: deploying under uncertainty. The robot's estimate θ̂ = ({theta}) over ({names}); "
+        "Γ = θ̂ ± one standard deviation along each axis of P.\n"
+        "Risk-averse / -seeking (the paper's rule): plan for the γ ∈ Γ with the lowest / highest "
+        "best reward; exact max-min: the plan with the best worst case over Γ"
     )

@@ -478,13 +478,12 @@ def write(settings: SelectionSettings, result: SelectionResult, folder: Path) ->
         camera=render.TOP_CAMERA if settings.camera == "top" else render.SIDE_CAMERA,
     )
     legend = []
+    titles = {m.name: m.title for m in settings.maps}
     for p, c in zip(scene_paths, colors, strict=True):
         counts = ", ".join(
             f"{n} {v:.2f}" for n, v in zip(settings.features, p.features, strict=True)
         )
-        what = (
-            f"θ = {_fmt(p.theta)}" if p.label == "candidate" else f"ξ*(θ̂) from {p.map}'s best start"
-        )
+        what = f"θ = {_fmt(p.theta)}" if p.label == "candidate" else titles.get(p.map, p.map)
         legend.append((c, f"{what}: Φ = ({counts})"))
     maps = []
     for m, hmap in enumerate(settings.maps):
@@ -512,7 +511,12 @@ def write(settings: SelectionSettings, result: SelectionResult, folder: Path) ->
         )
     title = _title(settings)
     targets = [folder / f"{settings.figure}.png", folder / f"{settings.figure}.pdf"]
-    plot_selection_figure(image, legend, maps, title, targets)
+    legend_title = (
+        None
+        if scene_paths and scene_paths[0].label == "candidate"
+        else "ξ*(θ̂) from the most informative start of the map"
+    )
+    plot_selection_figure(image, legend, maps, title, targets, legend_title)
     return written + targets
 
 
@@ -550,6 +554,6 @@ def _fmt(values) -> str:
 def _title(settings: SelectionSettings) -> str:
     names = ", ".join(settings.features)
     return (
-        f"{settings.figure}: where a correction teaches most — predicted ‖Pᵗ⁺¹‖_F (eq. A1, UKF), "
-        f"features ({names}), θ̂ = {_fmt(settings.theta)}; lighter = more informative"
+        f"{settings.figure}: where would one correction teach the robot most?  Features ({names}),"
+        f" the robot's estimate θ̂ = {_fmt(settings.theta)}; lighter = learns more"
     )
