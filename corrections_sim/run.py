@@ -25,6 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
+from corrections_sim.corrections import CORRECTION_KINDS
+from corrections_sim.study import LEARNERS, USERS
+
 #: Seconds to wait for a Dask scheduler before giving up (--scheduler).
 SCHEDULER_TIMEOUT_S = 5
 #: New process pools to try when a worker process dies mid-run (finished runs are kept).
@@ -187,8 +190,17 @@ def _learning_overrides(args: argparse.Namespace) -> dict:
         overrides["cov0"] = _matrix("--cov0", args.cov0)
     if args.learners is not None:
         overrides["learners"] = tuple(n.strip() for n in args.learners.split(","))
-    if args.user is not None:
-        overrides["user"] = args.user
+    for name in (
+        "user",
+        "user_step",
+        "user_waypoints",
+        "correction_model",
+        "correction_step",
+        "correction_waypoints",
+        "fixed_alpha",
+    ):
+        if getattr(args, name) is not None:
+            overrides[name] = getattr(args, name)
     if args.warm_start:
         overrides["warm_start"] = True
     return overrides
@@ -265,7 +277,7 @@ def _learning_figure(args, settings, store, final: Path) -> list[Path]:
     from concurrent.futures.process import BrokenProcessPool
 
     from corrections_sim.figures import learning
-    from corrections_sim.plotting import mean_sem, plot_learning_curves
+    from corrections_sim.plotting import plot_learning_curves
 
     s = settings.study
     t0 = time.perf_counter()
@@ -289,25 +301,7 @@ def _learning_figure(args, settings, store, final: Path) -> list[Path]:
     with _staging(final) as staging:
         _write_csv(staging / "curves.csv", result.records)
         _write_csv(staging / "mean_estimate.csv", result.mean_estimate)
-        curves = {}
-        for learner in s.learners:
-            rows = [r for r in result.records if r["learner"] == learner]
-            runs = sorted({r["run"] for r in rows})
-            curves[learner] = {
-                key: np.array([[r[key] for r in rows if r["run"] == run] for run in runs])
-                for key in ("estimate_error", "regret", "regret_paper")
-            }
-        final_stats = {}
-        for learner, data in curves.items():
-            stats = {}
-            for key, values in data.items():
-                mean, sem = mean_sem(values[:, -1:])
-                stats[key] = {
-                    "mean": float(mean[0]),
-                    "sem": float(sem[0]),
-                    "auc_mean": float(np.mean(values.sum(axis=1))),
-                }
-            final_stats[learner] = stats
+        stats = learning.summarize(settings, result)
         summary = {
             "figure": args.figure,
             "preset": "quick" if args.quick else "paper",
@@ -319,22 +313,18 @@ def _learning_figure(args, settings, store, final: Path) -> list[Path]:
             "planner_solves": result.solves,
             "resumed_runs": result.resumed,
             "run_cache": str(store.folder),
-            "pp_learning_rate": result.alphas,
-            "final": final_stats,
+            "learning_rates": result.alphas,
+            **stats,
             "regret_failures": int(sum(r["regret_failures"] for r in result.records)),
             "skipped_updates": int(sum(bool(r["update_skipped"]) for r in result.records)),
         }
         (staging / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-
-        def fmt(values) -> str:
-            return "(" + ", ".join(f"{v:g}" for v in values) + ")"
-
-        title = (
-            f"{args.figure}: θ* = {fmt(s.theta_star)}, θ̂⁰ = {fmt(s.theta0)}, "
-            f"P⁰ = diag{fmt(np.diag(np.array(s.cov0)))}; mean ± SEM; {s.user} user"
-        )
+        title = f"{args.figure}: {learning.describe(settings)}"
         plot_learning_curves(
-            curves, title, [staging / f"{args.figure}.png", staging / f"{args.figure}.pdf"]
+            learning.curves(settings, result.records),
+            title,
+            [staging / f"{args.figure}.png", staging / f"{args.figure}.pdf"],
+            bands={n: c["band"] for n, c in stats["calibration"].items()},
         )
         names = sorted(p.name for p in staging.iterdir())
     return [final / name for name in names]
@@ -350,6 +340,12 @@ _LEARNING_ONLY = (
     "cov0",
     "learners",
     "user",
+    "user_step",
+    "user_waypoints",
+    "correction_model",
+    "correction_step",
+    "correction_waypoints",
+    "fixed_alpha",
     "warm_start",
 )
 
@@ -451,12 +447,36 @@ def parser() -> argparse.ArgumentParser:
         "(symmetric positive definite)",
     )
     g.add_argument(
-        "--learners", metavar="L,L", help="which learners, from PP, KF, EKF, AL (e.g. PP,KF,EKF)"
+        "--learners",
+        metavar="L,L",
+        help="which learners, from " + ", ".join(LEARNERS) + " (e.g. PP,KF,AL,KF-C,AL-C,PP-C)",
     )
     g.add_argument(
         "--user",
-        choices=("biased", "noisy"),
-        help="biased: moves the worst waypoint (paper); noisy: Φ(ξ*) + Gaussian noise",
+        choices=USERS,
+        help="biased: moves its worst waypoint(s) (paper); deform: pushes its worst waypoint "
+        "and the path deforms smoothly; noisy: Φ(ξ*) + Gaussian noise",
+    )
+    g.add_argument(
+        "--user-step", type=float, help="how far the user moves its worst waypoint, (0, 1]"
+    )
+    g.add_argument(
+        "--user-waypoints", type=int, help="how many worst waypoints the biased user moves"
+    )
+    g.add_argument(
+        "--correction-model",
+        choices=CORRECTION_KINDS,
+        help="KF-C's model of a correction: waypoint (paper's §6), deform (minimum-jerk), "
+        "optimal (shows ξ*: the paper's KF)",
+    )
+    g.add_argument("--correction-step", type=float, help="how far KF-C's model moves, (0, 1]")
+    g.add_argument(
+        "--correction-waypoints", type=int, help="how many waypoints KF-C's model moves"
+    )
+    g.add_argument(
+        "--fixed-alpha",
+        type=float,
+        help="a fixed learning rate for PP and PP-C (default: from KF's / KF-C's gains)",
     )
     g.add_argument(
         "--warm-start",
