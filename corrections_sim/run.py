@@ -330,6 +330,80 @@ def _learning_figure(args, settings, store, final: Path) -> list[Path]:
     return [final / name for name in names]
 
 
+def run_robustness_figure(args: argparse.Namespace) -> list[Path]:
+    """Fig. 6: learners × simulated users, resumable per column like figs. 4/5."""
+    from corrections_sim.figures import robustness
+    from corrections_sim.plotting import plot_robustness_matrix
+    from corrections_sim.store import CorruptRun, RunStore, StoreLocked
+
+    try:
+        settings = robustness.load_settings(quick=args.quick, overrides=_learning_overrides(args))
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    out = _writable_dir(Path(args.out))
+    final = out / robustness.FIGURE
+    code = _code_fingerprint()
+    stores = [
+        RunStore(
+            out / ".runs" / robustness.FIGURE / f"column-{i}",
+            {"figure": robustness.FIGURE, "settings": c.settings.as_dict(), "code": code},
+        )
+        for i, c in enumerate(settings.columns)
+    ]
+    t0 = time.perf_counter()
+    try:
+        with contextlib.ExitStack() as held:
+            for store in stores:
+                held.enter_context(store.lock())
+            with _executor(args) as (executor, where):
+                results = robustness.run(
+                    settings, executor, Progress(robustness.FIGURE), caches=stores
+                )
+    except StoreLocked as exc:
+        raise UsageError(f"--out {out}: {exc}") from None
+    except CorruptRun as exc:
+        raise RuntimeError(str(exc)) from None
+    wall = time.perf_counter() - t0
+    rows = robustness.matrix(settings, results)
+    with _staging(final) as staging:
+        _write_csv(staging / "matrix.csv", rows)
+        _write_csv(
+            staging / "curves.csv",
+            [
+                {"user": c.label, **rec}
+                for c, result in zip(settings.columns, results, strict=True)
+                for rec in result.records
+            ],
+        )
+        summary = {
+            "figure": robustness.FIGURE,
+            "preset": "quick" if args.quick else "paper",
+            "settings": settings.as_dict(),
+            "executor": where,
+            "versions": _versions(),
+            "wall_time_s": round(wall, 1),
+            "planner_solves": sum(r.solves for r in results),
+            "resumed_runs": sum(r.resumed for r in results),
+            "matrix": rows,
+        }
+        (staging / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+        first = settings.columns[0].settings
+        title = (
+            f"fig6: learners × simulated users; {first.study.runs} runs × "
+            f"{first.study.iterations} corrections; " + learning_title_prior(first)
+        )
+        plot_robustness_matrix(rows, title, [staging / "fig6.png", staging / "fig6.pdf"])
+        names = sorted(p.name for p in staging.iterdir())
+    return [final / name for name in names]
+
+
+def learning_title_prior(settings) -> str:
+    """θ*, θ̂⁰ and P⁰ of a learning figure's settings, without the user."""
+    from corrections_sim.figures import learning
+
+    return learning.describe(settings).rsplit(";", 1)[0]
+
+
 #: Options of the learning figures that figs. 1–3 do not take.
 _LEARNING_ONLY = (
     "runs",
@@ -357,7 +431,7 @@ def run_uncertainty_figure(args: argparse.Namespace) -> list[Path]:
     given = [n for n in _LEARNING_ONLY if getattr(args, n) is not None]
     if given and args.figure != "all":
         option = "--" + given[0].replace("_", "-")
-        raise UsageError(f"{option}: only for fig4 and fig5, not {args.figure}")
+        raise UsageError(f"{option}: only for fig4, fig5 and fig6, not {args.figure}")
     for name in ("workers",):
         value = getattr(args, name)
         if value is not None and value < 1:
@@ -388,13 +462,14 @@ def run_uncertainty_figure(args: argparse.Namespace) -> list[Path]:
 
 
 def run_all(args: argparse.Namespace) -> list[Path]:
-    """Figs. 1–5 one after the other (the scene render is ``run scene``)."""
+    """Figs. 1–6 one after the other (the scene render is ``run scene``)."""
     written = []
     for figure in ("fig1", "fig2", "fig3"):
         args.current = figure
         written += run_uncertainty_figure(args)
     for figure in ("fig4", "fig5"):
         written += run_learning_figure(argparse.Namespace(**{**vars(args), "figure": figure}))
+    written += run_robustness_figure(argparse.Namespace(**{**vars(args), "figure": "fig6"}))
     return written
 
 
@@ -404,8 +479,9 @@ COMMANDS: dict[str, tuple[Callable[[argparse.Namespace], list[Path]], str]] = {
     "fig3": (run_uncertainty_figure, "risk-sensitive deployment, eqs. (A2)-(A4) and exact (A3)"),
     "fig4": (run_learning_figure, "PP vs KF vs AL, equal initial uncertainty"),
     "fig5": (run_learning_figure, "PP vs KF vs AL, laptop known, table uncertain"),
+    "fig6": (run_robustness_figure, "beyond the paper: learners x simulated users, calibration"),
     "scene": (run_scene, "render the scene with optimal paths for two preferences"),
-    "all": (run_all, "fig1 to fig5, one after the other"),
+    "all": (run_all, "fig1 to fig6, one after the other"),
 }
 
 
@@ -434,7 +510,7 @@ def parser() -> argparse.ArgumentParser:
         "--env", default="s0-t0-l1", help="environment name for 'scene' (default: s0-t0-l1)"
     )
     p.add_argument("--quick", action="store_true", help="the figure's quick preset (CI size)")
-    g = p.add_argument_group("learning figures (fig4, fig5); defaults come from the preset")
+    g = p.add_argument_group("learning figures (fig4, fig5, fig6); defaults come from the preset")
     g.add_argument("--runs", type=int, help="runs of PP, KF and EKF (AL runs once)")
     g.add_argument("--iterations", type=int, help="corrections per run")
     g.add_argument("--seed", type=int, help="root seed of every random draw")
@@ -470,9 +546,7 @@ def parser() -> argparse.ArgumentParser:
         "optimal (shows ξ*: the paper's KF)",
     )
     g.add_argument("--correction-step", type=float, help="how far KF-C's model moves, (0, 1]")
-    g.add_argument(
-        "--correction-waypoints", type=int, help="how many waypoints KF-C's model moves"
-    )
+    g.add_argument("--correction-waypoints", type=int, help="how many waypoints KF-C's model moves")
     g.add_argument(
         "--fixed-alpha",
         type=float,

@@ -492,16 +492,17 @@ def run_learner(
         for i in range(k):
             for j in range(i, k):
                 rec[f"cov_{i}{j}"] = float(belief.cov[i, j])
-        nan = float("nan")
+        # None (an empty CSV cell) where there is nothing to normalize by: the perceptron
+        # has no covariance, and the prior no innovation.
         rec["nees"] = (
             calibration.nees(belief.theta, belief.cov, target.theta_star)
             if spec.has_covariance
-            else nan
+            else None
         )
         rec["nis"] = (
             calibration.nis(step.innovation, step.innovation_cov)
             if step is not None and step.innovation_cov is not None
-            else nan
+            else None
         )
         records.append(rec)
 

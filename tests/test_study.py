@@ -32,7 +32,10 @@ COLUMNS = {
     "theta_0",
     "theta_1",
     "cov_00",
+    "cov_01",
     "cov_11",
+    "nees",
+    "nis",
 }
 
 

@@ -80,6 +80,16 @@ def load_settings(figure: str, *, quick: bool, overrides: dict | None = None) ->
         presets = tomllib.load(fh)
     values = dict(presets["quick" if quick else "paper"])
     values.update({k: v for k, v in (overrides or {}).items() if v is not None})
+    return settings_from_values(values)
+
+
+def settings_from_values(values: dict) -> FigureSettings:
+    """A figure's settings from a flat mapping of :class:`StudySettings` keys and ``n_starts``.
+
+    Raises:
+        ValueError: an unknown key or a bad value (the message names the field).
+    """
+    values = dict(values)
     n_starts = int(values.pop("n_starts", 1))
     known = {f.name for f in fields(StudySettings)}
     unknown = sorted(set(values) - known)
@@ -227,6 +237,8 @@ def run(
     executor: Executor,
     progress: Callable[[int, int], None] | None = None,
     cache: RunCache | None = None,
+    *,
+    mean_estimate: bool = True,
 ) -> FigureResult:
     """All runs of the figure on ``executor``; records sorted by (learner, run, iteration).
 
@@ -236,6 +248,8 @@ def run(
         progress: called as progress(done, total) after each finished run (loaded runs
             count as done from the start).
         cache: finished runs to reuse, and where to put each new one at once.
+        mean_estimate: also evaluate the regret of the mean θ̂ᵗ over runs (the paper's
+            fig. 4 caption; 48 solves per learner and iteration).
     """
     s = settings.study
     keys = tasks(settings)
@@ -276,7 +290,7 @@ def run(
         for key in sorted(results, key=lambda k: (_ORDER[k[0]], k[1]))
         for rec in results[key].records
     ]
-    points = _mean_thetas(settings, records)
+    points = _mean_thetas(settings, records) if mean_estimate else []
     values = list(
         executor.map(
             mean_estimate_point,
@@ -285,7 +299,7 @@ def run(
             [theta for *_, theta in points],
         )
     )
-    mean_estimate = [
+    mean_rows = [
         {
             "learner": learner,
             "iteration": t,
@@ -299,7 +313,7 @@ def run(
     ]
     return FigureResult(
         records=records,
-        mean_estimate=mean_estimate,
+        mean_estimate=mean_rows,
         alphas={name: [float(a) for a in rate] for name, rate in alphas.items()},
         solves=shared.solves + sum(r.solves for r in results.values()) + sum(v[3] for v in values),
         resumed=resumed,
@@ -313,10 +327,17 @@ def curves(settings: FigureSettings, records: list[dict]) -> dict[str, dict[str,
         rows = [r for r in records if r["learner"] == learner]
         runs = sorted({r["run"] for r in rows})
         out[learner] = {
-            key: np.array([[float(r[key]) for r in rows if r["run"] == run] for run in runs])
+            key: np.array(
+                [[_number(r[key]) for r in rows if r["run"] == run] for run in runs], dtype=float
+            )
             for key in (*METRICS, "nees", "nis")
         }
     return out
+
+
+def _number(value) -> float:
+    """A record's value as a float; None and "" (no value) are NaN."""
+    return float("nan") if value is None or value == "" else float(value)
 
 
 def _mean_ci(values: np.ndarray) -> dict:
