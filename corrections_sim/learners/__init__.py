@@ -4,11 +4,15 @@
 * :mod:`.perceptron`: the Preference Perceptron, eq. (B5).
 * :mod:`.kalman`: UKF and EKF updates, eqs. (K1)–(K7), and their predicted covariances.
 * :mod:`.active`: greedy environment selection, eq. (A1).
+* :mod:`.attenuated`: a UKF for corrections that deliver an unknown fraction of the intended
+  feature change (a Gaussian sum over the fraction, collapsed after each step).
 * :mod:`.preference_posterior`: a Gaussian posterior under a Boltzmann model of corrections
   (a correction is a noisy improvement); no planner solves, no model of how people edit.
 """
 
 from corrections_sim.learners.active import frobenius, select_environment
+from corrections_sim.learners.attenuated import AttenuatedStep, Attenuation
+from corrections_sim.learners.attenuated import update as attenuated_update
 from corrections_sim.learners.belief import Belief, KalmanNoise, symmetrize
 from corrections_sim.learners.kalman import (
     COV_FLOOR_RTOL,
@@ -32,7 +36,10 @@ from corrections_sim.learners.preference_posterior import moment_match as poster
 from corrections_sim.learners.preference_posterior import update as posterior_update
 
 __all__ = [
+    "Attenuation",
+    "AttenuatedStep",
     "COV_FLOOR_RTOL",
+    "attenuated_update",
     "Belief",
     "BoltzmannCorrection",
     "EkfStep",
