@@ -23,7 +23,12 @@ learners take their step size from. The loop knows no learner by name:
   correction a person with preference θ would make to the robot's current trajectory ξᵗ,
   under the robot's correction model C (``correction_model``, see
   :mod:`corrections_sim.corrections`). It reuses the sigma points' plans; no extra solves;
-* "AL" and "AL-C": KF and KF-C with Eᵗ chosen by eq. (A1) from their predicted covariance.
+* "AL" and "AL-C": KF and KF-C with Eᵗ chosen by eq. (A1) from their predicted covariance;
+* remedies that assume nothing about *how* people correct: "KF-A", a UKF for corrections that
+  deliver an unknown fraction a ~ log-uniform[``attenuation_min``, ``attenuation_max``] of the
+  intended feature change (:mod:`corrections_sim.learners.attenuated`), and "BP", a Gaussian
+  posterior under a Boltzmann model, P(ξ_h ≻ ξᵗ | θ) = σ(β θ·(Φ_h − Φ(ξᵗ))), β integrated out
+  over [``beta_min``, ``beta_max``] (:mod:`corrections_sim.learners.preference_posterior`).
 
 Everything random flows from ``np.random.Generator`` objects made from the study's seed.
 """
@@ -41,13 +46,17 @@ from corrections_sim.environments import Environment
 from corrections_sim.features import feature_counts
 from corrections_sim.human import BiasedUser, DeformingUser, NoisyOptimalUser
 from corrections_sim.learners import (
+    Attenuation,
     Belief,
+    BoltzmannCorrection,
     KalmanNoise,
     Observe,
     SigmaPoints,
+    attenuated_update,
     ekf_update,
     finite_difference_jacobian,
     perceptron_update,
+    posterior_update,
     select_environment,
     ukf_predicted_covariance,
     ukf_update,
@@ -61,7 +70,7 @@ class LearnerSpec:
     """What distinguishes one learner from another; the study loop reads nothing else.
 
     Attributes:
-        update: "perceptron" (eq. B5), "ukf" or "ekf".
+        update: "perceptron" (eq. B5), "ukf", "ekf", "attenuated" (KF-A) or "posterior" (BP).
         observation: what the learner believes a correction shows: "optimal" (the features
             of ξ*(θ, E), the paper's model) or "correction" (of C(ξᵗ, ξ*(θ, E))).
         active: chooses Eᵗ by eq. (A1) instead of at random.
@@ -95,6 +104,8 @@ LEARNERS: dict[str, LearnerSpec] = {
     "AL-C": LearnerSpec(
         "ukf", observation="correction", active=True, stream=1, label="Correction-aware AL (AL-C)"
     ),
+    "KF-A": LearnerSpec("attenuated", label="Attenuated-correction KF (KF-A)"),
+    "BP": LearnerSpec("posterior", label="Boltzmann preference posterior (BP)"),
 }
 #: The paper's three; the others are opt-in (``learners`` in the settings, ``--learners``).
 DEFAULT_LEARNERS = ("PP", "KF", "AL")
@@ -127,6 +138,11 @@ class StudySettings:
             shows ξ* itself: KF-C is then the paper's KF).
         correction_step: how far C moves the corrected waypoint, in (0, 1].
         correction_waypoints: how many waypoints a "waypoint" C moves.
+        attenuation_min, attenuation_max, attenuation_points: KF-A's prior on the fraction a
+            of the intended feature change a correction delivers (log-uniform, that many
+            points).
+        beta_min, beta_max, beta_points, lapse: BP's rationality β (log-uniform, that many
+            points, integrated out) and lapse rate ε.
         ekf_step: central-difference step δ of the EKF's Jacobian H (in θ units).
         warm_start: start each new solve of a run from its nearest solved θ in the same
             environment (see :class:`PlanBook`); faster, and history-dependent at the
@@ -152,6 +168,13 @@ class StudySettings:
     correction_model: str = "waypoint"
     correction_step: float = 1.0
     correction_waypoints: int = 1
+    attenuation_min: float = 0.05
+    attenuation_max: float = 1.0
+    attenuation_points: int = 12
+    beta_min: float = 0.3
+    beta_max: float = 30.0
+    beta_points: int = 15
+    lapse: float = 0.0
     ekf_step: float = 0.05
     warm_start: bool = False
     fixed_alpha: float | None = None
@@ -211,6 +234,11 @@ class StudySettings:
         except ValueError as exc:
             raise ValueError(f"correction_{exc}") from None
         self.sigma()
+        for build in (self.attenuation, self.boltzmann):
+            try:
+                build()
+            except ValueError as exc:
+                raise ValueError(_rename_fields(str(exc))) from None
         # Validates P⁰ (symmetric positive definite) and θ̂⁰ where they enter, under the
         # names the caller used rather than Belief's.
         try:
@@ -240,6 +268,22 @@ class StudySettings:
             return DeformingUser(step=self.user_step)
         return BiasedUser(step=self.user_step, waypoints=self.user_waypoints)
 
+    def attenuation(self) -> Attenuation:
+        """KF-A's prior on the delivered fraction a."""
+        return Attenuation(
+            a_min=self.attenuation_min, a_max=self.attenuation_max, n_a=self.attenuation_points
+        )
+
+    def boltzmann(self) -> BoltzmannCorrection:
+        """BP's correction model, with the filters' process noise M."""
+        return BoltzmannCorrection(
+            beta_min=self.beta_min,
+            beta_max=self.beta_max,
+            n_beta=self.beta_points,
+            lapse=self.lapse,
+            process_noise=self.process_noise,
+        )
+
     def correction(self, n_waypoints: int = 12) -> CorrectionModel:
         """KF-C's model of a correction, for trajectories of ``n_waypoints`` waypoints."""
         return CorrectionModel(
@@ -255,6 +299,25 @@ class StudySettings:
         if LEARNERS[learner].active and not self.make_user().stochastic:
             return 1
         return self.runs
+
+
+#: Parameter names of the learners' own classes -> the settings keys that set them.
+_FIELD_NAMES = {
+    "Attenuation.a_min": "attenuation_min",
+    "Attenuation.a_max": "attenuation_max",
+    "Attenuation.n_a": "attenuation_points",
+    "BoltzmannCorrection.beta_min": "beta_min",
+    "BoltzmannCorrection.beta_max": "beta_max",
+    "BoltzmannCorrection.n_beta": "beta_points",
+    "BoltzmannCorrection.lapse": "lapse",
+    "BoltzmannCorrection.process_noise": "process_noise",
+}
+
+
+def _rename_fields(message: str) -> str:
+    for old, new in _FIELD_NAMES.items():
+        message = message.replace(old, new)
+    return message
 
 
 PlanEntries = dict[tuple[bytes, bytes], "Plan | PlanningError"]
@@ -448,6 +511,7 @@ def run_learner(
     names = planner.config.features
     noise, sigma = settings.noise(), settings.sigma()
     model = settings.correction(planner.config.n_waypoints)
+    attenuation, boltzmann = settings.attenuation(), settings.boltzmann()
     belief = settings.prior()
     k, n_iter = settings.k, settings.iterations
     # Drawn up front so PP and KF run r see the same environments (common random numbers).
@@ -466,7 +530,14 @@ def run_learner(
         if spec.update == "perceptron":
             new = perceptron_update(belief, mine.features, phi_h, float(alphas[t]))
             return _Step(new, None, phi_h - mine.features, None)
-        if spec.update == "ekf":
+        if spec.update == "posterior":
+            post = posterior_update(belief, None, mine.features, phi_h, boltzmann)
+            return _Step(post.belief, post.gain, post.innovation, None)
+        if spec.update == "attenuated":
+            step = attenuated_update(
+                belief, book.observe(env), mine.features, phi_h, noise, attenuation, sigma
+            )
+        elif spec.update == "ekf":
             jac = finite_difference_jacobian(book.observe(env), belief.theta, settings.ekf_step)
             step = ekf_update(belief, jac, mine.features, phi_h, noise)
         else:
@@ -509,13 +580,15 @@ def run_learner(
     record(0, "", "", None)
     for t in range(n_iter):
         if spec.active:
-            covs = []
-            for env in envs:
+            # Eq. (A1) over the environments whose plans exist; one that fails is no candidate.
+            candidates, covs = [], []
+            for i, env in enumerate(envs):
                 try:
                     covs.append(ukf_predicted_covariance(belief, observer(env), noise, sigma))
+                    candidates.append(i)
                 except PlanningError:
-                    covs.append(np.full((k, k), np.inf))
-            idx = select_environment(covs)
+                    continue
+            idx = candidates[select_environment(covs)] if candidates else int(draws[t])
         else:
             idx = int(draws[t])
         env = envs[idx]

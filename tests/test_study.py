@@ -387,3 +387,34 @@ def test_an_active_learner_runs_as_often_as_the_others_when_the_user_is_random()
 def test_bad_correction_settings_are_refused_by_name(overrides, match):
     with pytest.raises(ValueError, match=match):
         settings(**overrides)
+
+
+def test_kf_a_that_knows_the_whole_change_is_delivered_is_the_papers_kf(kf_run, planner, envs):
+    target = Target.solve(planner, THETA_STAR, envs)
+    s = settings(attenuation_min=1.0, attenuation_max=1.0, attenuation_points=1)
+    other = run("KF-A", planner, envs, target, s=s)
+    for a, b in zip(other.records, kf_run.records, strict=True):
+        for key in ("estimate_error", "regret", "theta_0", "theta_1", "cov_00", "cov_01", "nees"):
+            # The same maths in another order of operations: equal to rounding.
+            assert a[key] == pytest.approx(b[key], rel=1e-6, abs=1e-9), key
+
+
+def test_bp_learns_without_an_innovation_covariance(planner, envs, target):
+    records = run("BP", planner, envs, target).records
+    assert records[-1]["estimate_error"] < records[0]["estimate_error"]
+    assert all(r["nis"] is None for r in records)
+    assert all(r["nees"] > 0 for r in records)
+
+
+@pytest.mark.parametrize(
+    ("overrides", "match"),
+    [
+        ({"attenuation_min": 0.0}, "attenuation_min"),
+        ({"attenuation_max": 0.01}, "attenuation_max"),
+        ({"beta_min": -1.0}, "beta_min"),
+        ({"lapse": 1.0}, "lapse"),
+    ],
+)
+def test_bad_remedy_settings_are_refused_by_their_keys(overrides, match):
+    with pytest.raises(ValueError, match=match):
+        settings(**overrides)
