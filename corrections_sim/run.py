@@ -245,10 +245,9 @@ def run_learning_figure(args: argparse.Namespace) -> list[Path]:
         raise UsageError(str(exc)) from None
     out = _writable_dir(Path(args.out))
     final = out / args.figure
-    resolved = settings.as_dict()
     store = RunStore(
         out / ".runs" / args.figure,
-        {"figure": args.figure, "settings": resolved, "code": _code_fingerprint()},
+        {"figure": args.figure, "settings": _run_key(settings), "code": _code_fingerprint()},
     )
     try:
         with store.lock():
@@ -330,6 +329,13 @@ def _learning_figure(args, settings, store, final: Path) -> list[Path]:
     return [final / name for name in names]
 
 
+def _run_key(settings) -> dict:
+    """The settings a run's numbers depend on: all but which learners run (a run of one
+    learner is the same whichever others run beside it), so adding a learner to a figure
+    reuses the runs already made."""
+    return {k: v for k, v in settings.as_dict().items() if k != "learners"}
+
+
 def run_robustness_figure(args: argparse.Namespace) -> list[Path]:
     """Fig. 6: learners × simulated users, resumable per column like figs. 4/5."""
     from corrections_sim.figures import robustness
@@ -346,7 +352,7 @@ def run_robustness_figure(args: argparse.Namespace) -> list[Path]:
     stores = [
         RunStore(
             out / ".runs" / robustness.FIGURE / f"column-{i}",
-            {"figure": robustness.FIGURE, "settings": c.settings.as_dict(), "code": code},
+            {"figure": robustness.FIGURE, "settings": _run_key(c.settings), "code": code},
         )
         for i, c in enumerate(settings.columns)
     ]
