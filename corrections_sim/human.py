@@ -26,8 +26,28 @@ from corrections_sim.corrections import deformation_correction, waypoint_correct
 from corrections_sim.features import feature_counts
 
 
+class _EditingUser:
+    """A user who edits the robot's trajectory deterministically (``corrected_trajectory``)."""
+
+    stochastic = False
+
+    def corrected_trajectory(self, robot: np.ndarray, intended: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def correction_features(
+        self,
+        robot: np.ndarray,
+        intended: np.ndarray,
+        env_params: np.ndarray,
+        names: tuple[str, ...],
+        rng: np.random.Generator,
+    ) -> np.ndarray:
+        """Φ(ξ_h, E), shape (k,). Deterministic; ``rng`` is unused."""
+        return feature_counts(self.corrected_trajectory(robot, intended), env_params, names)
+
+
 @dataclass(frozen=True)
-class BiasedUser:
+class BiasedUser(_EditingUser):
     """Corrects its worst waypoint(s) toward its intended trajectory.
 
     Attributes:
@@ -38,7 +58,6 @@ class BiasedUser:
 
     step: float = 1.0
     waypoints: int = 1
-    stochastic = False
 
     def __post_init__(self) -> None:
         if not (isinstance(self.step, int | float) and 0.0 < self.step <= 1.0):
@@ -58,20 +77,9 @@ class BiasedUser:
             )
         return waypoint_correction(robot, intended, self.step, self.waypoints)
 
-    def correction_features(
-        self,
-        robot: np.ndarray,
-        intended: np.ndarray,
-        env_params: np.ndarray,
-        names: tuple[str, ...],
-        rng: np.random.Generator,
-    ) -> np.ndarray:
-        """Φ(ξ_h, E), shape (k,). Deterministic; ``rng`` is unused."""
-        return feature_counts(self.corrected_trajectory(robot, intended), env_params, names)
-
 
 @dataclass(frozen=True)
-class DeformingUser:
+class DeformingUser(_EditingUser):
     """Pushes its worst waypoint ``step`` of the way toward ξ*'s; the rest deforms smoothly.
 
     Attributes:
@@ -79,7 +87,6 @@ class DeformingUser:
     """
 
     step: float = 1.0
-    stochastic = False
 
     def __post_init__(self) -> None:
         if not (isinstance(self.step, int | float) and 0.0 < self.step <= 1.0):
@@ -88,17 +95,6 @@ class DeformingUser:
     def corrected_trajectory(self, robot: np.ndarray, intended: np.ndarray) -> np.ndarray:
         """ξ_h (T, 7), see :func:`corrections_sim.corrections.deformation_correction`."""
         return deformation_correction(robot, intended, self.step)
-
-    def correction_features(
-        self,
-        robot: np.ndarray,
-        intended: np.ndarray,
-        env_params: np.ndarray,
-        names: tuple[str, ...],
-        rng: np.random.Generator,
-    ) -> np.ndarray:
-        """Φ(ξ_h, E), shape (k,). Deterministic; ``rng`` is unused."""
-        return feature_counts(self.corrected_trajectory(robot, intended), env_params, names)
 
 
 @dataclass(frozen=True)

@@ -31,6 +31,16 @@ def save_atomically(fig: plt.Figure, path: Path, **kwargs) -> Path:
     return path
 
 
+def _save_and_close(fig: plt.Figure, paths, dpi: int) -> None:
+    """Lay out ``fig``, write it to every path (atomically) and free it, even on failure."""
+    try:
+        fig.tight_layout()
+        for path in paths:
+            save_atomically(fig, path, dpi=dpi)
+    finally:
+        plt.close(fig)
+
+
 def save_scene_figure(
     path: Path,
     image: np.ndarray,
@@ -160,12 +170,7 @@ def plot_learning_curves(
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=7)
     fig.suptitle(title + "; bands: ± SEM over runs", fontsize=11)
-    fig.tight_layout()
-    try:
-        for path in paths:
-            save_atomically(fig, path, dpi=150)
-    finally:
-        plt.close(fig)
+    _save_and_close(fig, paths, dpi=150)
 
 
 # --- figs. 1-3: heat maps of the predicted covariance, risk-sensitive deployment ---------------
@@ -485,9 +490,4 @@ def plot_robustness_matrix(rows: Sequence[dict], title: str, paths) -> None:
         fontsize=8,
     )
     fig.suptitle(title, fontsize=11)
-    fig.tight_layout()
-    try:
-        for path in paths:
-            save_atomically(fig, path, dpi=150)
-    finally:
-        plt.close(fig)
+    _save_and_close(fig, paths, dpi=150)

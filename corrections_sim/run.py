@@ -176,6 +176,18 @@ def _matrix(option: str, text: str) -> tuple[tuple[float, ...], ...]:
     return tuple(rows)
 
 
+#: Learning options whose parsed value is the setting's value, under the same name.
+_PASSED_AS_IS = (
+    "user",
+    "user_step",
+    "user_waypoints",
+    "correction_model",
+    "correction_step",
+    "correction_waypoints",
+    "fixed_alpha",
+)
+
+
 def _learning_overrides(args: argparse.Namespace) -> dict:
     for name in ("runs", "iterations", "workers"):
         value = getattr(args, name)
@@ -190,15 +202,7 @@ def _learning_overrides(args: argparse.Namespace) -> dict:
         overrides["cov0"] = _matrix("--cov0", args.cov0)
     if args.learners is not None:
         overrides["learners"] = tuple(n.strip() for n in args.learners.split(","))
-    for name in (
-        "user",
-        "user_step",
-        "user_waypoints",
-        "correction_model",
-        "correction_step",
-        "correction_waypoints",
-        "fixed_alpha",
-    ):
+    for name in _PASSED_AS_IS:
         if getattr(args, name) is not None:
             overrides[name] = getattr(args, name)
     if args.warm_start:
@@ -419,13 +423,7 @@ _LEARNING_ONLY = (
     "theta0",
     "cov0",
     "learners",
-    "user",
-    "user_step",
-    "user_waypoints",
-    "correction_model",
-    "correction_step",
-    "correction_waypoints",
-    "fixed_alpha",
+    *_PASSED_AS_IS,
     "warm_start",
 )
 
