@@ -25,6 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
+from corrections_sim.corrections import CORRECTION_KINDS
+from corrections_sim.study import LEARNERS, USERS
+
 #: Seconds to wait for a Dask scheduler before giving up (--scheduler).
 SCHEDULER_TIMEOUT_S = 5
 #: New process pools to try when a worker process dies mid-run (finished runs are kept).
@@ -205,6 +208,18 @@ def _matrix(option: str, text: str) -> tuple[tuple[float, ...], ...]:
     return tuple(rows)
 
 
+#: Learning options whose parsed value is the setting's value, under the same name.
+_PASSED_AS_IS = (
+    "user",
+    "user_step",
+    "user_waypoints",
+    "correction_model",
+    "correction_step",
+    "correction_waypoints",
+    "fixed_alpha",
+)
+
+
 def _learning_overrides(args: argparse.Namespace) -> dict:
     for name in ("runs", "iterations", "workers"):
         value = getattr(args, name)
@@ -219,8 +234,9 @@ def _learning_overrides(args: argparse.Namespace) -> dict:
         overrides["cov0"] = _matrix("--cov0", args.cov0)
     if args.learners is not None:
         overrides["learners"] = tuple(n.strip() for n in args.learners.split(","))
-    if args.user is not None:
-        overrides["user"] = args.user
+    for name in _PASSED_AS_IS:
+        if getattr(args, name) is not None:
+            overrides[name] = getattr(args, name)
     if args.warm_start:
         overrides["warm_start"] = True
     return overrides
@@ -265,10 +281,9 @@ def run_learning_figure(args: argparse.Namespace) -> list[Path]:
         raise UsageError(str(exc)) from None
     out = _writable_dir(Path(args.out))
     final = out / args.figure
-    resolved = settings.as_dict()
     store = RunStore(
         out / ".runs" / args.figure,
-        {"figure": args.figure, "settings": resolved, "code": _code_fingerprint()},
+        {"figure": args.figure, "settings": _run_key(settings), "code": _code_fingerprint()},
     )
     try:
         with store.lock():
@@ -297,7 +312,7 @@ def _learning_figure(args, settings, store, final: Path) -> list[Path]:
     from concurrent.futures.process import BrokenProcessPool
 
     from corrections_sim.figures import learning
-    from corrections_sim.plotting import mean_sem, plot_learning_curves
+    from corrections_sim.plotting import plot_learning_curves
 
     s = settings.study
     t0 = time.perf_counter()
@@ -321,25 +336,7 @@ def _learning_figure(args, settings, store, final: Path) -> list[Path]:
     with _staging(final) as staging:
         _write_csv(staging / "curves.csv", result.records)
         _write_csv(staging / "mean_estimate.csv", result.mean_estimate)
-        curves = {}
-        for learner in s.learners:
-            rows = [r for r in result.records if r["learner"] == learner]
-            runs = sorted({r["run"] for r in rows})
-            curves[learner] = {
-                key: np.array([[r[key] for r in rows if r["run"] == run] for run in runs])
-                for key in ("estimate_error", "regret", "regret_paper")
-            }
-        final_stats = {}
-        for learner, data in curves.items():
-            stats = {}
-            for key, values in data.items():
-                mean, sem = mean_sem(values[:, -1:])
-                stats[key] = {
-                    "mean": float(mean[0]),
-                    "sem": float(sem[0]),
-                    "auc_mean": float(np.mean(values.sum(axis=1))),
-                }
-            final_stats[learner] = stats
+        stats = learning.summarize(settings, result)
         summary = {
             "figure": args.figure,
             "preset": "quick" if args.quick else "paper",
@@ -351,25 +348,102 @@ def _learning_figure(args, settings, store, final: Path) -> list[Path]:
             "planner_solves": result.solves,
             "resumed_runs": result.resumed,
             "run_cache": str(store.folder),
-            "pp_learning_rate": result.alphas,
-            "final": final_stats,
+            "learning_rates": result.alphas,
+            **stats,
             "regret_failures": int(sum(r["regret_failures"] for r in result.records)),
             "skipped_updates": int(sum(bool(r["update_skipped"]) for r in result.records)),
         }
         (staging / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-
-        def fmt(values) -> str:
-            return "(" + ", ".join(f"{v:g}" for v in values) + ")"
-
-        title = (
-            f"{args.figure}: θ* = {fmt(s.theta_star)}, θ̂⁰ = {fmt(s.theta0)}, "
-            f"P⁰ = diag{fmt(np.diag(np.array(s.cov0)))}; mean ± SEM; {s.user} user"
-        )
+        title = f"{args.figure}: {learning.describe(settings)}"
         plot_learning_curves(
-            curves, title, [staging / f"{args.figure}.png", staging / f"{args.figure}.pdf"]
+            learning.curves(settings, result.records),
+            title,
+            [staging / f"{args.figure}.png", staging / f"{args.figure}.pdf"],
+            bands={n: c["band"] for n, c in stats["calibration"].items()},
         )
         names = sorted(p.name for p in staging.iterdir())
     return [final / name for name in names]
+
+
+def _run_key(settings) -> dict:
+    """The settings a run's numbers depend on: all but which learners run (a run of one
+    learner is the same whichever others run beside it), so adding a learner to a figure
+    reuses the runs already made."""
+    return {k: v for k, v in settings.as_dict().items() if k != "learners"}
+
+
+def run_robustness_figure(args: argparse.Namespace) -> list[Path]:
+    """Fig. 6: learners × simulated users, resumable per column like figs. 4/5."""
+    from corrections_sim.figures import robustness
+    from corrections_sim.plotting import plot_robustness_matrix
+    from corrections_sim.store import CorruptRun, RunStore, StoreLocked
+
+    try:
+        settings = robustness.load_settings(quick=args.quick, overrides=_learning_overrides(args))
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    out = _writable_dir(Path(args.out))
+    final = out / robustness.FIGURE
+    code = _code_fingerprint()
+    stores = [
+        RunStore(
+            out / ".runs" / robustness.FIGURE / f"column-{i}",
+            {"figure": robustness.FIGURE, "settings": _run_key(c.settings), "code": code},
+        )
+        for i, c in enumerate(settings.columns)
+    ]
+    t0 = time.perf_counter()
+    try:
+        with contextlib.ExitStack() as held:
+            for store in stores:
+                held.enter_context(store.lock())
+            with _executor(args) as (executor, where):
+                results = robustness.run(
+                    settings, executor, Progress(robustness.FIGURE), caches=stores
+                )
+    except StoreLocked as exc:
+        raise UsageError(f"--out {out}: {exc}") from None
+    except CorruptRun as exc:
+        raise RuntimeError(str(exc)) from None
+    wall = time.perf_counter() - t0
+    rows = robustness.matrix(settings, results)
+    with _staging(final) as staging:
+        _write_csv(staging / "matrix.csv", rows)
+        _write_csv(
+            staging / "curves.csv",
+            [
+                {"user": c.label, **rec}
+                for c, result in zip(settings.columns, results, strict=True)
+                for rec in result.records
+            ],
+        )
+        summary = {
+            "figure": robustness.FIGURE,
+            "preset": "quick" if args.quick else "paper",
+            "settings": settings.as_dict(),
+            "executor": where,
+            "versions": _versions(),
+            "wall_time_s": round(wall, 1),
+            "planner_solves": sum(r.solves for r in results),
+            "resumed_runs": sum(r.resumed for r in results),
+            "matrix": rows,
+        }
+        (staging / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+        first = settings.columns[0].settings
+        title = (
+            f"fig6: learners × simulated users; {first.study.runs} runs × "
+            f"{first.study.iterations} corrections; " + learning_title_prior(first)
+        )
+        plot_robustness_matrix(rows, title, [staging / "fig6.png", staging / "fig6.pdf"])
+        names = sorted(p.name for p in staging.iterdir())
+    return [final / name for name in names]
+
+
+def learning_title_prior(settings) -> str:
+    """θ*, θ̂⁰ and P⁰ of a learning figure's settings, without the user."""
+    from corrections_sim.figures import learning
+
+    return learning.describe(settings).rsplit(";", 1)[0]
 
 
 #: Options of the learning figures that figs. 1–3 do not take.
@@ -381,7 +455,7 @@ _LEARNING_ONLY = (
     "theta0",
     "cov0",
     "learners",
-    "user",
+    *_PASSED_AS_IS,
     "warm_start",
 )
 
@@ -393,7 +467,7 @@ def run_uncertainty_figure(args: argparse.Namespace) -> list[Path]:
     given = [n for n in _LEARNING_ONLY if getattr(args, n) is not None]
     if given and args.figure != "all":
         option = "--" + given[0].replace("_", "-")
-        raise UsageError(f"{option}: only for fig4 and fig5, not {args.figure}")
+        raise UsageError(f"{option}: only for fig4, fig5 and fig6, not {args.figure}")
     for name in ("workers",):
         value = getattr(args, name)
         if value is not None and value < 1:
@@ -424,13 +498,14 @@ def run_uncertainty_figure(args: argparse.Namespace) -> list[Path]:
 
 
 def run_all(args: argparse.Namespace) -> list[Path]:
-    """Figs. 1–5 one after the other (the scene render is ``run scene``)."""
+    """Figs. 1–6 one after the other (the scene render is ``run scene``)."""
     written = []
     for figure in ("fig1", "fig2", "fig3"):
         args.current = figure
         written += run_uncertainty_figure(args)
     for figure in ("fig4", "fig5"):
         written += run_learning_figure(argparse.Namespace(**{**vars(args), "figure": figure}))
+    written += run_robustness_figure(argparse.Namespace(**{**vars(args), "figure": "fig6"}))
     return written
 
 
@@ -440,8 +515,9 @@ COMMANDS: dict[str, tuple[Callable[[argparse.Namespace], list[Path]], str]] = {
     "fig3": (run_uncertainty_figure, "risk-sensitive deployment, eqs. (A2)-(A4) and exact (A3)"),
     "fig4": (run_learning_figure, "PP vs KF vs AL, equal initial uncertainty"),
     "fig5": (run_learning_figure, "PP vs KF vs AL, laptop known, table uncertain"),
+    "fig6": (run_robustness_figure, "beyond the paper: learners x simulated users, calibration"),
     "scene": (run_scene, "render the scene with optimal paths for two preferences"),
-    "all": (run_all, "fig1 to fig5, one after the other"),
+    "all": (run_all, "fig1 to fig6, one after the other"),
     "video": (run_video, "animate corrections of a recorded fig4/fig5 run (MP4 or GIF)"),
 }
 
@@ -471,7 +547,7 @@ def parser() -> argparse.ArgumentParser:
         "--env", default="s0-t0-l1", help="environment name for 'scene' (default: s0-t0-l1)"
     )
     p.add_argument("--quick", action="store_true", help="the figure's quick preset (CI size)")
-    g = p.add_argument_group("learning figures (fig4, fig5); defaults come from the preset")
+    g = p.add_argument_group("learning figures (fig4, fig5, fig6); defaults come from the preset")
     g.add_argument("--runs", type=int, help="runs of PP, KF and EKF (AL runs once)")
     g.add_argument("--iterations", type=int, help="corrections per run")
     g.add_argument("--seed", type=int, help="root seed of every random draw")
@@ -484,12 +560,34 @@ def parser() -> argparse.ArgumentParser:
         "(symmetric positive definite)",
     )
     g.add_argument(
-        "--learners", metavar="L,L", help="which learners, from PP, KF, EKF, AL (e.g. PP,KF,EKF)"
+        "--learners",
+        metavar="L,L",
+        help="which learners, from " + ", ".join(LEARNERS) + " (e.g. PP,KF,AL,KF-C,AL-C,PP-C)",
     )
     g.add_argument(
         "--user",
-        choices=("biased", "noisy"),
-        help="biased: moves the worst waypoint (paper); noisy: Φ(ξ*) + Gaussian noise",
+        choices=USERS,
+        help="biased: moves its worst waypoint(s) (paper); deform: pushes its worst waypoint "
+        "and the path deforms smoothly; noisy: Φ(ξ*) + Gaussian noise",
+    )
+    g.add_argument(
+        "--user-step", type=float, help="how far the user moves its worst waypoint, (0, 1]"
+    )
+    g.add_argument(
+        "--user-waypoints", type=int, help="how many worst waypoints the biased user moves"
+    )
+    g.add_argument(
+        "--correction-model",
+        choices=CORRECTION_KINDS,
+        help="KF-C's model of a correction: waypoint (paper's §6), deform (minimum-jerk), "
+        "optimal (shows ξ*: the paper's KF)",
+    )
+    g.add_argument("--correction-step", type=float, help="how far KF-C's model moves, (0, 1]")
+    g.add_argument("--correction-waypoints", type=int, help="how many waypoints KF-C's model moves")
+    g.add_argument(
+        "--fixed-alpha",
+        type=float,
+        help="a fixed learning rate for PP and PP-C (default: from KF's / KF-C's gains)",
     )
     g.add_argument(
         "--warm-start",

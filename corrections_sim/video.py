@@ -5,8 +5,9 @@ figure's ``curves.csv`` (θ̂ after every correction, the environment Eᵗ) and 
 (θ*, the user, the planner's starts), three trajectories are planned again and played in turn:
 
 * the robot's plan ξᵗ = ξ*(θ̂ᵗ⁻¹, Eᵗ) (blue),
-* the user's correction ξ_h: ξᵗ with its worst waypoint moved onto ξ*(θ*, Eᵗ) (orange; the
-  user's own plan ξ*(θ*, Eᵗ) is the faint grey path),
+* the user's correction ξ_h, as the run's user makes it from ξᵗ (the paper's biased user moves
+  its worst waypoint onto ξ*(θ*, Eᵗ); orange; the user's own plan ξ*(θ*, Eᵗ) is the faint grey
+  path),
 * the learned plan ξ*(θ̂ᵗ, Eᵗ) in the same environment (green).
 
 Re-planning is cold (the figures warm-start), so a plan can differ from the run's at the
@@ -27,7 +28,6 @@ from pathlib import Path
 import numpy as np
 
 from corrections_sim.environments import Environment, paper_environments
-from corrections_sim.human import BiasedUser
 from corrections_sim.planner import Planner, PlannerConfig
 
 FIGURES = ("fig4", "fig5")
@@ -165,28 +165,41 @@ def check_iterations(record: RunRecord, iterations: Sequence[int]) -> tuple[int,
     return tuple(iterations)
 
 
-def planner_config(record: RunRecord) -> PlannerConfig:
-    """The figure's planner (features of figs. 4 and 5, its multi-start count)."""
-    from corrections_sim.figures.learning import FEATURES
+def figure_settings(record: RunRecord):
+    """The figure's settings as the run had them: its preset, overridden by ``summary.json``.
 
-    return PlannerConfig(features=FEATURES, n_starts=int(record.settings.get("n_starts", 1)))
+    Raises:
+        VideoInputError: the recorded settings are not valid settings of the figure.
+    """
+    from corrections_sim.figures import learning
+
+    try:
+        return learning.load_settings(record.figure, quick=False, overrides=record.settings)
+    except (ValueError, TypeError) as exc:
+        raise VideoInputError(f"{record.figure}/summary.json: {exc}") from None
+
+
+def planner_config(record: RunRecord) -> PlannerConfig:
+    """The figure's planner (its features and multi-start count)."""
+    return figure_settings(record).planner_config()
 
 
 def plan_episodes(record: RunRecord, iterations: Sequence[int], planner: Planner) -> list[Episode]:
-    """Plan the three trajectories of each chosen iteration (4 solves each).
+    """Plan the three trajectories of each chosen iteration (3 solves each).
 
     Raises:
-        VideoInputError: the run's user is not the biased one (the noisy user shows features,
-            not a trajectory), or names an environment that is not one of the 48.
+        VideoInputError: the run's user does not edit trajectories (the noisy user shows
+            features), or the run names an environment that is not one of the 48.
     """
-    if record.settings.get("user", "biased") != "biased":
+    study = figure_settings(record).study
+    user = study.make_user()
+    if not hasattr(user, "corrected_trajectory"):
         raise VideoInputError(
-            f"{record.figure}: the {record.settings['user']} user shows features, not a "
-            "trajectory; only runs with the biased user can be animated"
+            f"{record.figure}: the {study.user} user shows features, not a trajectory; "
+            "only runs of a user who edits the trajectory can be animated"
         )
     envs = {e.name: e for e in paper_environments()}
-    user = BiasedUser(step=float(record.settings.get("user_step", 1.0)))
-    theta_star = np.array(record.settings["theta_star"], float)
+    theta_star = np.array(study.theta_star, float)
     episodes = []
     for t in iterations:
         name = record.environments[t - 1]
