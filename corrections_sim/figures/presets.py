@@ -11,7 +11,7 @@ import functools
 import math
 import tomllib
 from dataclasses import dataclass
-from pathlib import Path
+from importlib import resources
 
 import numpy as np
 
@@ -24,12 +24,14 @@ from corrections_sim.environments import (
 from corrections_sim.features import check_feature_names
 from corrections_sim.learners import Belief
 
-EXPERIMENTS_DIR = Path(__file__).resolve().parents[2] / "experiments"
+#: The presets: the repository's ``experiments/`` folder, shipped as the package data
+#: ``corrections_sim.experiments`` (pyproject.toml), so a clone and a wheel read the same files.
+EXPERIMENTS_DIR = resources.files("corrections_sim.experiments")
 
 
 def read_preset(figure: str, quick: bool) -> dict:
     """The ``[paper]`` or ``[quick]`` table of ``experiments/<figure>.toml``."""
-    with open(EXPERIMENTS_DIR / f"{figure}.toml", "rb") as fh:
+    with (EXPERIMENTS_DIR / f"{figure}.toml").open("rb") as fh:
         presets = tomllib.load(fh)
     return dict(presets["quick" if quick else "paper"])
 
