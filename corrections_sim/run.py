@@ -545,7 +545,9 @@ def parser() -> argparse.ArgumentParser:
         description="Reproduce a figure of Losey & O'Malley (CoRL 2018) headless. "
         "Figures 4 and 5 are resumable: finished runs are kept in OUT/.runs/<figure>/ "
         "(keyed by a hash of the settings and the code) and an interrupted command, run "
-        "again, only computes what is missing.",
+        "again, only computes what is missing. Ctrl-C or SIGTERM stops the command within "
+        "seconds (exit status 130). A figure folder made with other settings or another "
+        "preset is replaced only with --force.",
     )
     p.add_argument(
         "figure",
@@ -625,8 +627,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"error: {str(exc).splitlines()[0]}", file=sys.stderr)
             return 1
         except KeyboardInterrupt as exc:
-            kept = getattr(exc, "kept", "no finished runs to keep")
-            print(f"interrupted: {kept}; run the command again to resume", file=sys.stderr)
+            kept = getattr(exc, "kept", None)
+            message = (
+                f"{kept}; run the command again to resume"
+                if kept
+                else "no finished runs to keep (figs. 4 and 5 resume, figs. 1-3 start over)"
+            )
+            print(f"interrupted: {message}", file=sys.stderr)
             return 130
     for path in written:
         print(f"wrote {path}")

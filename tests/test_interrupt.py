@@ -146,11 +146,13 @@ def test_interrupt_mid_run_keeps_the_finished_runs(command, sig, group):
     assert c.finished_runs() >= 1
 
 
-def test_ctrl_c_while_a_replacement_pool_starts(command):
+@pytest.mark.parametrize("delay", [0.0, 0.3])
+def test_ctrl_c_while_a_replacement_pool_starts(command, delay):
     c = command([*ARGV, "--workers", "2"])
     c.wait_for(lambda: c.finished_runs() >= 1 and c.children(), "finished run")
     os.kill(c.children()[0], signal.SIGKILL)
     c.wait_for(lambda: any("a worker died" in line for line in c.lines), "replacement pool")
+    time.sleep(delay)  # at once: the new pool is being made; 0.3 s: its workers are starting
     c.check_stopped(c.interrupt())
 
 

@@ -12,6 +12,7 @@ import math
 import tomllib
 from dataclasses import dataclass
 from importlib import resources
+from pathlib import Path
 
 import numpy as np
 
@@ -24,9 +25,19 @@ from corrections_sim.environments import (
 from corrections_sim.features import check_feature_names
 from corrections_sim.learners import Belief
 
-#: The presets: the repository's ``experiments/`` folder, shipped as the package data
-#: ``corrections_sim.experiments`` (pyproject.toml), so a clone and a wheel read the same files.
-EXPERIMENTS_DIR = resources.files("corrections_sim.experiments")
+
+def _experiments_dir():
+    """The repository's ``experiments/`` folder, installed (editable or from a wheel) as the
+    package data ``corrections_sim.experiments`` (pyproject.toml); a source tree that is not
+    installed at all (``PYTHONPATH=.``) reads the folder beside the package."""
+    try:
+        return resources.files("corrections_sim.experiments")
+    except ModuleNotFoundError:
+        return Path(__file__).resolve().parents[2] / "experiments"
+
+
+#: Where the presets are read from: the same files from a clone and from a wheel.
+EXPERIMENTS_DIR = _experiments_dir()
 
 
 def read_preset(figure: str, quick: bool) -> dict:
