@@ -29,7 +29,13 @@ from pathlib import Path
 import numpy as np
 
 from corrections_sim import output_folder, provenance
-from corrections_sim.executors import Interrupted, dask_executor, interrupts, process_pool
+from corrections_sim.executors import (
+    Interrupted,
+    check_scheduler_address,
+    dask_executor,
+    interrupts,
+    process_pool,
+)
 
 #: Seconds to wait for a Dask scheduler before giving up (--scheduler).
 SCHEDULER_TIMEOUT_S = 5
@@ -242,8 +248,6 @@ def _check_executor_options(args: argparse.Namespace) -> None:
     if args.scheduler is not None:
         if args.workers is not None:
             raise UsageError("--workers: not with --scheduler (the cluster has its own workers)")
-        from corrections_sim.executors import check_scheduler_address
-
         try:
             check_scheduler_address(args.scheduler)
         except ValueError as exc:
@@ -633,7 +637,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 if kept
                 else "no finished runs to keep (figs. 4 and 5 resume, figs. 1-3 start over)"
             )
-            print(f"interrupted: {message}", file=sys.stderr)
+            by = f" ({exc})" if isinstance(exc, Interrupted) else ""
+            print(f"interrupted: {message}{by}", file=sys.stderr)
             return 130
     for path in written:
         print(f"wrote {path}")
