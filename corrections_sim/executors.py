@@ -63,6 +63,17 @@ def interrupts() -> Iterator[None]:
                 signal.signal(s, h)
 
 
+@contextlib.contextmanager
+def uninterrupted() -> Iterator[None]:
+    """SIGINT and SIGTERM wait until the block is done (e.g. moving a figure's files in, so an
+    interrupt never leaves half of an old figure and half of a new one)."""
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, _SIGNALS)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
 def _worker_init(parent: int) -> None:
     """Runs first in every worker; SIGINT and SIGTERM arrive blocked (see ``_QuietPool``)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # also discards a pending Ctrl-C
@@ -154,12 +165,6 @@ def dask_executor(address: str, timeout_s: float) -> Iterator[tuple[Executor, in
         yield client.get_executor(pure=False), n
     finally:
         # The cluster's workers belong to the cluster; closing the client releases this
-        # command's tasks there. Signals stay blocked so an impatient second Ctrl-C cannot
-        # leave the client half closed.
-        previous = signal.pthread_sigmask(signal.SIG_BLOCK, _SIGNALS)
-        try:
+        # command's tasks there, and no signal may leave the client half closed.
+        with uninterrupted(), contextlib.suppress(OSError, TimeoutError):
             client.close(timeout=timeout_s)
-        except (OSError, TimeoutError):
-            pass
-        finally:
-            signal.pthread_sigmask(signal.SIG_SETMASK, previous)

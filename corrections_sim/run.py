@@ -35,6 +35,7 @@ from corrections_sim.executors import (
     dask_executor,
     interrupts,
     process_pool,
+    uninterrupted,
 )
 
 #: Seconds to wait for a Dask scheduler before giving up (--scheduler).
@@ -324,8 +325,9 @@ def _staging(final: Path) -> Iterator[Path]:
     try:
         yield staging
         final.mkdir(parents=True, exist_ok=True)
-        for item in sorted(staging.iterdir()):
-            os.replace(item, final / item.name)
+        with uninterrupted():
+            for item in sorted(staging.iterdir()):
+                os.replace(item, final / item.name)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
 

@@ -130,3 +130,33 @@ def test_files_no_figure_wrote_are_not_replaced(tmp_path, capsys):
     assert _main(["fig1", "--quick", "--out", str(tmp_path)]) == 2
     _one_line(capsys.readouterr().err, "--out", "--force", "summary.json")
     assert (tmp_path / "fig1" / "notes.txt").read_text() == "mine\n"
+
+
+def test_figs_1_to_3_record_their_provenance_and_what_they_show(tmp_path, monkeypatch):
+    from types import SimpleNamespace
+
+    from corrections_sim.figures import selection
+
+    shown = ({"map": "laptop", "best_x": 0.5, "best_frobenius": float("nan")},)
+
+    def fake_run(settings, executor, progress):  # the figure's computation is tested elsewhere
+        return SimpleNamespace(maps=shown)
+
+    def fake_write(settings, result, folder):
+        (folder / "maps.csv").write_text("map\nlaptop\n")
+
+    monkeypatch.setattr(selection, "run", fake_run)
+    monkeypatch.setattr(selection, "write", fake_write)
+    assert _main(["fig1", "--quick", "--workers", "1", "--out", str(tmp_path)]) == 0
+    summary = json.loads((tmp_path / "fig1" / "summary.json").read_text())
+    assert (
+        summary["command"]
+        == f"python -m corrections_sim.run fig1 --quick --workers 1 --out {tmp_path}"
+    )
+    assert summary["settings"]["features"] == ["laptop"]  # the resolved preset
+    assert summary["planner"]["features"] == ["laptop"]
+    assert summary["results"] == {
+        "maps": [{"map": "laptop", "best_x": 0.5, "best_frobenius": None}]
+    }
+    assert summary["timestamp"] and summary["versions"]["casadi"]
+    assert "git" in summary
