@@ -28,6 +28,11 @@ def default_out(quick: bool) -> Path:
     return QUICK_OUT if quick else PAPER_OUT
 
 
+def _short(value, width: int = 40) -> str:
+    text = json.dumps(value)
+    return text if len(text) <= width else text[: width - 1] + "…"
+
+
 def differences(old: dict, new: dict) -> dict[str, tuple]:
     """Settings recorded in both ``old`` and ``new`` whose values differ: {name: (old, new)}.
 
@@ -65,9 +70,14 @@ def check_replace(folder: Path, figure: str, preset: str, settings: dict, force:
             diff = differences(old["settings"], settings)
             if not diff:
                 return f"replacing {folder}: {figure} with the same settings{made}"
-            what = f"{figure} made with other settings{made}: " + "; ".join(
-                f"{k} {json.dumps(a)} (now {json.dumps(b)})" for k, (a, b) in diff.items()
+            shown = [f"{k} {_short(a)} (now {_short(b)})" for k, (a, b) in diff.items()]
+            more = f"; and {len(shown) - 4} more" if len(shown) > 4 else ""
+            source = old.get("preset")
+            source = (
+                f" of the {source} preset (now {preset})" if source not in (None, preset) else ""
             )
+            what = f"{figure}{source} made with other settings{made}: "
+            what += "; ".join(shown[:4]) + more
         elif old.get("preset") == preset:
             return f"replacing {folder}: {figure}, {preset} preset{made}"
         else:
