@@ -38,3 +38,13 @@ def regret_terms(
     paper = float(theta_star @ (np.asarray(phi_star) - np.asarray(phi)))
     full = paper - smoothness_weight * (smooth_star - smooth)
     return full, paper
+
+
+def mean_sem(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and standard error over axis 0 (runs), ignoring NaN; SEM is 0 for a single run."""
+    values = np.asarray(values, dtype=float)
+    mean = np.nanmean(values, axis=0)
+    if values.shape[0] < 2:
+        return mean, np.zeros_like(mean)
+    n = np.sum(np.isfinite(values), axis=0)
+    return mean, np.nanstd(values, axis=0, ddof=1) / np.sqrt(np.maximum(n, 1))

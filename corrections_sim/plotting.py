@@ -15,6 +15,8 @@ from matplotlib.collections import QuadMesh  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
 
+from corrections_sim.metrics import mean_sem  # noqa: E402
+
 
 def save_atomically(fig: plt.Figure, path: Path, **kwargs) -> Path:
     """Save ``fig`` to ``path`` through a temporary file, so a crash leaves no half file.
@@ -27,6 +29,16 @@ def save_atomically(fig: plt.Figure, path: Path, **kwargs) -> Path:
     fig.savefig(tmp, **kwargs)
     os.replace(tmp, path)
     return path
+
+
+def _save_and_close(fig: plt.Figure, paths, dpi: int) -> None:
+    """Lay out ``fig``, write it to every path (atomically) and free it, even on failure."""
+    try:
+        fig.tight_layout()
+        for path in paths:
+            save_atomically(fig, path, dpi=dpi)
+    finally:
+        plt.close(fig)
 
 
 def save_scene_figure(
@@ -52,58 +64,113 @@ def save_scene_figure(
         plt.close(fig)
 
 
+#: Colour and line style per learner; the correction-aware variants share their paper
+#: learner's colour, dashed. Names come from ``study.LEARNERS``.
 LEARNER_STYLE = {
-    "PP": ("#7f7f7f", "Preference Perceptron (PP)"),
-    "KF": ("#1f77b4", "Kalman filter (KF)"),
-    "EKF": ("#2ca02c", "Extended Kalman filter (EKF)"),
-    "AL": ("#d62728", "Active learning (AL)"),
+    "PP": ("#7f7f7f", "-"),
+    "KF": ("#1f77b4", "-"),
+    "EKF": ("#2ca02c", "-"),
+    "AL": ("#d62728", "-"),
+    "PP-C": ("#7f7f7f", "--"),
+    "KF-C": ("#1f77b4", "--"),
+    "AL-C": ("#d62728", "--"),
+    "KF-A": ("#9467bd", "-."),
+    "BP": ("#8c564b", ":"),
 }
+_EXTRA_COLOURS = ("#9467bd", "#8c564b", "#e377c2", "#17becf", "#bcbd22")
 
 
-def mean_sem(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Mean and standard error over axis 0 (runs); SEM is 0 for a single run."""
-    mean = np.nanmean(values, axis=0)
-    if values.shape[0] < 2:
-        return mean, np.zeros_like(mean)
-    n = np.sum(np.isfinite(values), axis=0)
-    return mean, np.nanstd(values, axis=0, ddof=1) / np.sqrt(np.maximum(n, 1))
+def learner_style(name: str) -> tuple[str, str]:
+    """(colour, line style) of a learner; learners without a fixed style get the next free
+    colour in a stable order of their names."""
+    if name in LEARNER_STYLE:
+        return LEARNER_STYLE[name]
+    from corrections_sim.study import LEARNERS
+
+    extra = [n for n in LEARNERS if n not in LEARNER_STYLE]
+    i = extra.index(name) if name in extra else 0
+    return _EXTRA_COLOURS[i % len(_EXTRA_COLOURS)], "-"
 
 
-def plot_learning_curves(curves: dict[str, dict[str, np.ndarray]], title: str, paths) -> None:
-    """Estimate error and regret against iteration, mean ± SEM as shaded bands.
+def learner_label(name: str) -> str:
+    from corrections_sim.study import LEARNERS
+
+    spec = LEARNERS.get(name)
+    return spec.label if spec is not None and spec.label else name
+
+
+def plot_learning_curves(
+    curves: dict[str, dict[str, np.ndarray]],
+    title: str,
+    paths,
+    bands: dict[str, tuple[float, float]] | None = None,
+) -> None:
+    """Estimate error, regret and calibration against iteration.
+
+    Bands are ± SEM over runs (none for a single run). The calibration panel shows the mean
+    NEES of every learner with a covariance on a log scale, with the 95% χ² band of a
+    calibrated mean for that learner's number of runs shaded (light grey: the most runs;
+    hatched: a single run).
 
     Args:
-        curves: learner -> {"estimate_error": (runs, T+1), "regret": (runs, T+1),
-            "regret_paper": (runs, T+1)}.
+        curves: learner -> {"estimate_error", "regret", "regret_paper", "nees"}: each
+            (runs, T+1).
         paths: files to write (PNG, PDF, …).
+        bands: learner -> (low, high) band of its mean NEES; learners without one have no
+            covariance and are left out of the calibration panel.
     """
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
+    bands = bands or {}
+    fig, axes = plt.subplots(1, 4, figsize=(17, 4.4))
     panels = (
-        ("estimate_error", "Estimate error ‖θ̂ − θ*‖₁"),
-        ("regret", "Regret (full objective), Σ over 48 envs"),
-        ("regret_paper", "Regret θ*·Φ only (paper), Σ over 48 envs"),
+        ("estimate_error", "Estimate error ‖θ̂ − θ*‖₁", "error (L1, weight units)"),
+        ("regret", "Regret (full objective), Σ over 48 envs", "regret (reward units)"),
+        ("regret_paper", "Regret θ*·Φ only (paper's), Σ over 48 envs", "regret (reward units)"),
     )
-    for ax, (key, label) in zip(axes, panels, strict=True):
+    for ax, (key, label, ylabel) in zip(axes, panels, strict=False):
         for learner, data in curves.items():
-            color, name = LEARNER_STYLE[learner]
+            colour, style = learner_style(learner)
             values = data[key]
             mean, sem = mean_sem(values)
             t = np.arange(mean.size)
             n = values.shape[0]
-            ax.plot(t, mean, color=color, lw=2, label=f"{name}, N = {n}")
-            ax.fill_between(t, mean - sem, mean + sem, color=color, alpha=0.25, lw=0)
+            name = f"{learner_label(learner)}, N = {n}"
+            ax.plot(t, mean, color=colour, ls=style, lw=2, label=name)
+            if n > 1:
+                ax.fill_between(t, mean - sem, mean + sem, color=colour, alpha=0.2, lw=0)
+        ax.set_title(label, fontsize=10)
+        ax.set_ylabel(ylabel)
+    ax = axes[3]
+    shown = set()
+    for learner, band in sorted(bands.items(), key=lambda kv: kv[1][1] - kv[1][0]):
+        if tuple(band) in shown:
+            continue
+        n = curves[learner]["nees"].shape[0]
+        single = n == 1
+        ax.axhspan(
+            *band,
+            facecolor="none" if single else "0.85",
+            hatch="///" if single else None,
+            edgecolor="0.7",
+            lw=0,
+            label=f"95% band, calibrated mean of {n} run{'s' if n > 1 else ''}",
+        )
+        shown.add(tuple(band))
+    for learner in bands:
+        colour, style = learner_style(learner)
+        mean = np.nanmean(curves[learner]["nees"], axis=0)
+        ax.plot(np.arange(mean.size), mean, color=colour, ls=style, lw=2)
+    if bands:
+        ax.set_yscale("log")
+        ax.legend(fontsize=7, loc="upper left")
+    ax.set_title("Calibration: mean NEES (θ̂−θ*)ᵀP⁻¹(θ̂−θ*)", fontsize=10)
+    ax.set_ylabel("mean NEES (calibrated: k)")
+    for ax in axes:
         ax.set_xlabel("iteration (corrections)")
         ax.xaxis.get_major_locator().set_params(integer=True)
-        ax.set_title(label, fontsize=10)
         ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=8)
-    fig.suptitle(title, fontsize=11)
-    fig.tight_layout()
-    try:
-        for path in paths:
-            save_atomically(fig, path, dpi=150)
-    finally:
-        plt.close(fig)
+    axes[0].legend(fontsize=7)
+    fig.suptitle(title + "; bands: ± SEM over runs", fontsize=11)
+    _save_and_close(fig, paths, dpi=150)
 
 
 # --- figs. 1-3: heat maps of the predicted covariance, risk-sensitive deployment ---------------
@@ -359,3 +426,68 @@ def plot_deployment_figure(
             save_atomically(fig, path, dpi=110)
     finally:
         plt.close(fig)
+
+
+def plot_robustness_matrix(rows: Sequence[dict], title: str, paths) -> None:
+    """Fig. 6: learners (rows) × users (columns); final estimate error, final regret and
+    final mean NEES as coloured tables with mean ± SEM in each cell.
+
+    Args:
+        rows: ``robustness.matrix`` rows (learner, user, *_mean, *_sem, nees_final, band).
+        paths: files to write.
+    """
+    learners = list(dict.fromkeys(r["learner"] for r in rows))
+    users = list(dict.fromkeys(r["user"] for r in rows))
+    cell = {(r["learner"], r["user"]): r for r in rows}
+    panels = (
+        ("estimate_error", "Final estimate error ‖θ̂ − θ*‖₁ (lower is better)", "viridis_r"),
+        ("regret", "Final regret, Σ over 48 envs (lower is better)", "viridis_r"),
+        ("nees", "Final mean NEES (calibrated: k = 2; log colour)", "coolwarm"),
+    )
+    fig, axes = plt.subplots(1, 3, figsize=(6.2 * 3, 0.55 * len(learners) + 2.6))
+    for ax, (key, label, cmap) in zip(axes, panels, strict=True):
+        values = np.full((len(learners), len(users)), np.nan)
+        for i, learner in enumerate(learners):
+            for j, user in enumerate(users):
+                r = cell[(learner, user)]
+                values[i, j] = r["nees_final"] if key == "nees" else r[f"{key}_mean"]
+        if key == "nees":
+            # Diverging around k = 2 on a log scale: blue under-, red over-confident.
+            shown = np.log10(values / 2.0)
+            limit = max(1.0, float(np.nanmax(np.abs(shown))))
+            image = ax.imshow(shown, cmap=cmap, vmin=-limit, vmax=limit, aspect="auto")
+        else:
+            image = ax.imshow(values, cmap=cmap, aspect="auto")
+        colours = image.cmap(image.norm(shown if key == "nees" else values))
+        for i, learner in enumerate(learners):
+            for j, user in enumerate(users):
+                r = cell[(learner, user)]
+                if key == "nees":
+                    v = r["nees_final"]
+                    inside = r["nees_band_low"] <= v <= r["nees_band_high"]
+                    text = "—" if not np.isfinite(v) else f"{v:.3g}" + (" ✓" if inside else "")
+                else:
+                    sem = r[f"{key}_sem"]
+                    text = f"{r[f'{key}_mean']:.3g}" + (f"\n± {sem:.2g}" if sem else "\n(N = 1)")
+                luminance = np.dot(colours[i, j, :3], (0.299, 0.587, 0.114))
+                ax.text(
+                    j,
+                    i,
+                    text,
+                    ha="center",
+                    va="center",
+                    fontsize=8,
+                    color="black" if luminance > 0.5 or not np.isfinite(values[i, j]) else "white",
+                )
+        ax.set_xticks(range(len(users)), users, rotation=20, ha="right", fontsize=9)
+        ax.set_yticks(range(len(learners)), learners, fontsize=9)
+        ax.set_title(label, fontsize=10)
+    fig.text(
+        0.99,
+        0.01,
+        "NEES: ✓ inside the 95% χ² band of a calibrated mean for its N; — no covariance (PP)",
+        ha="right",
+        fontsize=8,
+    )
+    fig.suptitle(title, fontsize=11)
+    _save_and_close(fig, paths, dpi=150)

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from corrections_sim import output_folder, provenance
+from corrections_sim.corrections import CORRECTION_KINDS
 from corrections_sim.executors import (
     Interrupted,
     check_scheduler_address,
@@ -37,6 +38,7 @@ from corrections_sim.executors import (
     process_pool,
     uninterrupted,
 )
+from corrections_sim.study import LEARNERS, USERS
 
 #: Seconds to wait for a Dask scheduler before giving up (--scheduler).
 SCHEDULER_TIMEOUT_S = 5
@@ -217,6 +219,18 @@ def _matrix(option: str, text: str) -> tuple[tuple[float, ...], ...]:
     return tuple(rows)
 
 
+#: Learning options whose parsed value is the setting's value, under the same name.
+_PASSED_AS_IS = (
+    "user",
+    "user_step",
+    "user_waypoints",
+    "correction_model",
+    "correction_step",
+    "correction_waypoints",
+    "fixed_alpha",
+)
+
+
 def _learning_overrides(args: argparse.Namespace) -> dict:
     for name in ("runs", "iterations", "workers"):
         value = getattr(args, name)
@@ -231,14 +245,14 @@ def _learning_overrides(args: argparse.Namespace) -> dict:
         overrides["cov0"] = _matrix("--cov0", args.cov0)
     if args.learners is not None:
         overrides["learners"] = tuple(n.strip() for n in args.learners.split(","))
-    if args.user is not None:
-        overrides["user"] = args.user
+    alpha = args.fixed_alpha
+    if alpha is not None and not (np.isfinite(alpha) and alpha > 0):
+        raise UsageError(f"--fixed-alpha {alpha}: fixed_alpha must be a finite number > 0")
+    for name in _PASSED_AS_IS:
+        if getattr(args, name) is not None:
+            overrides[name] = getattr(args, name)
     if args.warm_start:
         overrides["warm_start"] = True
-    if args.fixed_alpha is not None:
-        if not (np.isfinite(args.fixed_alpha) and args.fixed_alpha > 0):
-            raise UsageError(f"--fixed-alpha {args.fixed_alpha}: must be a finite number > 0")
-        overrides["fixed_alpha"] = args.fixed_alpha
     return overrides
 
 
@@ -283,12 +297,6 @@ def run_learning_figure(args: argparse.Namespace) -> list[Path]:
         )
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    s = settings.study
-    if "PP" in s.learners and "KF" not in s.learners and s.fixed_alpha is None:
-        raise UsageError(
-            f"--learners {','.join(s.learners)}: PP takes its learning rate from the KF runs "
-            "(paper §6); add KF or give --fixed-alpha"
-        )
     _check_executor_options(args)
     out = _out(args)
     final = out / args.figure
@@ -300,7 +308,7 @@ def run_learning_figure(args: argparse.Namespace) -> list[Path]:
         _writable_dir(out)
         store = RunStore(
             out / ".runs" / args.figure,
-            {"figure": args.figure, "settings": resolved, "code": _code_fingerprint()},
+            {"figure": args.figure, "settings": _run_key(settings), "code": _code_fingerprint()},
         )
         try:
             stack.enter_context(store.lock())
@@ -336,7 +344,7 @@ def _learning_figure(args, settings, store, final: Path, first) -> list[Path]:
     from concurrent.futures.process import BrokenProcessPool
 
     from corrections_sim.figures import learning
-    from corrections_sim.plotting import mean_sem, plot_learning_curves
+    from corrections_sim.plotting import plot_learning_curves
 
     s = settings.study
     t0 = time.perf_counter()
@@ -361,25 +369,7 @@ def _learning_figure(args, settings, store, final: Path, first) -> list[Path]:
     with _staging(final) as staging:
         _write_csv(staging / "curves.csv", result.records)
         _write_csv(staging / "mean_estimate.csv", result.mean_estimate)
-        curves = {}
-        for learner in s.learners:
-            rows = [r for r in result.records if r["learner"] == learner]
-            runs = sorted({r["run"] for r in rows})
-            curves[learner] = {
-                key: np.array([[r[key] for r in rows if r["run"] == run] for run in runs])
-                for key in ("estimate_error", "regret", "regret_paper")
-            }
-        final_stats = {}
-        for learner, data in curves.items():
-            stats = {}
-            for key, values in data.items():
-                mean, sem = mean_sem(values[:, -1:])
-                stats[key] = {
-                    "mean": float(mean[0]),
-                    "sem": float(sem[0]),
-                    "auc_mean": float(np.mean(values.sum(axis=1))),
-                }
-            final_stats[learner] = stats
+        stats = learning.summarize(settings, result)
         summary = {
             "figure": args.figure,
             "preset": "quick" if args.quick else "paper",
@@ -391,38 +381,36 @@ def _learning_figure(args, settings, store, final: Path, first) -> list[Path]:
             "planner_solves": result.solves,
             "resumed_runs": result.resumed,
             "run_cache": str(store.folder),
-            "pp_learning_rate": result.alphas,
-            "final": final_stats,
+            "learning_rates": result.alphas,
+            **stats,
             "regret_failures": int(sum(r["regret_failures"] for r in result.records)),
             "skipped_updates": int(sum(bool(r["update_skipped"]) for r in result.records)),
         }
-        summary.update(_learning_provenance(args, settings, curves))
+        summary.update(_learning_provenance(args, settings, result))
         (staging / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-
-        def fmt(values) -> str:
-            return "(" + ", ".join(f"{v:g}" for v in values) + ")"
-
-        title = (
-            f"{args.figure}: θ* = {fmt(s.theta_star)}, θ̂⁰ = {fmt(s.theta0)}, "
-            f"P⁰ = diag{fmt(np.diag(np.array(s.cov0)))}; mean ± SEM; {s.user} user"
-        )
+        title = f"{args.figure}: {learning.describe(settings)}"
         plot_learning_curves(
-            curves, title, [staging / f"{args.figure}.png", staging / f"{args.figure}.pdf"]
+            learning.curves(settings, result.records),
+            title,
+            [staging / f"{args.figure}.png", staging / f"{args.figure}.pdf"],
+            bands={n: c["band"] for n, c in stats["calibration"].items()},
         )
         names = sorted(p.name for p in staging.iterdir())
     return [final / name for name in names]
 
 
-def _learning_provenance(args, settings, curves: dict[str, dict[str, np.ndarray]]) -> dict:
-    """Summary fields beyond the results: where they came from, the planner, N per learner,
-    and the curves the figure draws (mean and SEM over runs at every iteration)."""
+def _learning_provenance(args, settings, result) -> dict:
+    """Summary fields beyond the statistics: where they came from, the planner, N per
+    learner, and the curves the figure draws (mean and SEM over runs at every iteration)."""
+    from corrections_sim.figures import learning
     from corrections_sim.plotting import mean_sem
 
+    curves = learning.curves(settings, result.records)
     shown = {}
     for learner, data in curves.items():
         shown[learner] = {}
-        for key, values in data.items():
-            mean, sem = mean_sem(values)
+        for key in learning.METRICS:  # NEES/NIS are summarized under "calibration"
+            mean, sem = mean_sem(data[key])
             shown[learner][key] = {"mean": mean, "sem": sem}
     return {
         **provenance.record(args.argv),
@@ -430,6 +418,103 @@ def _learning_provenance(args, settings, curves: dict[str, dict[str, np.ndarray]
         "runs_per_learner": {learner: len(data["regret"]) for learner, data in curves.items()},
         "curves": provenance.plain(shown),
     }
+
+
+def _run_key(settings) -> dict:
+    """The settings a run's numbers depend on: all but which learners run (a run of one
+    learner is the same whichever others run beside it), so adding a learner to a figure
+    reuses the runs already made."""
+    return {k: v for k, v in settings.as_dict().items() if k != "learners"}
+
+
+def run_robustness_figure(args: argparse.Namespace) -> list[Path]:
+    """Fig. 6: learners × simulated users, resumable per column like figs. 4/5."""
+    from corrections_sim.figures import robustness
+    from corrections_sim.plotting import plot_robustness_matrix
+    from corrections_sim.store import CorruptRun, RunStore, StoreLocked
+
+    try:
+        settings = robustness.load_settings(quick=args.quick, overrides=_learning_overrides(args))
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    _check_executor_options(args)
+    out = _out(args)
+    final = out / robustness.FIGURE
+    notice = _check_replace(args, final, robustness.FIGURE, settings.as_dict())
+    code = _code_fingerprint()
+    t0 = time.perf_counter()
+    try:
+        with contextlib.ExitStack() as held:
+            # The cluster is reached (or the pool started) before anything is written.
+            executor, where = held.enter_context(_executor(args))
+            _writable_dir(out)
+            stores = [
+                RunStore(
+                    out / ".runs" / robustness.FIGURE / f"column-{i}",
+                    {"figure": robustness.FIGURE, "settings": _run_key(c.settings), "code": code},
+                )
+                for i, c in enumerate(settings.columns)
+            ]
+            for store in stores:
+                held.enter_context(store.lock())
+            _say(notice)
+            try:
+                results = robustness.run(
+                    settings, executor, Progress(robustness.FIGURE), caches=stores
+                )
+            except Interrupted as exc:
+                kept = sum(len(store.load_all()) for store in stores)
+                exc.kept = (
+                    f"{kept} finished run{'s' if kept != 1 else ''} kept in "
+                    f"{out / '.runs' / robustness.FIGURE}"
+                )
+                raise
+    except StoreLocked as exc:
+        raise UsageError(f"--out {out}: {exc}") from None
+    except CorruptRun as exc:
+        raise RuntimeError(str(exc)) from None
+    wall = time.perf_counter() - t0
+    rows = robustness.matrix(settings, results)
+    with _staging(final) as staging:
+        _write_csv(staging / "matrix.csv", rows)
+        _write_csv(
+            staging / "curves.csv",
+            [
+                {"user": c.label, **rec}
+                for c, result in zip(settings.columns, results, strict=True)
+                for rec in result.records
+            ],
+        )
+        first = settings.columns[0].settings
+        summary = {
+            "figure": robustness.FIGURE,
+            "preset": "quick" if args.quick else "paper",
+            "settings": settings.as_dict(),
+            "executor": where,
+            "versions": _versions(),
+            "wall_time_s": round(wall, 1),
+            "planner_solves": sum(r.solves for r in results),
+            "resumed_runs": sum(r.resumed for r in results),
+            "matrix": rows,
+            **provenance.record(args.argv),
+            "planner": provenance.plain(first.planner_config()),
+            "runs_per_learner": {n: first.study.runs_of(n) for n in settings.learners},
+        }
+        (staging / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+        title = (
+            f"fig6: learners × simulated users; {first.study.runs} runs × "
+            f"{first.study.iterations} corrections; " + learning_title_prior(first)
+        )
+        plot_robustness_matrix(rows, title, [staging / "fig6.png", staging / "fig6.pdf"])
+        names = sorted(p.name for p in staging.iterdir())
+    return [final / name for name in names]
+
+
+def learning_title_prior(settings) -> str:
+    """θ*, θ̂⁰ and P⁰ of a learning figure's settings, without the user."""
+    from corrections_sim.figures import learning
+
+    return learning.describe(settings).rsplit(";", 1)[0]
 
 
 def run_uncertainty_figure(args: argparse.Namespace) -> list[Path]:
@@ -478,13 +563,14 @@ def run_uncertainty_figure(args: argparse.Namespace) -> list[Path]:
 
 
 def run_all(args: argparse.Namespace) -> list[Path]:
-    """Figs. 1–5 one after the other (the scene render is ``run scene``)."""
+    """Figs. 1–6 one after the other (the scene render is ``run scene``)."""
     written = []
     for figure in ("fig1", "fig2", "fig3"):
         args.current = figure
         written += run_uncertainty_figure(args)
     for figure in ("fig4", "fig5"):
         written += run_learning_figure(argparse.Namespace(**{**vars(args), "figure": figure}))
+    written += run_robustness_figure(argparse.Namespace(**{**vars(args), "figure": "fig6"}))
     return written
 
 
@@ -494,8 +580,9 @@ COMMANDS: dict[str, tuple[Callable[[argparse.Namespace], list[Path]], str]] = {
     "fig3": (run_uncertainty_figure, "risk-sensitive deployment, eqs. (A2)-(A4) and exact (A3)"),
     "fig4": (run_learning_figure, "PP vs KF vs AL, equal initial uncertainty"),
     "fig5": (run_learning_figure, "PP vs KF vs AL, laptop known, table uncertain"),
+    "fig6": (run_robustness_figure, "beyond the paper: learners x simulated users, calibration"),
     "scene": (run_scene, "render the scene with optimal paths for two preferences"),
-    "all": (run_all, "fig1 to fig5, one after the other"),
+    "all": (run_all, "fig1 to fig6, one after the other"),
 }
 
 
@@ -509,9 +596,8 @@ _LEARNING_OPTIONS = (
     "theta0",
     "cov0",
     "learners",
-    "user",
+    *_PASSED_AS_IS,
     "warm_start",
-    "fixed_alpha",
 )
 #: The options each command takes; any other option given is refused, not ignored.
 APPLIES: dict[str, tuple[str, ...]] = {
@@ -521,7 +607,8 @@ APPLIES: dict[str, tuple[str, ...]] = {
     "fig3": _FIGURE_OPTIONS,
     "fig4": _LEARNING_OPTIONS,
     "fig5": _LEARNING_OPTIONS,
-    "all": _LEARNING_OPTIONS,  # the learning options go to figs. 4 and 5
+    "fig6": _LEARNING_OPTIONS,
+    "all": _LEARNING_OPTIONS,  # the learning options go to figs. 4-6
 }
 
 
@@ -572,7 +659,7 @@ def parser() -> argparse.ArgumentParser:
         help="replace a figure folder made with other settings or another preset (without "
         "it, such a folder is left alone and the command refuses)",
     )
-    g = p.add_argument_group("learning figures (fig4, fig5); defaults come from the preset")
+    g = p.add_argument_group("learning figures (fig4, fig5, fig6); defaults come from the preset")
     g.add_argument("--runs", type=int, help="runs of PP, KF and EKF (AL runs once)")
     g.add_argument("--iterations", type=int, help="corrections per run")
     g.add_argument("--seed", type=int, help="root seed of every random draw")
@@ -585,12 +672,34 @@ def parser() -> argparse.ArgumentParser:
         "(symmetric positive definite)",
     )
     g.add_argument(
-        "--learners", metavar="L,L", help="which learners, from PP, KF, EKF, AL (e.g. PP,KF,EKF)"
+        "--learners",
+        metavar="L,L",
+        help="which learners, from " + ", ".join(LEARNERS) + " (e.g. PP,KF,AL,KF-C,AL-C,PP-C)",
     )
     g.add_argument(
         "--user",
-        choices=("biased", "noisy"),
-        help="biased: moves the worst waypoint (paper); noisy: Φ(ξ*) + Gaussian noise",
+        choices=USERS,
+        help="biased: moves its worst waypoint(s) (paper); deform: pushes its worst waypoint "
+        "and the path deforms smoothly; noisy: Φ(ξ*) + Gaussian noise",
+    )
+    g.add_argument(
+        "--user-step", type=float, help="how far the user moves its worst waypoint, (0, 1]"
+    )
+    g.add_argument(
+        "--user-waypoints", type=int, help="how many worst waypoints the biased user moves"
+    )
+    g.add_argument(
+        "--correction-model",
+        choices=CORRECTION_KINDS,
+        help="KF-C's model of a correction: waypoint (paper's §6), deform (minimum-jerk), "
+        "optimal (shows ξ*: the paper's KF)",
+    )
+    g.add_argument("--correction-step", type=float, help="how far KF-C's model moves, (0, 1]")
+    g.add_argument("--correction-waypoints", type=int, help="how many waypoints KF-C's model moves")
+    g.add_argument(
+        "--fixed-alpha",
+        type=float,
+        help="a fixed learning rate for PP and PP-C (default: from KF's / KF-C's gains)",
     )
     g.add_argument(
         "--warm-start",
@@ -598,13 +707,6 @@ def parser() -> argparse.ArgumentParser:
         default=None,
         help="start each solve from the run's nearest solved θ (faster; results move at the "
         "solver's tolerance, see README)",
-    )
-    g.add_argument(
-        "--fixed-alpha",
-        type=float,
-        metavar="A",
-        help="PP's learning rate, fixed; without it PP takes the mean gain of the KF runs, "
-        "so PP alone needs it",
     )
     x = p.add_argument_group("where the runs execute")
     x.add_argument(

@@ -45,9 +45,9 @@ import numpy as np
 from corrections_sim.study import RunResult
 
 FORMAT = 1
-_LEARNER = re.compile(r"[A-Za-z0-9_]+")
-_RUN_FILE = re.compile(r"(?P<learner>[A-Za-z0-9_]+)-(?P<run>0|[1-9][0-9]*)\.json")
-_RUN_TEMP = re.compile(r"\.[A-Za-z0-9_]+-(0|[1-9][0-9]*)\.json\..*\.tmp")
+_LEARNER = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_-]*")
+_RUN_FILE = re.compile(r"(?P<learner>[A-Za-z0-9_][A-Za-z0-9_-]*)-(?P<run>0|[1-9][0-9]*)\.json")
+_RUN_TEMP = re.compile(r"\.[A-Za-z0-9_][A-Za-z0-9_-]*-(0|[1-9][0-9]*)\.json\..*\.tmp")
 _RECORD_TYPES = (str, int, float, bool, type(None))
 
 # Lock descriptors this process holds. A forked child (a process-pool worker) inherits them,
@@ -246,11 +246,13 @@ class RunStore:
         """The file of a finished run.
 
         Raises:
-            ValueError: ``learner`` is not letters, digits and underscores, or ``run`` is not
-                a non-negative int.
+            ValueError: ``learner`` is not letters, digits, underscores and hyphens (not
+                first), or ``run`` is not a non-negative int.
         """
         if not isinstance(learner, str) or not _LEARNER.fullmatch(learner):
-            raise ValueError(f"learner {learner!r}: must be letters, digits and underscores")
+            raise ValueError(
+                f"learner {learner!r}: must be letters, digits, underscores and hyphens"
+            )
         if type(run) is not int or run < 0:
             raise ValueError(f"run {run!r}: must be a non-negative int")
         return self.folder / f"{learner}-{run}.json"

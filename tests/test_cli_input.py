@@ -43,7 +43,7 @@ def _one_line(err: str, *names: str) -> None:
         (["fig4", "--env", "s0-t0-l0"], ["--env", "fig4"]),
         (["fig1", "--fixed-alpha", "0.1"], ["--fixed-alpha"]),
         (["fig2", "--env", "s0-t0-l0"], ["--env"]),
-        (["fig4", "--learners", "PP"], ["--learners", "--fixed-alpha"]),
+        (["fig4", "--learners", "PP"], ["learners", "--fixed-alpha"]),
         (["fig4", "--learners", "PP", "--fixed-alpha", "0"], ["--fixed-alpha"]),
         (["fig4", "--learners", "PP", "--fixed-alpha", "nan"], ["--fixed-alpha"]),
         (["fig4", "--out", ""], ["--out"]),
@@ -82,7 +82,7 @@ def test_pp_alone_runs_with_a_fixed_rate_and_a_quick_preset_goes_to_scratch(tmp_
     assert _main([*TINY, "--learners", "PP", "--fixed-alpha", "0.05"]) == 0
     assert not (tmp_path / "results" / "fig4").exists()
     summary = json.loads((tmp_path / "results" / "quick" / "fig4" / "summary.json").read_text())
-    assert summary["pp_learning_rate"] == [0.05]
+    assert summary["learning_rates"] == {"PP": [0.05]}
     assert summary["runs_per_learner"] == {"PP": 1}
 
 
@@ -113,8 +113,8 @@ def test_a_folder_made_with_other_settings_is_replaced_only_with_force(tmp_path,
     assert summary["timestamp"].endswith("+00:00")
     assert summary["versions"]["corrections_sim"]
     assert summary["planner"]["features"] == ["laptop", "table"]
-    assert summary["runs_per_learner"] == {"PP": 1, "KF": 1, "AL": 1}
-    for learner in ("PP", "KF", "AL"):
+    assert set(summary["runs_per_learner"].values()) == {1}
+    for learner in summary["runs_per_learner"]:
         assert len(summary["curves"][learner]["regret"]["mean"]) == 2  # iterations 0 and 1
     if (Path(cli.__file__).parents[1] / ".git").exists():
         assert len(summary["git"]["commit"]) == 40

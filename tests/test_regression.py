@@ -100,3 +100,18 @@ def test_active_learning_shrinks_the_covariance_fastest(quick_run):
         )
 
     assert trace("AL") < trace("KF")
+
+
+def test_kf_c_is_calibrated_where_the_papers_kf_is_not(quick_run):
+    """Issue 9's mechanism: the paper's observation model, Φ(ξ*(θ)), expects a correction to
+    show the whole intended change, the biased user shows a fraction, so KF's P shrinks too
+    fast and its mean NEES leaves the χ² band of a calibrated mean; KF-C predicts the
+    correction itself, and its mean NEES stays inside the band at every iteration."""
+    figure, settings, result, _ = quick_run
+    if figure != "fig4":
+        pytest.skip("asserted with fig. 4's equal initial uncertainty")
+    stats = learning.summarize(settings, result)["calibration"]
+    low, high = stats["KF"]["band"]
+    assert stats["KF"]["mean_nees"][-1] > high, stats["KF"]["mean_nees"]
+    assert stats["KF-C"]["inside_band"] == 1.0, (stats["KF-C"]["mean_nees"], stats["KF-C"]["band"])
+    assert stats["KF-C"]["coverage_2sigma_mean"] > stats["KF"]["coverage_2sigma_mean"]

@@ -32,7 +32,10 @@ COLUMNS = {
     "theta_0",
     "theta_1",
     "cov_00",
+    "cov_01",
     "cov_11",
+    "nees",
+    "nis",
 }
 
 
@@ -325,3 +328,93 @@ def test_run_learner_refuses_unknown_learner_and_pp_without_rates(planner, envs,
         run_learner(
             "PP", 0, settings(), planner, envs, target, BiasedUser(), np.random.default_rng(0)
         )
+
+
+# ------------------------------------------------------------------ KF-C, AL-C, calibration
+
+
+def test_kf_c_with_the_optimal_correction_model_is_the_papers_kf(kf_run, planner, envs, target):
+    # C(ξ, ξ*) = ξ*: hₜ(θ) = Φ(ξ*(θ, E)), the paper's observation model, so the same numbers.
+    other = run("KF-C", planner, envs, target, s=settings(correction_model="optimal"))
+    strip = [{k: v for k, v in r.items() if k != "learner"} for r in other.records]
+    assert strip == [{k: v for k, v in r.items() if k != "learner"} for r in kf_run.records]
+    np.testing.assert_array_equal(other.gains, kf_run.gains)
+
+
+def test_kf_c_observes_the_modelled_correction(planner, envs, target):
+    # Its h at θ* in an environment is exactly the features of the user's correction there.
+    from corrections_sim.features import feature_counts
+    from corrections_sim.study import correction_observer
+
+    env = envs[1]
+    book = PlanBook(planner)
+    robot = book.plan(np.array(THETA0), env).trajectory
+    h = correction_observer(book, env, robot, settings().correction(), planner.config.features)
+    phi = h(np.array([THETA_STAR]))[0]
+    user = BiasedUser().corrected_trajectory(robot, target.plans[1].trajectory)
+    np.testing.assert_allclose(phi, feature_counts(user, env.params(), planner.config.features))
+    # And at θ̂ itself the modelled correction changes nothing: hₜ(θ̂) = Φ(ξᵗ).
+    np.testing.assert_allclose(h(np.array([THETA0]))[0], book.plan(np.array(THETA0), env).features)
+
+
+def test_records_carry_calibration(kf_run, pp_run):
+    first = kf_run.records[0]
+    assert first["nees"] == pytest.approx(2.0)  # θ̂⁰ = 0, θ* = (1, −1), P⁰ = I
+    assert first["nis"] is None  # no correction yet
+    assert all(r["nis"] > 0 and r["nees"] > 0 for r in kf_run.records[1:])
+    assert all(r["nees"] is None and r["nis"] is None for r in pp_run.records)
+
+
+def test_an_active_learner_runs_as_often_as_the_others_when_the_user_is_random():
+    assert settings(runs=5).runs_of("AL-C") == 1
+    assert settings(runs=5, user="noisy").runs_of("AL-C") == 5
+    assert settings(runs=5, user="noisy").runs_of("AL") == 5
+    assert settings(runs=5).runs_of("KF-C") == 5
+
+
+@pytest.mark.parametrize(
+    ("overrides", "match"),
+    [
+        ({"correction_model": "psychic"}, "correction_model"),
+        ({"correction_step": 0.0}, "correction_step"),
+        ({"correction_waypoints": 11}, "correction_waypoints"),
+        ({"correction_model": "deform", "correction_waypoints": 2}, "correction_waypoints"),
+        ({"user": "deform", "user_waypoints": 2}, "user_waypoints"),
+        ({"user_waypoints": 0}, "user_waypoints"),
+        ({"learners": ("PP-C", "KF"), "fixed_alpha": None}, "KF-C"),
+    ],
+)
+def test_bad_correction_settings_are_refused_by_name(overrides, match):
+    with pytest.raises(ValueError, match=match):
+        settings(**overrides)
+
+
+def test_kf_a_that_knows_the_whole_change_is_delivered_is_the_papers_kf(kf_run, planner, envs):
+    target = Target.solve(planner, THETA_STAR, envs)
+    s = settings(attenuation_min=1.0, attenuation_max=1.0, attenuation_points=1)
+    other = run("KF-A", planner, envs, target, s=s)
+    for a, b in zip(other.records, kf_run.records, strict=True):
+        for key in ("estimate_error", "regret", "theta_0", "theta_1", "cov_00", "cov_01", "nees"):
+            # The same maths in another order of operations: equal to rounding.
+            assert a[key] == pytest.approx(b[key], rel=1e-6, abs=1e-9), key
+
+
+def test_bp_learns_without_an_innovation_covariance(planner, envs, target):
+    records = run("BP", planner, envs, target).records
+    assert records[-1]["estimate_error"] < records[0]["estimate_error"]
+    assert all(r["nis"] is None for r in records)
+    assert all(r["nees"] > 0 for r in records)
+
+
+@pytest.mark.parametrize(
+    ("overrides", "match"),
+    [
+        ({"attenuation_min": 0.0}, "attenuation_min"),
+        ({"attenuation_max": 0.01}, "attenuation_max"),
+        ({"beta_min": -1.0}, "beta_min"),
+        ({"lapse": 1.0}, "lapse"),
+    ],
+)
+def test_bad_remedy_settings_are_refused_by_their_keys(overrides, match):
+    with pytest.raises(ValueError, match=match):
+        settings(**overrides)

@@ -1,4 +1,5 @@
-"""Figs. 4 and 5: PP, KF (and EKF) and AL learning from a simulated user's corrections.
+"""Figs. 4 and 5: the learners of :data:`corrections_sim.study.LEARNERS` (the paper's PP, KF and
+AL, and EKF, KF-C, AL-C, PP-C) learning from a simulated user's corrections.
 
 Settings live as data in ``experiments/fig4.toml`` and ``fig5.toml`` (a paper-scale and a quick
 preset each). :func:`run` executes every (learner, run) on any ``concurrent.futures``
@@ -8,8 +9,9 @@ run draws from its own generator, made from (seed, learner stream, run), and eve
 put back in (learner, run) order before anything is averaged.
 
 Order: first the plans every run shares (the user's ξ*(θ*, E) and the robot's ξ*(θ̂⁰, E) in
-all environments, one task); then the KF, EKF and AL runs; PP's learning rate αᵗ is the mean
-of diag(Kᵗ) over the KF runs (paper §6), unless the settings fix α; then the PP runs. A
+all environments, one task); then the runs of every learner with a covariance; a PP-type
+learner's rate αᵗ is the mean of diag(Kᵗ) over the runs of the filter it follows (PP: KF, as
+in the paper §6; PP-C: KF-C), unless the settings fix α; then the PP-type runs. A
 :class:`RunCache` (see :mod:`corrections_sim.store`) makes a run resumable: finished runs
 are loaded instead of recomputed, and each new one is handed to it the moment it finishes.
 """
@@ -23,11 +25,14 @@ from typing import Protocol
 
 import numpy as np
 
+from corrections_sim import calibration
 from corrections_sim.environments import paper_environments
 from corrections_sim.figures.presets import read_preset
 from corrections_sim.learners import learning_rate_schedule
+from corrections_sim.metrics import mean_sem
 from corrections_sim.planner import PlannerConfig, shared_planner
 from corrections_sim.study import (
+    LEARNERS,
     PlanBook,
     PlanEntries,
     RunResult,
@@ -39,9 +44,10 @@ from corrections_sim.study import (
 
 FIGURES = ("fig4", "fig5")
 FEATURES = ("laptop", "table")
-# PP, KF and EKF run r share their draws on purpose (common random numbers).
-_LEARNER_STREAM = {"PP": 0, "KF": 0, "EKF": 0, "AL": 1}
-_ORDER = {"PP": 0, "KF": 1, "EKF": 2, "AL": 3}
+#: Figures and tables list learners in the registry's order.
+_ORDER = {name: i for i, name in enumerate(LEARNERS)}
+#: Curves averaged over runs, and the metrics compared between learners.
+METRICS = ("estimate_error", "regret", "regret_paper")
 
 
 @dataclass(frozen=True)
@@ -70,6 +76,16 @@ def load_settings(figure: str, *, quick: bool, overrides: dict | None = None) ->
         raise ValueError(f"figure {figure!r}: choose one of {', '.join(FIGURES)}")
     values = read_preset(figure, quick)
     values.update({k: v for k, v in (overrides or {}).items() if v is not None})
+    return settings_from_values(values)
+
+
+def settings_from_values(values: dict) -> FigureSettings:
+    """A figure's settings from a flat mapping of :class:`StudySettings` keys and ``n_starts``.
+
+    Raises:
+        ValueError: an unknown key or a bad value (the message names the field).
+    """
+    values = dict(values)
     n_starts = int(values.pop("n_starts", 1))
     known = {f.name for f in fields(StudySettings)}
     unknown = sorted(set(values) - known)
@@ -121,7 +137,7 @@ def run_one(
 ) -> RunResult:
     """One (learner, run); safe to call in a worker process."""
     s = settings.study
-    seq = np.random.SeedSequence([s.seed, _LEARNER_STREAM[learner], run])
+    seq = np.random.SeedSequence([s.seed, LEARNERS[learner].stream, run])
     return run_learner(
         learner,
         run,
@@ -175,27 +191,41 @@ class FigureResult:
     Attributes:
         records: one dict per (learner, run, iteration), in that order.
         mean_estimate: the regret of the mean θ̂ᵗ over runs, per learner and t.
-        alphas: PP's learning rate per iteration.
+        alphas: each PP-type learner's learning rate per iteration.
         solves: planner solves behind these results (including runs loaded from a cache).
         resumed: runs loaded from the cache rather than computed now.
     """
 
     records: list[dict]
     mean_estimate: list[dict]
-    alphas: list[float]
+    alphas: dict[str, list[float]]
     solves: int
     resumed: int
 
 
 def tasks(settings: FigureSettings) -> list[tuple[str, int]]:
-    """Every (learner, run) of the figure, PP last (its learning rate needs the KF runs)."""
+    """Every (learner, run) of the figure, PP-type learners last (their learning rate needs
+    the filter runs); an active learner runs once unless the user is random."""
     s = settings.study
-    keys = [(name, r) for name in ("KF", "EKF") if name in s.learners for r in range(s.runs)]
-    if "AL" in s.learners:
-        keys.append(("AL", 0))
-    if "PP" in s.learners:
-        keys.extend(("PP", r) for r in range(s.runs))
-    return keys
+    names = sorted(s.learners, key=lambda n: (not LEARNERS[n].has_covariance, _ORDER[n]))
+    return [(name, r) for name in names for r in range(s.runs_of(name))]
+
+
+def learning_rates(settings: FigureSettings, results: Mapping) -> dict[str, np.ndarray]:
+    """αᵗ of every PP-type learner: ``fixed_alpha``, or the mean diag(Kᵗ) over the runs of
+    the filter it follows (a step that failed counts as a zero gain)."""
+    s = settings.study
+    rates = {}
+    for name in s.learners:
+        source = LEARNERS[name].rate_from
+        if LEARNERS[name].has_covariance:
+            continue
+        if s.fixed_alpha is not None:
+            rates[name] = np.full(s.iterations, s.fixed_alpha)
+            continue
+        gains = [results[(source, r)].gains for r in range(s.runs_of(source))]
+        rates[name] = learning_rate_schedule(np.nan_to_num(np.array(gains), nan=0.0))
+    return rates
 
 
 def run(
@@ -203,6 +233,8 @@ def run(
     executor: Executor,
     progress: Callable[[int, int], None] | None = None,
     cache: RunCache | None = None,
+    *,
+    mean_estimate: bool = True,
 ) -> FigureResult:
     """All runs of the figure on ``executor``; records sorted by (learner, run, iteration).
 
@@ -212,6 +244,8 @@ def run(
         progress: called as progress(done, total) after each finished run (loaded runs
             count as done from the start).
         cache: finished runs to reuse, and where to put each new one at once.
+        mean_estimate: also evaluate the regret of the mean θ̂ᵗ over runs (the paper's
+            fig. 4 caption; 48 solves per learner and iteration).
     """
     s = settings.study
     keys = tasks(settings)
@@ -232,7 +266,7 @@ def run(
         for learner, r in batch:
             if (learner, r) in results:
                 continue
-            rates = alphas if learner == "PP" else None
+            rates = (alphas or {}).get(learner)
             futures[executor.submit(run_one, settings, shared, learner, r, rates)] = (learner, r)
         for fut in as_completed(futures):
             key = futures[fut]
@@ -243,22 +277,16 @@ def run(
             if progress:
                 progress(done, total)
 
-    execute([k for k in keys if k[0] != "PP"])
-    if s.fixed_alpha is not None:
-        alphas = np.full(s.iterations, s.fixed_alpha)
-    else:
-        gains = [results[("KF", r)].gains for r in range(s.runs) if "KF" in s.learners]
-        if not gains:
-            raise ValueError("fixed_alpha: PP without KF runs needs a fixed learning rate")
-        alphas = learning_rate_schedule(np.nan_to_num(np.array(gains), nan=0.0))
-    execute([k for k in keys if k[0] == "PP"], alphas)
+    execute([k for k in keys if LEARNERS[k[0]].has_covariance])
+    alphas = learning_rates(settings, results)
+    execute([k for k in keys if not LEARNERS[k[0]].has_covariance], alphas)
 
     records = [
         rec
         for key in sorted(results, key=lambda k: (_ORDER[k[0]], k[1]))
         for rec in results[key].records
     ]
-    points = _mean_thetas(settings, records)
+    points = _mean_thetas(settings, records) if mean_estimate else []
     values = list(
         executor.map(
             mean_estimate_point,
@@ -267,7 +295,7 @@ def run(
             [theta for *_, theta in points],
         )
     )
-    mean_estimate = [
+    mean_rows = [
         {
             "learner": learner,
             "iteration": t,
@@ -281,8 +309,120 @@ def run(
     ]
     return FigureResult(
         records=records,
-        mean_estimate=mean_estimate,
-        alphas=[float(a) for a in alphas],
+        mean_estimate=mean_rows,
+        alphas={name: [float(a) for a in rate] for name, rate in alphas.items()},
         solves=shared.solves + sum(r.solves for r in results.values()) + sum(v[3] for v in values),
         resumed=resumed,
     )
+
+
+def curves(settings: FigureSettings, records: list[dict]) -> dict[str, dict[str, np.ndarray]]:
+    """learner -> metric -> values (runs, T + 1), for the metrics and "nees", "nis"."""
+    out = {}
+    for learner in sorted(settings.study.learners, key=_ORDER.get):
+        rows = [r for r in records if r["learner"] == learner]
+        runs = sorted({r["run"] for r in rows})
+        out[learner] = {
+            key: np.array(
+                [[_number(r[key]) for r in rows if r["run"] == run] for run in runs], dtype=float
+            )
+            for key in (*METRICS, "nees", "nis")
+        }
+    return out
+
+
+def _number(value) -> float:
+    """A record's value as a float; None and "" (no value) are NaN."""
+    return float("nan") if value is None or value == "" else float(value)
+
+
+def _mean_ci(values: np.ndarray) -> dict:
+    """Mean, SEM and the 95% t-interval of the mean of ``values`` (n,)."""
+    from scipy import stats
+
+    n = values.size
+    mean = float(np.mean(values))
+    if n < 2:
+        return {"mean": mean, "sem": None, "ci95": None, "n": n}
+    sem = float(np.std(values, ddof=1) / np.sqrt(n))
+    half = float(stats.t.ppf(0.975, n - 1) * sem)
+    return {"mean": mean, "sem": sem, "ci95": [mean - half, mean + half], "n": n}
+
+
+def paired_differences(settings: FigureSettings, data: dict) -> list[dict]:
+    """Paired a − b of final value and area under the curve (Σ over iterations 0 … T) for
+    every pair of learners that share their random stream and runs (common random numbers:
+    run r of both saw the same environments), with the 95% t-interval of the mean."""
+    names = list(data)
+    out = []
+    for i, a in enumerate(names):
+        for b in names[i + 1 :]:
+            if LEARNERS[a].stream != LEARNERS[b].stream:
+                continue
+            if data[a]["regret"].shape[0] != data[b]["regret"].shape[0]:
+                continue
+            if data[a]["regret"].shape[0] < 2:
+                continue
+            for key in METRICS:
+                va, vb = data[a][key], data[b][key]
+                out.append(
+                    {
+                        "a": a,
+                        "b": b,
+                        "metric": key,
+                        "final": _mean_ci(va[:, -1] - vb[:, -1]),
+                        "auc": _mean_ci(va.sum(axis=1) - vb.sum(axis=1)),
+                    }
+                )
+    return out
+
+
+def summarize(settings: FigureSettings, result: FigureResult) -> dict:
+    """The figure's statistics, read from its records only: final mean ± SEM and AUC per
+    learner and metric, calibration (NEES band, coverage, NIS) of every learner with a
+    covariance, and paired differences."""
+    s = settings.study
+    data = curves(settings, result.records)
+    final, calib = {}, {}
+    for learner, values in data.items():
+        stats = {}
+        for key in METRICS:
+            mean, sem = mean_sem(values[key][:, -1:])
+            stats[key] = {
+                "mean": float(mean[0]),
+                "sem": float(sem[0]) if values[key].shape[0] > 1 else None,
+                "auc_mean": float(np.mean(values[key].sum(axis=1))),
+            }
+        stats["runs"] = int(values["regret"].shape[0])
+        final[learner] = stats
+        if LEARNERS[learner].has_covariance:
+            entry = calibration.summarize(values["nees"], s.k)
+            nis = values["nis"][:, 1:]
+            entry["mean_nis"] = [float(v) for v in np.nanmean(nis, axis=0)]
+            entry["nis_band"] = list(calibration.mean_band(s.k, nis.shape[0]))
+            calib[learner] = entry
+    return {
+        "final": final,
+        "calibration": calib,
+        "paired": paired_differences(settings, data),
+    }
+
+
+def _vector(values) -> str:
+    return "(" + ", ".join(f"{v:g}" for v in values) + ")"
+
+
+def describe(settings: FigureSettings) -> str:
+    """One line of the settings a reader needs: θ*, θ̂⁰, P⁰ as given, and the user."""
+    s = settings.study
+    cov = np.array(s.cov0)
+    if np.count_nonzero(cov - np.diag(np.diag(cov))) == 0:
+        prior = f"diag{_vector(np.diag(cov))}"
+    else:
+        prior = "[" + "; ".join(", ".join(f"{v:g}" for v in row) for row in cov) + "]"
+    user = s.user
+    if s.user in ("biased", "deform"):
+        user += f", step {s.user_step:g}"
+    if s.user_waypoints != 1:
+        user += f", {s.user_waypoints} waypoints"
+    return f"θ* = {_vector(s.theta_star)}, θ̂⁰ = {_vector(s.theta0)}, P⁰ = {prior}; {user} user"

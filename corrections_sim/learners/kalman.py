@@ -145,6 +145,8 @@ class UkfStep:
         sigma_points: χ, the θ at which h was evaluated, shape (2k + 1, k).
         sigma_obs: h(χ), shape (2k + 1, k). Row 0 is h(θ̂) = Φ(ξᵗ), the features of the
             robot's own trajectory, so that solve can be reused.
+        innovation_cov: S = P_zz + N, the covariance the filter predicted for the innovation
+            (after any repair), shape (k, k); νᵀS⁻¹ν is the normalized innovation squared.
         repaired: True if S or P⁺ had to be repaired to stay positive definite.
     """
 
@@ -154,6 +156,7 @@ class UkfStep:
     predicted_obs: np.ndarray
     sigma_points: np.ndarray
     sigma_obs: np.ndarray
+    innovation_cov: np.ndarray
     repaired: bool
 
 
@@ -165,12 +168,14 @@ class EkfStep:
         belief: posterior N(θ̂ᵗ⁺¹, Pᵗ⁺¹).
         gain: Kalman gain K, eq. (K6), shape (k, k).
         innovation: Φ_h − Φ(ξᵗ), shape (k,).
+        innovation_cov: S = H P⁻ Hᵀ + N (after any repair), shape (k, k).
         repaired: True if S or P⁺ had to be repaired to stay positive definite.
     """
 
     belief: Belief
     gain: np.ndarray
     innovation: np.ndarray
+    innovation_cov: np.ndarray
     repaired: bool
 
 
@@ -183,6 +188,7 @@ class _UkfStatistics:
     obs_mean: np.ndarray  # (k,)
     gain: np.ndarray  # (k, k)
     cov: np.ndarray  # (k, k)
+    innovation_cov: np.ndarray  # (k, k)
     repaired: bool
 
 
@@ -192,6 +198,7 @@ class _EkfStatistics:
 
     gain: np.ndarray  # (k, k)
     cov: np.ndarray  # (k, k)
+    innovation_cov: np.ndarray  # (k, k)
     repaired: bool
 
 
@@ -240,6 +247,7 @@ def ukf_update(
         predicted_obs=stats.obs_mean,
         sigma_points=stats.points,
         sigma_obs=stats.obs,
+        innovation_cov=stats.innovation_cov,
         repaired=stats.repaired,
     )
 
@@ -305,6 +313,7 @@ def ekf_update(
         belief=Belief(theta=belief.theta + stats.gain @ innovation, cov=stats.cov),
         gain=stats.gain,
         innovation=innovation,
+        innovation_cov=stats.innovation_cov,
         repaired=stats.repaired,
     )
 
@@ -391,6 +400,7 @@ def _ukf_statistics(
         obs_mean=_frozen(obs_mean),
         gain=_frozen(gain),
         cov=_frozen(cov),
+        innovation_cov=_frozen(innovation_cov),
         repaired=s_repaired or p_repaired,
     )
 
@@ -411,7 +421,12 @@ def _ekf_statistics(belief: Belief, jacobian: np.ndarray, noise: KalmanNoise) ->
     i_kh = np.eye(k) - gain @ h
     joseph = i_kh @ prior_cov @ i_kh.T + gain @ noise.observation @ gain.T
     cov, p_repaired = _repair_covariance(joseph, prior_cov)
-    return _EkfStatistics(gain=_frozen(gain), cov=_frozen(cov), repaired=s_repaired or p_repaired)
+    return _EkfStatistics(
+        gain=_frozen(gain),
+        cov=_frozen(cov),
+        innovation_cov=_frozen(innovation_cov),
+        repaired=s_repaired or p_repaired,
+    )
 
 
 def _repair_innovation_covariance(

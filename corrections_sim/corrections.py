@@ -1,0 +1,160 @@
+"""How a person corrects a trajectory: pure functions on waypoints, shared by simulated users
+and by the robot's *model* of a correction (the correction-aware filter, KF-C).
+
+Given the robot's trajectory ξ (T, 7) and the trajectory the person intends, ξ* (T, 7), with
+the first and last waypoints fixed, a correction returns ξ_h (T, 7):
+
+* :func:`waypoint_correction` — the paper's §6 user: the ``count`` waypoints with the largest
+  joint-space error ‖ξ*ᵢ − ξᵢ‖ move a fraction ``step`` of the way onto ξ*'s.
+* :func:`deformation_correction` — a smooth local deformation around the worst waypoint i,
+  in the style of Bajcsy et al. (2017) and Losey & O'Malley's trajectory deformations:
+  ξ_h = ξ + μ A⁻¹ u, where A = KᵀK penalizes the jerk of the deformation (K: third finite
+  differences, full convolution over the free waypoints, which makes A invertible), u pushes
+  waypoint i along δ = ξ*ᵢ − ξᵢ, and μ is chosen so that waypoint i moves by ``step``·δ. The
+  neighbours follow smoothly; the fixed start and goal do not move.
+
+:class:`CorrectionModel` names one of them with its parameters, as a value ("optimal", the
+intended trajectory itself, is the paper's Kalman filter's model of a correction).
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Correction models by name (:class:`CorrectionModel.kind`).
+CORRECTION_KINDS = ("waypoint", "deform", "optimal")
+
+
+def _check_pair(robot, intended) -> tuple[np.ndarray, np.ndarray]:
+    robot = np.asarray(robot, dtype=float)
+    intended = np.asarray(intended, dtype=float)
+    if robot.ndim != 2 or robot.shape != intended.shape or robot.shape[0] < 3:
+        raise ValueError(
+            f"robot {robot.shape} and intended {intended.shape}: expected two trajectories "
+            "of one shape (T, n) with T >= 3"
+        )
+    return robot, intended
+
+
+def _check_step(step: float) -> float:
+    if not (isinstance(step, int | float | np.number) and 0.0 < float(step) <= 1.0):
+        raise ValueError(f"step = {step!r} must lie in (0, 1]")
+    return float(step)
+
+
+def worst_waypoints(robot: np.ndarray, intended: np.ndarray, count: int = 1) -> np.ndarray:
+    """Indices of the ``count`` free waypoints with the largest ‖intended − robot‖, worst first.
+
+    Ties go to the lower index (a stable sort), so the choice is deterministic.
+    """
+    robot, intended = _check_pair(robot, intended)
+    errors = np.linalg.norm(intended - robot, axis=1)
+    errors[0] = errors[-1] = -np.inf  # start and goal are fixed
+    order = np.argsort(-errors, kind="stable")
+    return order[:count]
+
+
+def waypoint_correction(
+    robot: np.ndarray, intended: np.ndarray, step: float = 1.0, count: int = 1
+) -> np.ndarray:
+    """ξ_h (T, n): the ``count`` worst waypoints moved ``step`` of the way onto ``intended``.
+
+    Args:
+        robot: the robot's trajectory ξ, (T, n).
+        intended: the person's intended trajectory ξ*, (T, n), same start and goal.
+        step: fraction in (0, 1] of the way each corrected waypoint moves.
+        count: how many waypoints change, 1 … T − 2.
+    """
+    robot, intended = _check_pair(robot, intended)
+    step = _check_step(step)
+    _check_count(count, robot.shape[0])
+    out = robot.copy()
+    for i in worst_waypoints(robot, intended, count):
+        out[i] += step * (intended[i] - robot[i])
+    return out
+
+
+@functools.cache
+def deformation_shapes(n_waypoints: int) -> np.ndarray:
+    """Columns A⁻¹eᵢ / (A⁻¹)ᵢᵢ of the minimum-jerk deformation, shape (T, T).
+
+    Column i is how much each waypoint moves when waypoint i moves by one unit: 1 at row i,
+    0 at the fixed start and goal (rows and columns 0 and T − 1 are zero), smooth between.
+    A = KᵀK over the T − 2 free waypoints, K the full-convolution third difference
+    [−1, 3, −3, 1] (T + 1 rows), so A is symmetric positive definite.
+    """
+    free = n_waypoints - 2
+    k = np.zeros((free + 3, free))
+    for j in range(free):
+        k[j : j + 4, j] = (-1.0, 3.0, -3.0, 1.0)
+    inverse = np.linalg.inv(k.T @ k)
+    shapes = np.zeros((n_waypoints, n_waypoints))
+    shapes[1:-1, 1:-1] = inverse / np.diag(inverse)[None, :]
+    shapes.setflags(write=False)
+    return shapes
+
+
+def deformation_correction(
+    robot: np.ndarray, intended: np.ndarray, step: float = 1.0
+) -> np.ndarray:
+    """ξ_h = ξ + step · A⁻¹eᵢ/(A⁻¹)ᵢᵢ ⊗ (ξ*ᵢ − ξᵢ), i the worst waypoint; shape (T, n).
+
+    Args:
+        robot: the robot's trajectory ξ, (T, n).
+        intended: the person's intended trajectory ξ*, (T, n).
+        step: fraction in (0, 1] of the way the worst waypoint moves; the others follow the
+            minimum-jerk shape of :func:`deformation_shapes`.
+    """
+    robot, intended = _check_pair(robot, intended)
+    step = _check_step(step)
+    i = int(worst_waypoints(robot, intended, 1)[0])
+    shape = deformation_shapes(robot.shape[0])[:, i]
+    return robot + step * np.outer(shape, intended[i] - robot[i])
+
+
+def _check_count(count: int, n_waypoints: int) -> int:
+    if isinstance(count, bool) or not isinstance(count, int | np.integer):
+        raise ValueError(f"waypoints = {count!r} must be an integer")
+    if not 1 <= count <= n_waypoints - 2:
+        raise ValueError(
+            f"waypoints = {count} must lie in [1, {n_waypoints - 2}] (the free waypoints)"
+        )
+    return int(count)
+
+
+@dataclass(frozen=True)
+class CorrectionModel:
+    """One way of correcting, with its parameters.
+
+    Attributes:
+        kind: "waypoint" (:func:`waypoint_correction`), "deform"
+            (:func:`deformation_correction`) or "optimal" (the person shows ξ* itself, the
+            paper's Kalman filter's assumption; ``step`` and ``waypoints`` are then unused).
+        step: fraction in (0, 1] of the way the corrected waypoint(s) move.
+        waypoints: how many waypoints a "waypoint" correction moves (1 for "deform").
+        n_waypoints: T of the trajectories it will see, to check ``waypoints`` against.
+    """
+
+    kind: str = "waypoint"
+    step: float = 1.0
+    waypoints: int = 1
+    n_waypoints: int = 12
+
+    def __post_init__(self) -> None:
+        if self.kind not in CORRECTION_KINDS:
+            raise ValueError(f"kind = {self.kind!r} must be one of {CORRECTION_KINDS}")
+        _check_step(self.step)
+        _check_count(self.waypoints, self.n_waypoints)
+        if self.kind != "waypoint" and self.waypoints != 1:
+            raise ValueError(f"waypoints = {self.waypoints}: only a 'waypoint' correction has it")
+
+    def apply(self, robot: np.ndarray, intended: np.ndarray) -> np.ndarray:
+        """ξ_h (T, n) for the robot's ξ and the intended ξ*."""
+        if self.kind == "optimal":
+            return np.array(intended, dtype=float)
+        if self.kind == "deform":
+            return deformation_correction(robot, intended, self.step)
+        return waypoint_correction(robot, intended, self.step, self.waypoints)

@@ -1,0 +1,139 @@
+"""Fig. 6 (beyond the paper): a robustness matrix of learners × simulated users.
+
+Rows are learners (the paper's PP, KF and AL; the correction-aware KF-C and AL-C; whatever
+else ``learners`` names), columns are simulated users, including ones no filter models: the
+paper's biased user, one who moves its worst waypoint only half way, one who corrects its
+three worst waypoints, one who pushes the arm into a smooth deformation, and the noisy-optimal
+user (the paper KF's own model). A cell holds the final estimate error and regret (mean ±
+SEM) and the calibration (mean NEES, coverage of θ* by the 95% credible ellipse).
+
+Settings are data in ``experiments/fig6.toml``: the study settings of every column (fig. 4's
+by default) and a list of ``[[<preset>.users]]`` tables, each a column with its ``label`` and
+the user keys of :class:`~corrections_sim.study.StudySettings` (``user``, ``user_step``,
+``user_waypoints``). Each column is a learning study run by :func:`learning.run`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from concurrent.futures import Executor
+from dataclasses import dataclass
+
+import numpy as np
+
+from corrections_sim.figures import learning
+from corrections_sim.figures.learning import FigureResult, FigureSettings, RunCache
+from corrections_sim.figures.presets import read_preset
+from corrections_sim.study import LEARNERS
+
+FIGURE = "fig6"
+#: Keys a column may set; everything else is shared by all columns.
+USER_KEYS = ("user", "user_step", "user_waypoints")
+
+
+@dataclass(frozen=True)
+class Column:
+    """One simulated user: a label and its settings."""
+
+    label: str
+    settings: FigureSettings
+
+
+@dataclass(frozen=True)
+class RobustnessSettings:
+    """The columns of the matrix (each a complete figure's settings)."""
+
+    columns: tuple[Column, ...]
+
+    @property
+    def learners(self) -> tuple[str, ...]:
+        return self.columns[0].settings.study.learners
+
+    def as_dict(self) -> dict:
+        return {c.label: c.settings.as_dict() for c in self.columns}
+
+
+def load_settings(*, quick: bool, overrides: dict | None = None) -> RobustnessSettings:
+    """Settings of fig. 6 from ``experiments/fig6.toml``; ``overrides`` apply to every column
+    (user keys cannot be overridden: the columns are the users).
+
+    Raises:
+        ValueError: a bad value, named as ``users[i].key`` or by its key.
+    """
+    preset = read_preset(FIGURE, quick)
+    users = preset.pop("users", None)
+    if not isinstance(users, list) or not users:
+        raise ValueError("users: expected a non-empty list of [[users]] tables")
+    given = {k: v for k, v in (overrides or {}).items() if v is not None}
+    for key in USER_KEYS:
+        if key in given:
+            raise ValueError(f"{key}: fig6's columns are its users; set them in fig6.toml")
+    columns, labels = [], set()
+    for i, user in enumerate(users):
+        user = dict(user)
+        label = user.pop("label", None)
+        if not isinstance(label, str) or not label or label in labels:
+            raise ValueError(f"users[{i}].label: expected a distinct non-empty name")
+        unknown = sorted(set(user) - set(USER_KEYS))
+        if unknown:
+            raise ValueError(f"users[{i}]: unknown keys {unknown} (allowed: {USER_KEYS})")
+        labels.add(label)
+        try:
+            settings = learning.settings_from_values({**preset, **user, **given})
+        except ValueError as exc:
+            raise ValueError(f"users[{i}] ({label}): {exc}") from None
+        columns.append(Column(label=label, settings=settings))
+    return RobustnessSettings(columns=tuple(columns))
+
+
+def run(
+    settings: RobustnessSettings,
+    executor: Executor,
+    progress: Callable[[int, int], None] | None = None,
+    caches: Sequence[RunCache | None] | None = None,
+) -> list[FigureResult]:
+    """Every column's study on ``executor``, one after the other; one result per column."""
+    caches = caches or [None] * len(settings.columns)
+    results = []
+    total = sum(len(learning.tasks(c.settings)) for c in settings.columns)
+    offset = 0
+    for column, cache in zip(settings.columns, caches, strict=True):
+        n = len(learning.tasks(column.settings))
+
+        def report(done: int, _total: int, base: int = offset) -> None:
+            if progress:
+                progress(base + done, total)
+
+        results.append(
+            learning.run(column.settings, executor, report, cache=cache, mean_estimate=False)
+        )
+        offset += n
+    return results
+
+
+def matrix(settings: RobustnessSettings, results: Sequence[FigureResult]) -> list[dict]:
+    """One row per (learner, user): final error and regret (mean, SEM), calibration."""
+    rows = []
+    for column, result in zip(settings.columns, results, strict=True):
+        stats = learning.summarize(column.settings, result)
+        for learner in settings.learners:
+            final = stats["final"][learner]
+            calib = stats["calibration"].get(learner)
+            row = {"learner": learner, "user": column.label, "runs": final["runs"]}
+            for key in ("estimate_error", "regret"):
+                row[f"{key}_mean"] = final[key]["mean"]
+                row[f"{key}_sem"] = final[key]["sem"]
+                row[f"{key}_auc"] = final[key]["auc_mean"]
+            nan = float("nan")
+            row["nees_final"] = calib["mean_nees"][-1] if calib else nan
+            row["nees_mean"] = float(np.mean(calib["mean_nees"][1:])) if calib else nan
+            row["nees_band_low"], row["nees_band_high"] = calib["band"] if calib else (nan, nan)
+            row["inside_band"] = calib["inside_band"] if calib else nan
+            row["coverage_2sigma"] = calib["coverage_2sigma_mean"] if calib else nan
+            rows.append(row)
+    return rows
+
+
+def learner_order(names: Sequence[str]) -> list[str]:
+    order = {name: i for i, name in enumerate(LEARNERS)}
+    return sorted(names, key=order.get)

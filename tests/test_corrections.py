@@ -1,0 +1,117 @@
+"""Correction models against hand-computed corrections, and the users built on them."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from corrections_sim.corrections import (
+    CorrectionModel,
+    deformation_correction,
+    deformation_shapes,
+    waypoint_correction,
+    worst_waypoints,
+)
+from corrections_sim.human import BiasedUser, DeformingUser
+
+
+def _pair() -> tuple[np.ndarray, np.ndarray]:
+    """Robot (6, 2) all zeros; intended differs at rows 1 (norm 1), 2 (norm 5) and 4 (norm 2)."""
+    robot = np.zeros((6, 2))
+    intended = robot.copy()
+    intended[1] = (1.0, 0.0)
+    intended[2] = (3.0, 4.0)
+    intended[4] = (0.0, -2.0)
+    return robot, intended
+
+
+def test_worst_waypoints_in_order_and_never_the_fixed_ends():
+    robot, intended = _pair()
+    intended[0] = intended[-1] = (100.0, 100.0)  # would be worst, but start and goal are fixed
+    assert worst_waypoints(robot, intended, 3).tolist() == [2, 4, 1]
+
+
+def test_one_waypoint_correction_by_hand():
+    robot, intended = _pair()
+    out = waypoint_correction(robot, intended, step=0.5)
+    expected = robot.copy()
+    expected[2] = (1.5, 2.0)
+    np.testing.assert_array_equal(out, expected)
+
+
+def test_two_waypoint_correction_by_hand():
+    robot, intended = _pair()
+    out = waypoint_correction(robot, intended, step=1.0, count=2)
+    expected = robot.copy()
+    expected[2] = (3.0, 4.0)
+    expected[4] = (0.0, -2.0)
+    np.testing.assert_array_equal(out, expected)
+
+
+def test_deformation_shape_is_the_minimum_jerk_solution():
+    t = 8
+    shapes = deformation_shapes(t)
+    # K: full convolution of [-1, 3, -3, 1] over the 6 free waypoints; A = KᵀK.
+    free = t - 2
+    k = np.zeros((free + 3, free))
+    for j in range(free):
+        k[j : j + 4, j] = (-1, 3, -3, 1)
+    column = np.linalg.solve(k.T @ k, np.eye(free)[:, 2])
+    np.testing.assert_allclose(shapes[1:-1, 3], column / column[2], atol=1e-12)
+    assert np.all(shapes[[0, -1], :] == 0.0)  # start and goal never move
+    np.testing.assert_allclose(np.diag(shapes)[1:-1], 1.0)
+    # Smooth and local: the neighbours move less the farther they are.
+    assert shapes[3, 3] > shapes[2, 3] > shapes[1, 3] > 0.0
+
+
+def test_deformation_moves_the_worst_waypoint_exactly_and_its_neighbours_along():
+    robot, intended = _pair()
+    out = deformation_correction(robot, intended, step=0.5)
+    np.testing.assert_allclose(out[2], 0.5 * intended[2])
+    shape = deformation_shapes(6)[:, 2]
+    np.testing.assert_allclose(out, robot + 0.5 * np.outer(shape, intended[2]))
+    assert np.all(out[0] == robot[0]) and np.all(out[-1] == robot[-1])
+
+
+def test_model_values_and_the_optimal_model():
+    robot, intended = _pair()
+    assert np.array_equal(
+        CorrectionModel("optimal", n_waypoints=6).apply(robot, intended), intended
+    )
+    model = CorrectionModel("waypoint", step=0.5, waypoints=2, n_waypoints=6)
+    np.testing.assert_array_equal(
+        model.apply(robot, intended), waypoint_correction(robot, intended, 0.5, 2)
+    )
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"kind": "magic"}, "kind"),
+        ({"step": 0.0}, "step"),
+        ({"step": 1.5}, "step"),
+        ({"waypoints": 11}, "waypoints"),  # 12 waypoints: 10 free
+        ({"waypoints": 0}, "waypoints"),
+        ({"kind": "deform", "waypoints": 2}, "waypoints"),
+    ],
+)
+def test_bad_model_parameters_are_refused_by_name(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        CorrectionModel(**kwargs)
+
+
+def test_users_use_the_same_corrections():
+    robot, intended = _pair()
+    np.testing.assert_array_equal(
+        BiasedUser(step=0.5, waypoints=2).corrected_trajectory(robot, intended),
+        waypoint_correction(robot, intended, 0.5, 2),
+    )
+    np.testing.assert_array_equal(
+        DeformingUser(step=1.0).corrected_trajectory(robot, intended),
+        deformation_correction(robot, intended, 1.0),
+    )
+    assert not BiasedUser().stochastic and not DeformingUser().stochastic
+    with pytest.raises(ValueError, match="user_waypoints"):
+        BiasedUser(waypoints=5).corrected_trajectory(robot, intended)  # 4 free waypoints
+    with pytest.raises(ValueError, match="user_step"):
+        DeformingUser(step=2.0)

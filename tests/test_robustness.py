@@ -1,0 +1,72 @@
+"""Fig. 6, the robustness matrix (learners × simulated users), on its quick preset through
+the command line: every cell is filled, the random user gets every learner N runs, the files
+are written, and the correction-aware filter is calibrated for the user it models."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import pytest
+
+from corrections_sim import run as cli
+from corrections_sim.figures import robustness
+
+
+@pytest.fixture(scope="module")
+def quick(tmp_path_factory):
+    out = tmp_path_factory.mktemp("fig6")
+    assert cli.main(["fig6", "--quick", "--workers", "2", "--out", str(out)]) == 0
+    return robustness.load_settings(quick=True), out / "fig6"
+
+
+def test_every_cell_is_filled_and_the_files_are_written(quick):
+    settings, folder = quick
+    assert {p.name for p in folder.iterdir()} == {
+        "curves.csv",
+        "matrix.csv",
+        "summary.json",
+        "fig6.png",
+        "fig6.pdf",
+    }
+    with open(folder / "matrix.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    users = [c.label for c in settings.columns]
+    assert [(r["learner"], r["user"]) for r in rows] == [
+        (learner, user) for user in users for learner in settings.learners
+    ]
+    runs = settings.columns[0].settings.study.runs
+    for r in rows:
+        random_user = r["user"] == "noisy-optimal"
+        active = r["learner"] in ("AL", "AL-C")
+        assert int(r["runs"]) == (1 if active and not random_user else runs), r
+        assert float(r["estimate_error_mean"]) >= 0.0 and float(r["regret_mean"]) >= 0.0
+    summary = json.loads((folder / "summary.json").read_text())
+    assert summary["planner_solves"] > 0 and len(summary["matrix"]) == len(rows)
+
+
+def test_kf_c_is_calibrated_for_the_user_it_models_and_kf_is_not(quick):
+    _, folder = quick
+    with open(folder / "matrix.csv", newline="") as fh:
+        cells = {(r["learner"], r["user"]): r for r in csv.DictReader(fh)}
+
+    def inside(learner: str) -> bool:
+        r = cells[(learner, "biased (paper)")]
+        return float(r["nees_band_low"]) <= float(r["nees_final"]) <= float(r["nees_band_high"])
+
+    assert inside("KF-C") and not inside("KF")
+    assert cells[("PP", "biased (paper)")]["nees_final"] in ("", "nan")
+
+
+@pytest.mark.parametrize(
+    ("overrides", "match"),
+    [
+        ({"user": "noisy"}, "user"),
+        ({"user_step": 0.5}, "user_step"),
+        ({"learners": ("PP", "XX")}, "learners"),
+        ({"runs": 0}, "runs"),
+    ],
+)
+def test_bad_overrides_are_refused_by_name(overrides, match):
+    with pytest.raises(ValueError, match=match):
+        robustness.load_settings(quick=True, overrides=overrides)
