@@ -1,11 +1,14 @@
 """Command line: reproduce a figure of the paper headless.
 
     python -m corrections_sim.run fig4             # results/fig4/ (CSV, summary, PNG, PDF)
-    python -m corrections_sim.run fig5 --quick     # the quick preset (what CI runs)
+    python -m corrections_sim.run fig5 --quick     # results/quick/fig5/ (what CI runs)
     python -m corrections_sim.run scene            # results/scene.png
 
 Bad input ends with a one-line message on stderr and exit status 2; nothing already in the
-output folder is overwritten by a run that failed.
+output folder is overwritten by a run that failed, and a figure folder made with other
+settings only with --force (:mod:`corrections_sim.output_folder`). SIGINT and SIGTERM end
+the command within seconds at any moment with one line and exit status 130, keeping the
+finished runs (:mod:`corrections_sim.executors`).
 """
 
 from __future__ import annotations
@@ -25,7 +28,16 @@ from pathlib import Path
 
 import numpy as np
 
+from corrections_sim import output_folder, provenance
 from corrections_sim.corrections import CORRECTION_KINDS
+from corrections_sim.executors import (
+    Interrupted,
+    check_scheduler_address,
+    dask_executor,
+    interrupts,
+    process_pool,
+    uninterrupted,
+)
 from corrections_sim.study import LEARNERS, USERS
 
 #: Seconds to wait for a Dask scheduler before giving up (--scheduler).
@@ -36,6 +48,30 @@ WORKER_DEATH_RETRIES = 2
 
 class UsageError(Exception):
     """Bad input from the command line: printed as one line, exit status 2."""
+
+
+def _out(args: argparse.Namespace) -> Path:
+    """The output folder: --out, or the preset's default (see :mod:`output_folder`)."""
+    if args.out is None:
+        return output_folder.default_out(args.quick)
+    if not args.out.strip():
+        raise UsageError("--out '': give a folder name (default: results, or results/quick)")
+    return Path(args.out)
+
+
+def _check_replace(args: argparse.Namespace, final: Path, figure: str, settings: dict) -> str:
+    """Refuse (exit 2) to replace a figure folder made by other settings without --force;
+    otherwise the line to print, once the command is sure to start, saying what it replaces."""
+    preset = "quick" if args.quick else "paper"
+    try:
+        return output_folder.check_replace(final, figure, preset, settings, args.force)
+    except output_folder.FolderTaken as exc:
+        raise UsageError(f"--out {final.parent}: {exc}") from None
+
+
+def _say(notice: str) -> None:
+    if notice:
+        print(notice, file=sys.stderr)
 
 
 def _writable_dir(path: Path) -> Path:
@@ -54,10 +90,11 @@ def run_scene(args: argparse.Namespace) -> list[Path]:
     from corrections_sim.planner import Planner, PlannerConfig
 
     envs = {e.name: e for e in paper_environments()}
+    args.env = args.env or "s0-t0-l1"
     if args.env not in envs:
         raise UsageError(f"--env {args.env!r}: unknown; choose one of {', '.join(envs)}")
     env = envs[args.env]
-    out = _writable_dir(Path(args.out))
+    out = _writable_dir(_out(args))
     planner = Planner(PlannerConfig(features=("laptop", "table")))
     cases = (
         ((0.0, 0.0), (0.15, 0.45, 0.95, 1.0), "θ = (0, 0): smoothness only"),
@@ -148,12 +185,7 @@ def _write_csv(path: Path, rows: list[dict]) -> None:
             writer.writerow({k: (repr(v) if isinstance(v, float) else v) for k, v in row.items()})
 
 
-def _versions() -> dict[str, str]:
-    from importlib.metadata import version
-
-    names = ("corrections_sim", "mujoco", "casadi", "pin", "numpy")
-    return {n: version(n) for n in names}
-
+_versions = provenance.versions
 
 #: Modules that cannot change a learning run's numbers (files, plots, CLI, other figures).
 _EDGE_MODULES = (
@@ -165,6 +197,10 @@ _EDGE_MODULES = (
     "bench_ik.py",
     "models.py",
     "video.py",
+    "executors.py",
+    "output_folder.py",
+    "provenance.py",
+    "report.py",
 )
 
 
@@ -178,6 +214,8 @@ def _code_fingerprint() -> str:
     for path in sorted(root.rglob("*.py")):
         name = path.relative_to(root).as_posix()
         if name in _EDGE_MODULES or (name.startswith("figures/") and name != "figures/learning.py"):
+            continue
+        if name.startswith("experiments/"):  # the presets, in a wheel; settings are in the key
             continue
         digest.update(name.encode())
         digest.update(path.read_bytes())
@@ -234,6 +272,9 @@ def _learning_overrides(args: argparse.Namespace) -> dict:
         overrides["cov0"] = _matrix("--cov0", args.cov0)
     if args.learners is not None:
         overrides["learners"] = tuple(n.strip() for n in args.learners.split(","))
+    alpha = args.fixed_alpha
+    if alpha is not None and not (np.isfinite(alpha) and alpha > 0):
+        raise UsageError(f"--fixed-alpha {alpha}: fixed_alpha must be a finite number > 0")
     for name in _PASSED_AS_IS:
         if getattr(args, name) is not None:
             overrides[name] = getattr(args, name)
@@ -242,30 +283,34 @@ def _learning_overrides(args: argparse.Namespace) -> dict:
     return overrides
 
 
+def _check_executor_options(args: argparse.Namespace) -> None:
+    """--workers and --scheduler, checked before anything is created."""
+    if args.workers is not None and args.workers < 1:
+        raise UsageError(f"--workers {args.workers}: must be a positive integer")
+    if args.scheduler is not None:
+        if args.workers is not None:
+            raise UsageError("--workers: not with --scheduler (the cluster has its own workers)")
+        try:
+            check_scheduler_address(args.scheduler)
+        except ValueError as exc:
+            raise UsageError(f"--scheduler {args.scheduler}: {exc}") from None
+
+
 @contextlib.contextmanager
 def _executor(args: argparse.Namespace) -> Iterator[tuple[Executor, str]]:
-    """The executor the runs go to: a Dask cluster's (--scheduler) or a local process pool."""
+    """The executor the runs go to: a Dask cluster's (--scheduler) or a local process pool
+    whose workers die with the command (see :mod:`corrections_sim.executors`)."""
     if args.scheduler is None:
-        from concurrent.futures import ProcessPoolExecutor
-
         workers = args.workers or os.cpu_count() or 1
-        with ProcessPoolExecutor(max_workers=workers) as pool:
+        with process_pool(workers) as pool:
             yield pool, f"process pool, {workers} worker{'s' if workers != 1 else ''}"
         return
-    if args.workers is not None:
-        raise UsageError("--workers: not with --scheduler (the cluster has its own workers)")
-    from distributed import Client
-
-    try:
-        client = Client(args.scheduler, timeout=f"{SCHEDULER_TIMEOUT_S}s", set_as_default=False)
-    except (OSError, TimeoutError, ValueError) as exc:
-        message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise UsageError(f"--scheduler {args.scheduler}: cannot connect ({message})") from None
-    try:
-        n = len(client.scheduler_info(n_workers=-1).get("workers", {}))
-        yield client.get_executor(pure=False), f"dask {args.scheduler}, {n} workers"
-    finally:
-        client.close()
+    with contextlib.ExitStack() as stack:
+        try:
+            executor, n = stack.enter_context(dask_executor(args.scheduler, SCHEDULER_TIMEOUT_S))
+        except (ConnectionError, ValueError) as exc:
+            raise UsageError(f"--scheduler {args.scheduler}: cannot connect ({exc})") from None
+        yield executor, f"dask {args.scheduler}, {n} workers"
 
 
 def run_learning_figure(args: argparse.Namespace) -> list[Path]:
@@ -279,19 +324,32 @@ def run_learning_figure(args: argparse.Namespace) -> list[Path]:
         )
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    out = _writable_dir(Path(args.out))
+    _check_executor_options(args)
+    out = _out(args)
     final = out / args.figure
-    store = RunStore(
-        out / ".runs" / args.figure,
-        {"figure": args.figure, "settings": _run_key(settings), "code": _code_fingerprint()},
-    )
-    try:
-        with store.lock():
-            return _learning_figure(args, settings, store, final)
-    except StoreLocked as exc:
-        raise UsageError(f"--out {out}: {exc}") from None
-    except CorruptRun as exc:
-        raise RuntimeError(str(exc)) from None
+    resolved = settings.as_dict()
+    notice = _check_replace(args, final, args.figure, resolved)
+    with contextlib.ExitStack() as stack:
+        # The cluster is reached (or the pool started) before anything is written.
+        first = stack.enter_context(_executor(args))
+        _writable_dir(out)
+        store = RunStore(
+            out / ".runs" / args.figure,
+            {"figure": args.figure, "settings": _run_key(settings), "code": _code_fingerprint()},
+        )
+        try:
+            stack.enter_context(store.lock())
+        except StoreLocked as exc:
+            raise UsageError(f"--out {out}: {exc}") from None
+        _say(notice)
+        try:
+            return _learning_figure(args, settings, store, final, first)
+        except Interrupted as exc:
+            kept = len(store.load_all())
+            exc.kept = f"{kept} finished run{'s' if kept != 1 else ''} kept in {store.folder}"
+            raise
+        except CorruptRun as exc:
+            raise RuntimeError(str(exc)) from None
 
 
 @contextlib.contextmanager
@@ -302,13 +360,14 @@ def _staging(final: Path) -> Iterator[Path]:
     try:
         yield staging
         final.mkdir(parents=True, exist_ok=True)
-        for item in sorted(staging.iterdir()):
-            os.replace(item, final / item.name)
+        with uninterrupted():
+            for item in sorted(staging.iterdir()):
+                os.replace(item, final / item.name)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
 
 
-def _learning_figure(args, settings, store, final: Path) -> list[Path]:
+def _learning_figure(args, settings, store, final: Path, first) -> list[Path]:
     from concurrent.futures.process import BrokenProcessPool
 
     from corrections_sim.figures import learning
@@ -319,7 +378,8 @@ def _learning_figure(args, settings, store, final: Path) -> list[Path]:
     progress = Progress(args.figure)
     for attempt in range(1, WORKER_DEATH_RETRIES + 2):
         try:
-            with _executor(args) as (executor, where):
+            context = contextlib.nullcontext(first) if attempt == 1 else _executor(args)
+            with context as (executor, where):
                 result = learning.run(settings, executor, progress, cache=store)
             break
         except BrokenProcessPool:
@@ -353,6 +413,7 @@ def _learning_figure(args, settings, store, final: Path) -> list[Path]:
             "regret_failures": int(sum(r["regret_failures"] for r in result.records)),
             "skipped_updates": int(sum(bool(r["update_skipped"]) for r in result.records)),
         }
+        summary.update(_learning_provenance(args, settings, result))
         (staging / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
         title = f"{args.figure}: {learning.describe(settings)}"
         plot_learning_curves(
@@ -363,6 +424,27 @@ def _learning_figure(args, settings, store, final: Path) -> list[Path]:
         )
         names = sorted(p.name for p in staging.iterdir())
     return [final / name for name in names]
+
+
+def _learning_provenance(args, settings, result) -> dict:
+    """Summary fields beyond the statistics: where they came from, the planner, N per
+    learner, and the curves the figure draws (mean and SEM over runs at every iteration)."""
+    from corrections_sim.figures import learning
+    from corrections_sim.plotting import mean_sem
+
+    curves = learning.curves(settings, result.records)
+    shown = {}
+    for learner, data in curves.items():
+        shown[learner] = {}
+        for key in learning.METRICS:  # NEES/NIS are summarized under "calibration"
+            mean, sem = mean_sem(data[key])
+            shown[learner][key] = {"mean": mean, "sem": sem}
+    return {
+        **provenance.record(args.argv),
+        "planner": provenance.plain(settings.planner_config()),
+        "runs_per_learner": {learner: len(data["regret"]) for learner, data in curves.items()},
+        "curves": provenance.plain(shown),
+    }
 
 
 def _run_key(settings) -> dict:
@@ -382,25 +464,38 @@ def run_robustness_figure(args: argparse.Namespace) -> list[Path]:
         settings = robustness.load_settings(quick=args.quick, overrides=_learning_overrides(args))
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    out = _writable_dir(Path(args.out))
+    _check_executor_options(args)
+    out = _out(args)
     final = out / robustness.FIGURE
+    notice = _check_replace(args, final, robustness.FIGURE, settings.as_dict())
     code = _code_fingerprint()
-    stores = [
-        RunStore(
-            out / ".runs" / robustness.FIGURE / f"column-{i}",
-            {"figure": robustness.FIGURE, "settings": _run_key(c.settings), "code": code},
-        )
-        for i, c in enumerate(settings.columns)
-    ]
     t0 = time.perf_counter()
     try:
         with contextlib.ExitStack() as held:
+            # The cluster is reached (or the pool started) before anything is written.
+            executor, where = held.enter_context(_executor(args))
+            _writable_dir(out)
+            stores = [
+                RunStore(
+                    out / ".runs" / robustness.FIGURE / f"column-{i}",
+                    {"figure": robustness.FIGURE, "settings": _run_key(c.settings), "code": code},
+                )
+                for i, c in enumerate(settings.columns)
+            ]
             for store in stores:
                 held.enter_context(store.lock())
-            with _executor(args) as (executor, where):
+            _say(notice)
+            try:
                 results = robustness.run(
                     settings, executor, Progress(robustness.FIGURE), caches=stores
                 )
+            except Interrupted as exc:
+                kept = sum(len(store.load_all()) for store in stores)
+                exc.kept = (
+                    f"{kept} finished run{'s' if kept != 1 else ''} kept in "
+                    f"{out / '.runs' / robustness.FIGURE}"
+                )
+                raise
     except StoreLocked as exc:
         raise UsageError(f"--out {out}: {exc}") from None
     except CorruptRun as exc:
@@ -417,6 +512,7 @@ def run_robustness_figure(args: argparse.Namespace) -> list[Path]:
                 for rec in result.records
             ],
         )
+        first = settings.columns[0].settings
         summary = {
             "figure": robustness.FIGURE,
             "preset": "quick" if args.quick else "paper",
@@ -427,9 +523,11 @@ def run_robustness_figure(args: argparse.Namespace) -> list[Path]:
             "planner_solves": sum(r.solves for r in results),
             "resumed_runs": sum(r.resumed for r in results),
             "matrix": rows,
+            **provenance.record(args.argv),
+            "planner": provenance.plain(first.planner_config()),
+            "runs_per_learner": {n: first.study.runs_of(n) for n in settings.learners},
         }
         (staging / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-        first = settings.columns[0].settings
         title = (
             f"fig6: learners × simulated users; {first.study.runs} runs × "
             f"{first.study.iterations} corrections; " + learning_title_prior(first)
@@ -446,51 +544,45 @@ def learning_title_prior(settings) -> str:
     return learning.describe(settings).rsplit(";", 1)[0]
 
 
-#: Options of the learning figures that figs. 1–3 do not take.
-_LEARNING_ONLY = (
-    "runs",
-    "iterations",
-    "seed",
-    "theta_star",
-    "theta0",
-    "cov0",
-    "learners",
-    *_PASSED_AS_IS,
-    "warm_start",
-)
-
-
 def run_uncertainty_figure(args: argparse.Namespace) -> list[Path]:
     """Figs. 1–3: where to learn (heat maps of eq. A1) and how to deploy (A2–A4)."""
     from corrections_sim.figures import deployment, selection
+    from corrections_sim.figures.presets import read_preset
 
-    given = [n for n in _LEARNING_ONLY if getattr(args, n) is not None]
-    if given and args.figure != "all":
-        option = "--" + given[0].replace("_", "-")
-        raise UsageError(f"{option}: only for fig4, fig5 and fig6, not {args.figure}")
-    for name in ("workers",):
-        value = getattr(args, name)
-        if value is not None and value < 1:
-            raise UsageError(f"--{name} {value}: must be a positive integer")
+    _check_executor_options(args)
     figure = args.figure if args.figure != "all" else args.current
     module = deployment if figure in deployment.FIGURES else selection
     try:
         settings = module.load_settings(figure, quick=args.quick)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    final = _writable_dir(Path(args.out)) / figure
+    out = _out(args)
+    final = out / figure
+    preset = provenance.plain(read_preset(figure, args.quick))
+    notice = _check_replace(args, final, figure, preset)
     t0 = time.perf_counter()
     with _executor(args) as (executor, where):
+        final = _writable_dir(out) / figure
+        _say(notice)
         result = module.run(settings, executor, Progress(figure, unit="task"))
     wall = time.perf_counter() - t0
     with _staging(final) as staging:
         module.write(settings, result, staging)
+        # What the figure shows: the best cell of each heat map (figs. 1-2), the deployed
+        # trajectories' features and rewards per panel and rule (fig. 3).
+        shown = (
+            {"maps": result.maps} if module is selection else {"trajectories": result.trajectories}
+        )
         summary = {
             "figure": figure,
             "preset": "quick" if args.quick else "paper",
+            "settings": preset,
             "executor": where,
             "versions": _versions(),
             "wall_time_s": round(wall, 1),
+            **provenance.record(args.argv),
+            "planner": provenance.plain(settings.planner_config()),
+            "results": provenance.plain(shown),
         }
         (staging / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
         names = sorted(p.name for p in staging.iterdir())
@@ -522,6 +614,45 @@ COMMANDS: dict[str, tuple[Callable[[argparse.Namespace], list[Path]], str]] = {
 }
 
 
+_FIGURE_OPTIONS = ("out", "quick", "force", "workers", "scheduler")
+_LEARNING_OPTIONS = (
+    *_FIGURE_OPTIONS,
+    "runs",
+    "iterations",
+    "seed",
+    "theta_star",
+    "theta0",
+    "cov0",
+    "learners",
+    *_PASSED_AS_IS,
+    "warm_start",
+)
+#: The options each command takes; any other option given is refused, not ignored.
+APPLIES: dict[str, tuple[str, ...]] = {
+    "scene": ("out", "env"),
+    "fig1": _FIGURE_OPTIONS,
+    "fig2": _FIGURE_OPTIONS,
+    "fig3": _FIGURE_OPTIONS,
+    "fig4": _LEARNING_OPTIONS,
+    "fig5": _LEARNING_OPTIONS,
+    "fig6": _LEARNING_OPTIONS,
+    "all": _LEARNING_OPTIONS,  # the learning options go to figs. 4-6
+}
+
+
+def _check_applies(args: argparse.Namespace) -> None:
+    """Refuse an option the command does not take (``scene --runs 5``, ``fig4 --env X``)."""
+    allowed = APPLIES[args.figure]
+    for name in (a.dest for a in parser()._actions):
+        if name in ("help", "figure") or name in allowed:
+            continue
+        if getattr(args, name) not in (None, False):
+            takes = ", ".join("--" + n.replace("_", "-") for n in allowed)
+            raise UsageError(
+                f"--{name.replace('_', '-')}: does not apply to {args.figure} (it takes {takes})"
+            )
+
+
 class _Parser(argparse.ArgumentParser):
     """argparse, but a bad option is one line on stderr (no usage block), exit status 2."""
 
@@ -535,18 +666,27 @@ def parser() -> argparse.ArgumentParser:
         description="Reproduce a figure of Losey & O'Malley (CoRL 2018) headless. "
         "Figures 4 and 5 are resumable: finished runs are kept in OUT/.runs/<figure>/ "
         "(keyed by a hash of the settings and the code) and an interrupted command, run "
-        "again, only computes what is missing.",
+        "again, only computes what is missing. Ctrl-C or SIGTERM stops the command within "
+        "seconds (exit status 130). A figure folder made with other settings or another "
+        "preset is replaced only with --force.",
     )
     p.add_argument(
         "figure",
         choices=sorted(COMMANDS),
         help="what to produce: " + "; ".join(f"{k}: {v[1]}" for k, v in COMMANDS.items()),
     )
-    p.add_argument("--out", default="results", help="output folder (default: results)")
     p.add_argument(
-        "--env", default="s0-t0-l1", help="environment name for 'scene' (default: s0-t0-l1)"
+        "--out",
+        help="output folder (default: results; with --quick the scratch folder results/quick)",
     )
+    p.add_argument("--env", help="environment name for 'scene' (default: s0-t0-l1)")
     p.add_argument("--quick", action="store_true", help="the figure's quick preset (CI size)")
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="replace a figure folder made with other settings or another preset (without "
+        "it, such a folder is left alone and the command refuses)",
+    )
     g = p.add_argument_group("learning figures (fig4, fig5, fig6); defaults come from the preset")
     g.add_argument("--runs", type=int, help="runs of PP, KF and EKF (AL runs once)")
     g.add_argument("--iterations", type=int, help="corrections per run")
@@ -624,24 +764,40 @@ def parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = parser().parse_args(argv)
-    try:
-        written = COMMANDS[args.figure][0](args)
-    except UsageError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except RuntimeError as exc:  # a missing GL backend, a planner failure: one line, no trace
-        print(f"error: {str(exc).splitlines()[0]}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print(
-            "interrupted: finished runs are kept; run the command again to resume", file=sys.stderr
-        )
-        return 130
+    """Run one command; 0 on success, 1 on a failure, 2 on bad input, 130 on SIGINT/SIGTERM."""
+    with interrupts():  # from the start: the heavy imports happen inside
+        args = parser().parse_args(argv)
+        args.argv = list(sys.argv[1:] if argv is None else argv)
+        try:
+            _check_applies(args)
+            written = COMMANDS[args.figure][0](args)
+        except UsageError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        except RuntimeError as exc:  # a missing GL backend, a planner failure: one line
+            print(f"error: {str(exc).splitlines()[0]}", file=sys.stderr)
+            return 1
+        except KeyboardInterrupt as exc:
+            kept = getattr(exc, "kept", None)
+            message = (
+                f"{kept}; run the command again to resume"
+                if kept
+                else "no finished runs to keep (figs. 4 and 5 resume, figs. 1-3 start over)"
+            )
+            by = f" ({exc})" if isinstance(exc, Interrupted) else ""
+            print(f"interrupted: {message}{by}", file=sys.stderr)
+            return 130
     for path in written:
         print(f"wrote {path}")
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    status = main()
+    if status == 130:
+        # The workers are dead already; skip the interpreter's exit-time joins of pools and
+        # threads, which an interrupt may have left in any state.
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(status)
+    sys.exit(status)

@@ -104,7 +104,7 @@ def test_a_second_command_on_the_same_folder_is_refused(earlier, capsys):
     settings = learning.load_settings("fig4", quick=True)
     store = RunStore(earlier / ".runs" / "fig4", {"other": settings.as_dict()})
     with store.lock():
-        status = _main([*TINY, "--out", str(earlier)])
+        status = _main([*TINY, "--out", str(earlier), "--force"])
     err = capsys.readouterr().err
     assert status == 2 and "another run" in err and err.count("\n") == 1
     assert (earlier / "fig4" / "curves.csv").read_text() == SENTINEL

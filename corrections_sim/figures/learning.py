@@ -18,17 +18,16 @@ are loaded instead of recomputed, and each new one is handed to it the moment it
 
 from __future__ import annotations
 
-import tomllib
 from collections.abc import Callable, Mapping
 from concurrent.futures import Executor, Future, as_completed
 from dataclasses import dataclass, fields
-from pathlib import Path
 from typing import Protocol
 
 import numpy as np
 
 from corrections_sim import calibration
 from corrections_sim.environments import paper_environments
+from corrections_sim.figures.presets import read_preset
 from corrections_sim.learners import learning_rate_schedule
 from corrections_sim.metrics import mean_sem
 from corrections_sim.planner import PlannerConfig, shared_planner
@@ -43,7 +42,6 @@ from corrections_sim.study import (
     run_learner,
 )
 
-EXPERIMENTS_DIR = Path(__file__).resolve().parents[2] / "experiments"
 FIGURES = ("fig4", "fig5")
 FEATURES = ("laptop", "table")
 #: Figures and tables list learners in the registry's order.
@@ -76,9 +74,7 @@ def load_settings(figure: str, *, quick: bool, overrides: dict | None = None) ->
     """
     if figure not in FIGURES:
         raise ValueError(f"figure {figure!r}: choose one of {', '.join(FIGURES)}")
-    with open(EXPERIMENTS_DIR / f"{figure}.toml", "rb") as fh:
-        presets = tomllib.load(fh)
-    values = dict(presets["quick" if quick else "paper"])
+    values = read_preset(figure, quick)
     values.update({k: v for k, v in (overrides or {}).items() if v is not None})
     return settings_from_values(values)
 

@@ -11,6 +11,7 @@ import functools
 import math
 import tomllib
 from dataclasses import dataclass
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -24,12 +25,24 @@ from corrections_sim.environments import (
 from corrections_sim.features import check_feature_names
 from corrections_sim.learners import Belief
 
-EXPERIMENTS_DIR = Path(__file__).resolve().parents[2] / "experiments"
+
+def _experiments_dir():
+    """The repository's ``experiments/`` folder, installed (editable or from a wheel) as the
+    package data ``corrections_sim.experiments`` (pyproject.toml); a source tree that is not
+    installed at all (``PYTHONPATH=.``) reads the folder beside the package."""
+    try:
+        return resources.files("corrections_sim.experiments")
+    except ModuleNotFoundError:
+        return Path(__file__).resolve().parents[2] / "experiments"
+
+
+#: Where the presets are read from: the same files from a clone and from a wheel.
+EXPERIMENTS_DIR = _experiments_dir()
 
 
 def read_preset(figure: str, quick: bool) -> dict:
     """The ``[paper]`` or ``[quick]`` table of ``experiments/<figure>.toml``."""
-    with open(EXPERIMENTS_DIR / f"{figure}.toml", "rb") as fh:
+    with (EXPERIMENTS_DIR / f"{figure}.toml").open("rb") as fh:
         presets = tomllib.load(fh)
     return dict(presets["quick" if quick else "paper"])
 

@@ -15,7 +15,6 @@ the user keys of :class:`~corrections_sim.study.StudySettings` (``user``, ``user
 
 from __future__ import annotations
 
-import tomllib
 from collections.abc import Callable, Sequence
 from concurrent.futures import Executor
 from dataclasses import dataclass
@@ -24,6 +23,7 @@ import numpy as np
 
 from corrections_sim.figures import learning
 from corrections_sim.figures.learning import FigureResult, FigureSettings, RunCache
+from corrections_sim.figures.presets import read_preset
 from corrections_sim.study import LEARNERS
 
 FIGURE = "fig6"
@@ -60,8 +60,7 @@ def load_settings(*, quick: bool, overrides: dict | None = None) -> RobustnessSe
     Raises:
         ValueError: a bad value, named as ``users[i].key`` or by its key.
     """
-    with open(learning.EXPERIMENTS_DIR / f"{FIGURE}.toml", "rb") as fh:
-        preset = dict(tomllib.load(fh)["quick" if quick else "paper"])
+    preset = read_preset(FIGURE, quick)
     users = preset.pop("users", None)
     if not isinstance(users, list) or not users:
         raise ValueError("users: expected a non-empty list of [[users]] tables")

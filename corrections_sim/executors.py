@@ -1,0 +1,170 @@
+"""Where a figure's runs execute, and how the command stops when asked to.
+
+A terminal's Ctrl-C sends SIGINT to every process of its foreground group, and a worker that
+is interrupted mid-task prints a traceback while its pool waits for it. So only the command
+decides: its workers ignore SIGINT and each runs in its own process group (with anything it
+starts, such as gcc building a planner), and on SIGINT or SIGTERM the command kills those
+groups and never waits for a pool to drain. A worker whose command died (even by SIGKILL)
+is killed by the kernel (``PR_SET_PDEATHSIG`` on Linux), so none outlives it.
+
+Nothing here computes results: it is the command line's edge (see ``run.py``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import os
+import re
+import signal
+import threading
+from collections.abc import Iterator
+from concurrent.futures import Executor, ProcessPoolExecutor
+
+_SIGNALS = {signal.SIGINT, signal.SIGTERM}
+#: prctl(2) option: the signal a process gets when its parent dies (Linux).
+_PR_SET_PDEATHSIG = 1
+
+
+class Interrupted(KeyboardInterrupt):
+    """SIGINT or SIGTERM reached the command (a KeyboardInterrupt, so nothing swallows it)."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+@contextlib.contextmanager
+def interrupts() -> Iterator[None]:
+    """Within the block, SIGINT and SIGTERM raise :class:`Interrupted` in the main thread.
+
+    After the first signal both stay ignored for the rest of the process, so the cleanup
+    that follows (killing workers, removing a staging folder) runs to its end and no second
+    signal prints a traceback; otherwise the previous handlers are restored on leaving.
+    Outside the main thread this does nothing.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    hit = []
+
+    def handler(signum, frame):
+        for s in _SIGNALS:
+            signal.signal(s, signal.SIG_IGN)
+        hit.append(signum)
+        raise Interrupted(signum)
+
+    previous = {s: signal.signal(s, handler) for s in _SIGNALS}
+    try:
+        yield
+    finally:
+        if not hit:
+            for s, h in previous.items():
+                signal.signal(s, h)
+
+
+@contextlib.contextmanager
+def uninterrupted() -> Iterator[None]:
+    """SIGINT and SIGTERM wait until the block is done (e.g. moving a figure's files in, so an
+    interrupt never leaves half of an old figure and half of a new one)."""
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, _SIGNALS)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+def _worker_init(parent: int) -> None:
+    """Runs first in every worker; SIGINT and SIGTERM arrive blocked (see ``_QuietPool``)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # also discards a pending Ctrl-C
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    os.setpgid(0, 0)
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGKILL)
+    if os.getppid() != parent:  # the command died before prctl took effect
+        os._exit(1)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, _SIGNALS)
+
+
+class _QuietPool(ProcessPoolExecutor):
+    """A process pool whose workers are never interrupted before ``_worker_init`` ran.
+
+    Workers are started inside ``submit``; blocking SIGINT and SIGTERM around it makes every
+    new worker start with them blocked (a child inherits the signal mask), so a Ctrl-C that
+    lands while a (replacement) pool is starting stays pending and is discarded there.
+    """
+
+    def submit(self, fn, /, *args, **kwargs):
+        previous = signal.pthread_sigmask(signal.SIG_BLOCK, _SIGNALS)
+        try:
+            return super().submit(fn, *args, **kwargs)
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+def kill_workers(pool: ProcessPoolExecutor) -> None:
+    """Kill every worker of ``pool`` and its process group, then drop the pool unwaited."""
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    for process in processes:
+        for kill in (os.killpg, os.kill):  # the group, or the worker if it has none yet
+            with contextlib.suppress(ProcessLookupError, PermissionError):
+                kill(process.pid, signal.SIGKILL)
+    pool.shutdown(wait=False, cancel_futures=True)
+    for process in processes:
+        process.join(timeout=1.0)
+
+
+@contextlib.contextmanager
+def process_pool(workers: int) -> Iterator[Executor]:
+    """A local process pool that shuts down cleanly, or is killed on any exception.
+
+    Leaving normally waits for the workers; leaving by an exception (an interrupt, a dead
+    worker, a failed run) kills them at once instead of waiting for queued tasks.
+    """
+    pool = _QuietPool(max_workers=workers, initializer=_worker_init, initargs=(os.getpid(),))
+    try:
+        yield pool
+        pool.shutdown(wait=True)
+    except BaseException:
+        kill_workers(pool)
+        raise
+
+
+_ADDRESS = re.compile(r"(?:(?:tcp|tls|ws|wss|ucx)://)?(?:\[[0-9a-fA-F:.]+\]|[^\s:/\[\]]+):\d{1,5}")
+
+
+def check_scheduler_address(address: str) -> str:
+    """``address`` if it reads as a Dask scheduler's ``[scheme://]HOST:PORT``.
+
+    Raises:
+        ValueError: anything else (checked before any connection is tried).
+    """
+    if not _ADDRESS.fullmatch(address):
+        raise ValueError(f"{address!r} is not an address like tcp://HOST:PORT")
+    return address
+
+
+@contextlib.contextmanager
+def dask_executor(address: str, timeout_s: float) -> Iterator[tuple[Executor, int]]:
+    """An executor on the Dask cluster at ``address`` and its number of workers.
+
+    Raises:
+        ValueError: a malformed address.
+        ConnectionError: no scheduler answered within ``timeout_s`` (the message says why).
+    """
+    from distributed import Client
+
+    check_scheduler_address(address)
+    try:
+        client = Client(address, timeout=f"{timeout_s}s", set_as_default=False)
+    except (OSError, TimeoutError, ValueError) as exc:
+        message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise ConnectionError(message) from None
+    try:
+        n = len(client.scheduler_info(n_workers=-1).get("workers", {}))
+        yield client.get_executor(pure=False), n
+    finally:
+        # The cluster's workers belong to the cluster; closing the client releases this
+        # command's tasks there, and no signal may leave the client half closed.
+        with uninterrupted(), contextlib.suppress(OSError, TimeoutError):
+            client.close(timeout=timeout_s)

@@ -1,0 +1,77 @@
+"""Where a figure's files came from: the command, the code, the machine's packages, the time.
+
+Recorded in every figure's ``summary.json`` so a folder of results can be traced back and
+regenerated. Nothing here computes results: it is the command line's edge (see ``run.py``).
+"""
+
+from __future__ import annotations
+
+import datetime
+import math
+import shlex
+import subprocess
+from collections.abc import Sequence
+from dataclasses import asdict, is_dataclass
+from importlib.metadata import version
+from pathlib import Path
+
+#: The packages whose versions can change a figure's numbers.
+PACKAGES = ("corrections_sim", "mujoco", "casadi", "pin", "numpy")
+
+
+def versions() -> dict[str, str]:
+    """Installed versions of :data:`PACKAGES`."""
+    return {n: version(n) for n in PACKAGES}
+
+
+def git_commit(folder: Path | None = None) -> dict | None:
+    """The commit (and whether tracked files differ from it) of the clone holding
+    ``folder`` (default: this package's folder); None for an installed wheel or without git."""
+    root = (folder or Path(__file__).resolve().parent).parent
+    if not (root / ".git").exists():
+        return None
+    try:
+        commit = subprocess.run(
+            ["git", "-C", str(root), "rev-parse", "HEAD"],
+            capture_output=True,
+            text=True,
+            timeout=5,
+            check=True,
+        ).stdout.strip()
+        status = subprocess.run(
+            ["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+            capture_output=True,
+            text=True,
+            timeout=5,
+            check=True,
+        ).stdout
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return {"commit": commit, "modified": bool(status.strip())}
+
+
+def plain(value):
+    """``value`` as JSON data: dataclasses as dicts, tuples as lists, NaN and ±inf as None
+    (strict JSON has no NaN), numpy scalars and arrays as Python numbers and lists."""
+    if is_dataclass(value) and not isinstance(value, type):
+        value = asdict(value)
+    if isinstance(value, dict):
+        return {str(k): plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [plain(v) for v in value]
+    if hasattr(value, "tolist"):  # numpy arrays and scalars
+        return plain(value.tolist())
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def record(argv: Sequence[str]) -> dict:
+    """The provenance fields of a summary: command line, timestamp (UTC), package versions
+    and the git commit when run from a clone."""
+    return {
+        "command": shlex.join(["python", "-m", "corrections_sim.run", *argv]),
+        "timestamp": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "versions": versions(),
+        "git": git_commit(),
+    }

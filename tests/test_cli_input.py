@@ -1,0 +1,162 @@
+"""The command line on plausible input (issue 13): options that do not apply, an empty --out,
+a malformed scheduler, PP alone; where figures go and when they may replace a folder; what
+every summary.json records.
+
+Runs are tiny (1-2 runs, 1-2 corrections, one worker) so the module costs about half a minute.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from corrections_sim import run as cli
+
+TINY = ["fig4", "--quick", "--runs", "1", "--iterations", "1", "--workers", "1"]
+
+
+def _main(argv: list[str]) -> int:
+    try:
+        return cli.main(argv)
+    except SystemExit as exc:
+        return int(exc.code)
+
+
+def _one_line(err: str, *names: str) -> None:
+    assert err.count("\n") == 1 and err.startswith("error: "), err
+    assert "Traceback" not in err
+    for name in names:
+        assert name in err, err
+
+
+@pytest.mark.parametrize(
+    ("argv", "names"),
+    [
+        (["scene", "--runs", "5"], ["--runs", "scene"]),
+        (["scene", "--quick"], ["--quick"]),
+        (["scene", "--workers", "2"], ["--workers"]),
+        (["fig4", "--env", "s0-t0-l0"], ["--env", "fig4"]),
+        (["fig1", "--fixed-alpha", "0.1"], ["--fixed-alpha"]),
+        (["fig2", "--env", "s0-t0-l0"], ["--env"]),
+        (["fig4", "--learners", "PP"], ["learners", "--fixed-alpha"]),
+        (["fig4", "--learners", "PP", "--fixed-alpha", "0"], ["--fixed-alpha"]),
+        (["fig4", "--learners", "PP", "--fixed-alpha", "nan"], ["--fixed-alpha"]),
+        (["fig4", "--out", ""], ["--out"]),
+        (["fig1", "--out", " "], ["--out"]),
+        (["fig4", "--scheduler", "foo"], ["--scheduler foo"]),
+        (["fig3", "--scheduler", "tcp://host-without-port"], ["--scheduler"]),
+    ],
+)
+def test_bad_input_is_refused_before_anything_is_created(
+    tmp_path, monkeypatch, capsys, argv, names
+):
+    monkeypatch.chdir(tmp_path)  # an empty --out would write here
+    status = _main(argv if "--out" in argv else [*argv, "--out", str(tmp_path / "out")])
+    _one_line(capsys.readouterr().err, *names)
+    assert status == 2
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_malformed_scheduler_fails_at_once_without_a_traceback(tmp_path):
+    start = time.perf_counter()
+    proc = subprocess.run(
+        [sys.executable, "-m", "corrections_sim.run", *TINY[:-2], "--scheduler", "foo"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert proc.returncode == 2
+    _one_line(proc.stderr, "--scheduler foo")
+    assert time.perf_counter() - start < 5
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_pp_alone_runs_with_a_fixed_rate_and_a_quick_preset_goes_to_scratch(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert _main([*TINY, "--learners", "PP", "--fixed-alpha", "0.05"]) == 0
+    assert not (tmp_path / "results" / "fig4").exists()
+    summary = json.loads((tmp_path / "results" / "quick" / "fig4" / "summary.json").read_text())
+    assert summary["learning_rates"] == {"PP": [0.05]}
+    assert summary["runs_per_learner"] == {"PP": 1}
+
+
+def _fake_figure(folder: Path, **settings) -> None:
+    folder.mkdir(parents=True)
+    (folder / "curves.csv").write_text("made by a paper-scale run\n")
+    summary = {"figure": "fig4", "preset": "paper", "settings": settings}
+    (folder / "summary.json").write_text(json.dumps(summary))
+
+
+def test_a_folder_made_with_other_settings_is_replaced_only_with_force(tmp_path, capsys):
+    _fake_figure(tmp_path / "fig4", runs=100, iterations=12, seed=2018)
+    before = {p.name: p.read_bytes() for p in (tmp_path / "fig4").iterdir()}
+
+    assert _main([*TINY, "--out", str(tmp_path)]) == 2
+    _one_line(capsys.readouterr().err, "--force", "runs 100 (now 1)", "iterations 12 (now 1)")
+    assert {p.name: p.read_bytes() for p in (tmp_path / "fig4").iterdir()} == before
+    assert not (tmp_path / ".runs").exists()
+
+    assert _main([*TINY, "--out", str(tmp_path), "--force"]) == 0
+    err = capsys.readouterr().err
+    assert "replacing" in err and "--force" in err and "runs 100" in err
+    summary = json.loads((tmp_path / "fig4" / "summary.json").read_text())
+    assert summary["settings"]["runs"] == 1
+
+    # Provenance: enough to trace the folder back to a command, a commit and the numbers.
+    assert summary["command"].startswith("python -m corrections_sim.run fig4 --quick")
+    assert summary["timestamp"].endswith("+00:00")
+    assert summary["versions"]["corrections_sim"]
+    assert summary["planner"]["features"] == ["laptop", "table"]
+    assert set(summary["runs_per_learner"].values()) == {1}
+    for learner in summary["runs_per_learner"]:
+        assert len(summary["curves"][learner]["regret"]["mean"]) == 2  # iterations 0 and 1
+    if (Path(cli.__file__).parents[1] / ".git").exists():
+        assert len(summary["git"]["commit"]) == 40
+
+    # The same settings again: replaced, and said so.
+    assert _main([*TINY, "--out", str(tmp_path)]) == 0
+    assert "same settings" in capsys.readouterr().err
+
+
+def test_files_no_figure_wrote_are_not_replaced(tmp_path, capsys):
+    (tmp_path / "fig1").mkdir()
+    (tmp_path / "fig1" / "notes.txt").write_text("mine\n")
+    assert _main(["fig1", "--quick", "--out", str(tmp_path)]) == 2
+    _one_line(capsys.readouterr().err, "--out", "--force", "summary.json")
+    assert (tmp_path / "fig1" / "notes.txt").read_text() == "mine\n"
+
+
+def test_figs_1_to_3_record_their_provenance_and_what_they_show(tmp_path, monkeypatch):
+    from types import SimpleNamespace
+
+    from corrections_sim.figures import selection
+
+    shown = ({"map": "laptop", "best_x": 0.5, "best_frobenius": float("nan")},)
+
+    def fake_run(settings, executor, progress):  # the figure's computation is tested elsewhere
+        return SimpleNamespace(maps=shown)
+
+    def fake_write(settings, result, folder):
+        (folder / "maps.csv").write_text("map\nlaptop\n")
+
+    monkeypatch.setattr(selection, "run", fake_run)
+    monkeypatch.setattr(selection, "write", fake_write)
+    assert _main(["fig1", "--quick", "--workers", "1", "--out", str(tmp_path)]) == 0
+    summary = json.loads((tmp_path / "fig1" / "summary.json").read_text())
+    assert (
+        summary["command"]
+        == f"python -m corrections_sim.run fig1 --quick --workers 1 --out {tmp_path}"
+    )
+    assert summary["settings"]["features"] == ["laptop"]  # the resolved preset
+    assert summary["planner"]["features"] == ["laptop"]
+    assert summary["results"] == {
+        "maps": [{"map": "laptop", "best_x": 0.5, "best_frobenius": None}]
+    }
+    assert summary["timestamp"] and summary["versions"]["casadi"]
+    assert "git" in summary
