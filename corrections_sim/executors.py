@@ -34,6 +34,19 @@ class Interrupted(KeyboardInterrupt):
         self.signum = signum
 
 
+def interruption(exc: BaseException | None) -> KeyboardInterrupt | None:
+    """The interrupt behind ``exc``, if any: ``exc`` itself or an exception it was raised
+    from or while handling (an extension module interrupted while it loads reports an
+    ImportError whose context is the interrupt)."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return exc
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return None
+
+
 @contextlib.contextmanager
 def interrupts() -> Iterator[None]:
     """Within the block, SIGINT and SIGTERM raise :class:`Interrupted` in the main thread.

@@ -29,16 +29,15 @@ from pathlib import Path
 import numpy as np
 
 from corrections_sim import output_folder, provenance
-from corrections_sim.corrections import CORRECTION_KINDS
 from corrections_sim.executors import (
     Interrupted,
     check_scheduler_address,
     dask_executor,
+    interruption,
     interrupts,
     process_pool,
     uninterrupted,
 )
-from corrections_sim.study import LEARNERS, USERS
 
 #: Seconds to wait for a Dask scheduler before giving up (--scheduler).
 SCHEDULER_TIMEOUT_S = 5
@@ -661,6 +660,11 @@ class _Parser(argparse.ArgumentParser):
 
 
 def parser() -> argparse.ArgumentParser:
+    # Imported here, not at the top: they load the planner's stack (CasADi, MuJoCo, pinocchio),
+    # and main() has its interrupt handlers in place by the time this runs.
+    from corrections_sim.corrections import CORRECTION_KINDS
+    from corrections_sim.study import LEARNERS, USERS
+
     p = _Parser(
         prog="python -m corrections_sim.run",
         description="Reproduce a figure of Losey & O'Malley (CoRL 2018) headless. "
@@ -766,25 +770,29 @@ def parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run one command; 0 on success, 1 on a failure, 2 on bad input, 130 on SIGINT/SIGTERM."""
     with interrupts():  # from the start: the heavy imports happen inside
-        args = parser().parse_args(argv)
-        args.argv = list(sys.argv[1:] if argv is None else argv)
         try:
+            args = parser().parse_args(argv)
+            args.argv = list(sys.argv[1:] if argv is None else argv)
             _check_applies(args)
             written = COMMANDS[args.figure][0](args)
         except UsageError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
-        except RuntimeError as exc:  # a missing GL backend, a planner failure: one line
-            print(f"error: {str(exc).splitlines()[0]}", file=sys.stderr)
-            return 1
-        except KeyboardInterrupt as exc:
-            kept = getattr(exc, "kept", None)
+        except (KeyboardInterrupt, Exception) as exc:
+            cause = interruption(exc)
+            if cause is None and isinstance(exc, RuntimeError):
+                # A missing GL backend, a planner failure: one line, no trace.
+                print(f"error: {str(exc).splitlines()[0]}", file=sys.stderr)
+                return 1
+            if cause is None:
+                raise
+            kept = getattr(cause, "kept", None)
             message = (
                 f"{kept}; run the command again to resume"
                 if kept
-                else "no finished runs to keep (figs. 4 and 5 resume, figs. 1-3 start over)"
+                else "no finished runs to keep (figs. 4-6 resume, figs. 1-3 start over)"
             )
-            by = f" ({exc})" if isinstance(exc, Interrupted) else ""
+            by = f" ({cause})" if isinstance(cause, Interrupted) else ""
             print(f"interrupted: {message}{by}", file=sys.stderr)
             return 130
     for path in written:
