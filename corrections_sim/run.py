@@ -121,10 +121,10 @@ def run_video(args: argparse.Namespace) -> list[Path]:
 
     try:
         result = video.make_video(
-            Path(args.out),
-            args.source,
-            learner=args.learner,
-            run=args.run,
+            _out(args),
+            args.source or "fig4",
+            learner=args.learner or "KF",
+            run=0 if args.run is None else args.run,
             corrections=args.corrections,
             model_path=None if args.model is None else Path(args.model),
             video_file=None if args.video_file is None else Path(args.video_file),
@@ -636,6 +636,7 @@ APPLIES: dict[str, tuple[str, ...]] = {
     "fig5": _LEARNING_OPTIONS,
     "fig6": _LEARNING_OPTIONS,
     "all": _LEARNING_OPTIONS,  # the learning options go to figs. 4-6
+    "video": ("out", "source", "learner", "run", "corrections", "model", "video_file"),
 }
 
 
@@ -742,10 +743,10 @@ def parser() -> argparse.ArgumentParser:
     )
     v = p.add_argument_group("video (reads OUT/<figure>/curves.csv of a finished fig4/fig5)")
     v.add_argument(
-        "--from", dest="source", metavar="FIG", default="fig4", help="fig4 or fig5 (default fig4)"
+        "--from", dest="source", metavar="FIG", help="fig4 or fig5 (default fig4)"
     )
-    v.add_argument("--learner", default="KF", help="whose run to show (default KF)")
-    v.add_argument("--run", type=int, default=0, help="the run's index (default 0)")
+    v.add_argument("--learner", help="whose run to show (default KF)")
+    v.add_argument("--run", type=int, help="the run's index (default 0)")
     v.add_argument(
         "--corrections",
         metavar="T,T",
