@@ -609,7 +609,8 @@ def plot_robustness_matrix(rows: Sequence[dict], title: str, paths) -> None:
         for i, learner in enumerate(learners):
             for j, user in enumerate(users):
                 r = cell[(learner, user)]
-                values[i, j] = r["nees_final"] if key == "nees" else r[f"{key}_mean"]
+                value = r["nees_final"] if key == "nees" else r[f"{key}_mean"]
+                values[i, j] = np.nan if value is None else value
         if key == "nees":
             # Diverging around k = 2 on a log scale: blue under-, red over-confident.
             shown = np.log10(values / 2.0)
@@ -623,8 +624,11 @@ def plot_robustness_matrix(rows: Sequence[dict], title: str, paths) -> None:
                 r = cell[(learner, user)]
                 if key == "nees":
                     v = r["nees_final"]
-                    inside = r["nees_band_low"] <= v <= r["nees_band_high"]
-                    text = "—" if not np.isfinite(v) else f"{v:.3g}" + (" ✓" if inside else "")
+                    if v is None:
+                        text = "—"
+                    else:
+                        inside = r["nees_band_low"] <= v <= r["nees_band_high"]
+                        text = f"{v:.3g}" + (" ✓" if inside else "")
                 else:
                     sem = r[f"{key}_sem"]
                     text = f"{r[f'{key}_mean']:.3g}" + (f"\n± {sem:.2g}" if sem else "\n(N = 1)")

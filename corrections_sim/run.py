@@ -742,9 +742,7 @@ def parser() -> argparse.ArgumentParser:
         "solver's tolerance, see README)",
     )
     v = p.add_argument_group("video (reads OUT/<figure>/curves.csv of a finished fig4/fig5)")
-    v.add_argument(
-        "--from", dest="source", metavar="FIG", help="fig4 or fig5 (default fig4)"
-    )
+    v.add_argument("--from", dest="source", metavar="FIG", help="fig4 or fig5 (default fig4)")
     v.add_argument("--learner", help="whose run to show (default KF)")
     v.add_argument("--run", type=int, help="the run's index (default 0)")
     v.add_argument(

@@ -398,7 +398,11 @@ def summarize(settings: FigureSettings, result: FigureResult) -> dict:
         if LEARNERS[learner].has_covariance:
             entry = calibration.summarize(values["nees"], s.k)
             nis = values["nis"][:, 1:]
-            entry["mean_nis"] = [float(v) for v in np.nanmean(nis, axis=0)]
+            # None where no run has an innovation covariance (BP): valid JSON, not NaN.
+            entry["mean_nis"] = [
+                float(np.mean(col[np.isfinite(col)])) if np.isfinite(col).any() else None
+                for col in nis.T
+            ]
             entry["nis_band"] = list(calibration.mean_band(s.k, nis.shape[0]))
             calib[learner] = entry
     return {

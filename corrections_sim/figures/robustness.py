@@ -124,12 +124,12 @@ def matrix(settings: RobustnessSettings, results: Sequence[FigureResult]) -> lis
                 row[f"{key}_mean"] = final[key]["mean"]
                 row[f"{key}_sem"] = final[key]["sem"]
                 row[f"{key}_auc"] = final[key]["auc_mean"]
-            nan = float("nan")
-            row["nees_final"] = calib["mean_nees"][-1] if calib else nan
-            row["nees_mean"] = float(np.mean(calib["mean_nees"][1:])) if calib else nan
-            row["nees_band_low"], row["nees_band_high"] = calib["band"] if calib else (nan, nan)
-            row["inside_band"] = calib["inside_band"] if calib else nan
-            row["coverage_2sigma"] = calib["coverage_2sigma_mean"] if calib else nan
+            # None (an empty CSV cell, JSON null) where the learner has no covariance.
+            row["nees_final"] = calib["mean_nees"][-1] if calib else None
+            row["nees_mean"] = float(np.mean(calib["mean_nees"][1:])) if calib else None
+            row["nees_band_low"], row["nees_band_high"] = calib["band"] if calib else (None, None)
+            row["inside_band"] = calib["inside_band"] if calib else None
+            row["coverage_2sigma"] = calib["coverage_2sigma_mean"] if calib else None
             rows.append(row)
     return rows
 
