@@ -18,6 +18,7 @@ import contextlib
 import csv
 import json
 import os
+import re
 import shutil
 import sys
 import tempfile
@@ -766,12 +767,35 @@ def parser() -> argparse.ArgumentParser:
     return p
 
 
+#: Options whose value may start with a minus sign (a vector or matrix of weights).
+_VECTOR_OPTIONS = ("--theta-star", "--theta0", "--cov0")
+_NEGATIVE_VALUE = re.compile(r"-\.?\d")
+
+
+def _attach_negative_values(argv: Sequence[str]) -> list[str]:
+    """``--theta-star -1,1`` as ``--theta-star=-1,1``: argparse reads a value that starts with
+    a minus sign and is not a plain number as an option of its own."""
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        token = argv[i]
+        following = argv[i + 1] if i + 1 < len(argv) else ""
+        if token in _VECTOR_OPTIONS and _NEGATIVE_VALUE.match(following):
+            out.append(f"{token}={following}")
+            i += 2
+            continue
+        out.append(token)
+        i += 1
+    return out
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run one command; 0 on success, 1 on a failure, 2 on bad input, 130 on SIGINT/SIGTERM."""
     with interrupts():  # from the start: the heavy imports happen inside
         try:
-            args = parser().parse_args(argv)
-            args.argv = list(sys.argv[1:] if argv is None else argv)
+            given = list(sys.argv[1:] if argv is None else argv)
+            args = parser().parse_args(_attach_negative_values(given))
+            args.argv = given
             _check_applies(args)
             written = COMMANDS[args.figure][0](args)
         except UsageError as exc:

@@ -109,6 +109,11 @@ LEARNERS: dict[str, LearnerSpec] = {
 }
 #: The paper's three; the others are opt-in (``learners`` in the settings, ``--learners``).
 DEFAULT_LEARNERS = ("PP", "KF", "AL")
+#: Largest counts accepted: a run is ~50 planner solves per iteration (≈ 0.1 s), so these are
+#: far beyond a week on one machine, and refusing them up front beats running out of memory.
+MAX_COUNT = {"runs": 100_000, "iterations": 10_000}
+#: Records (learner × run × iteration) a study may hold in memory (≈ 2 kB each).
+MAX_RECORDS = 2_000_000
 #: Simulated users by name (see :meth:`StudySettings.make_user`).
 USERS = ("biased", "deform", "noisy")
 
@@ -192,6 +197,14 @@ class StudySettings:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 1:
                 raise ValueError(f"{name} = {v!r} must be an integer >= 1")
+            if v > MAX_COUNT[name]:
+                raise ValueError(f"{name} = {v}: at most {MAX_COUNT[name]:,}")
+        records = self.runs * (self.iterations + 1) * len(self.learners)
+        if records > MAX_RECORDS:
+            raise ValueError(
+                f"runs = {self.runs}, iterations = {self.iterations}: {records:,} records for "
+                f"{len(self.learners)} learners, at most {MAX_RECORDS:,} (they are held in memory)"
+            )
         for name in ("process_noise", "observation_noise"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):

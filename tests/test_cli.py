@@ -57,6 +57,9 @@ def earlier(tmp_path: Path) -> Path:
         (["fig4", "--cov0", "1,0;0"], "--cov0"),
         (["fig4", "--learners", "PP,XX"], "learners"),
         (["fig4", "--user", "lazy"], "--user"),
+        (["fig4", "--runs", "99999999999999999999999"], "runs"),
+        (["fig4", "--iterations", "20000"], "iterations"),
+        (["fig4", "--runs", "90000"], "records"),
         (["fig4", "--user-step", "0"], "user_step"),
         (["fig4", "--user-step", "1.5"], "user_step"),
         (["fig4", "--user-waypoints", "11"], "user_waypoints"),
@@ -193,3 +196,12 @@ def test_a_worker_that_dies_is_replaced_and_its_run_redone(uninterrupted, tmp_pa
     assert cli.main([*TINY, "--out", str(tmp_path)]) == 0
     assert len(pools) == 2
     assert (tmp_path / "fig4" / "curves.csv").read_bytes() == uninterrupted
+
+
+def test_a_vector_that_starts_with_a_minus_sign_is_a_value():
+    argv = cli._attach_negative_values(["fig4", "--theta-star", "-1,1", "--cov0", "-.5,1"])
+    assert argv == ["fig4", "--theta-star=-1,1", "--cov0=-.5,1"]
+    args = cli.parser().parse_args(argv)
+    assert (args.theta_star, args.cov0) == ("-1,1", "-.5,1")
+    # Options are left alone: "--theta-star --runs 3" is still a missing value.
+    assert cli._attach_negative_values(["--theta-star", "--runs"]) == ["--theta-star", "--runs"]
