@@ -14,16 +14,11 @@ from corrections_sim.learners import (
 )
 
 
-def _random_belief(rng: np.random.Generator, k: int) -> Belief:
-    a = rng.normal(size=(k, k))
-    return Belief(theta=rng.normal(size=k), cov=a @ a.T + 0.3 * np.eye(k))
-
-
 def _linear(h: np.ndarray, c: np.ndarray):
     return lambda thetas: thetas @ h.T + c
 
 
-def test_a_single_full_fraction_is_the_papers_ukf(rng):
+def test_a_single_full_fraction_is_the_papers_ukf(rng, random_belief):
     # h nonlinear; a = 1 only: the update must be ukf_update with reference = Φ(ξᵗ).
     noise = KalmanNoise.isotropic(2, 1e-4, 0.25)
     a = rng.normal(size=(2, 2))
@@ -32,7 +27,7 @@ def test_a_single_full_fraction_is_the_papers_ukf(rng):
         return np.tanh(thetas @ a.T) + 0.1 * thetas**2
 
     for _ in range(10):
-        belief = _random_belief(rng, 2)
+        belief = random_belief(rng, 2)
         phi_robot = observe(belief.theta[None])[0]
         phi_human = phi_robot + rng.normal(size=2)
         mine = attenuated_update(
@@ -44,12 +39,12 @@ def test_a_single_full_fraction_is_the_papers_ukf(rng):
         np.testing.assert_allclose(mine.gain, paper.gain, atol=1e-12)
 
 
-def test_a_known_fraction_on_a_linear_problem_is_the_linear_kalman_filter(rng):
+def test_a_known_fraction_on_a_linear_problem_is_the_linear_kalman_filter(rng, random_belief):
     # Φ_h − Φ_r = a (Hθ + c − Φ_r) + n: a linear observation with matrix aH.
     k, frac = 3, 0.3
     h, c = rng.normal(size=(k, k)), rng.normal(size=k)
     noise = KalmanNoise(0.01 * np.eye(k), np.diag([0.2, 0.3, 0.4]))
-    belief = _random_belief(rng, k)
+    belief = random_belief(rng, k)
     phi_robot, phi_human = rng.normal(size=k), rng.normal(size=k)
     step = attenuated_update(
         belief, _linear(h, c), phi_robot, phi_human, noise, Attenuation(frac, frac, 1)

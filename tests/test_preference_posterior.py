@@ -16,11 +16,6 @@ from corrections_sim.learners import (
 )
 
 
-def _random_belief(rng: np.random.Generator, k: int) -> Belief:
-    a = rng.normal(size=(k, k))
-    return Belief(theta=rng.normal(size=k), cov=a @ a.T + 0.3 * np.eye(k))
-
-
 def _grid_posterior(belief: Belief, delta: np.ndarray, model: BoltzmannCorrection):
     """Mean and covariance of N(θ̂, P) ℓ(θ·Δ) by brute force on a 2-D grid (k = 2)."""
     sd = np.sqrt(np.diag(belief.cov))
@@ -45,9 +40,9 @@ def _grid_posterior(belief: Belief, delta: np.ndarray, model: BoltzmannCorrectio
         BoltzmannCorrection(beta_min=1.0, beta_max=20.0, n_beta=4, lapse=0.2),
     ],
 )
-def test_update_equals_numerical_integration_of_the_posterior(rng, model):
+def test_update_equals_numerical_integration_of_the_posterior(rng, random_belief, model):
     for _ in range(5):
-        belief = _random_belief(rng, 2)
+        belief = random_belief(rng, 2)
         phi_robot = rng.normal(size=2)
         phi_human = phi_robot + rng.normal(scale=0.7, size=2)
         step = posterior_update(belief, None, phi_robot, phi_human, model)
@@ -56,11 +51,11 @@ def test_update_equals_numerical_integration_of_the_posterior(rng, model):
         np.testing.assert_allclose(step.belief.cov, cov, atol=1e-6)
 
 
-def test_gaussian_likelihood_gives_the_linear_kalman_filter(rng):
+def test_gaussian_likelihood_gives_the_linear_kalman_filter(rng, random_belief):
     # ℓ(s) = N(y; s, r): a scalar observation y = dᵀθ + n, n ~ N(0, r), for which moment
     # matching is exact and must equal the Kalman filter with H = dᵀ.
     for k in (1, 2, 3):
-        belief = _random_belief(rng, k)
+        belief = random_belief(rng, k)
         d = rng.normal(size=k)
         y, r = float(rng.normal(scale=3.0)), float(rng.uniform(0.01, 2.0))
         step = posterior_moment_match(
@@ -105,8 +100,8 @@ def test_tilted_moments_equal_adaptive_quadrature(mean, var, beta):
     assert tau2 == pytest.approx(m2 / z - (m1 / z) ** 2, rel=1e-6)
 
 
-def test_gain_reproduces_the_mean_update_and_innovation_is_delta(rng):
-    belief = _random_belief(rng, 3)
+def test_gain_reproduces_the_mean_update_and_innovation_is_delta(rng, random_belief):
+    belief = random_belief(rng, 3)
     phi_robot, phi_human = rng.normal(size=3), rng.normal(size=3)
     step = posterior_update(belief, None, phi_robot, phi_human)
     np.testing.assert_allclose(step.innovation, phi_human - phi_robot)
