@@ -168,7 +168,7 @@ def plot_learning_curves(
         ax.set_xlabel("iteration (corrections)")
         ax.xaxis.get_major_locator().set_params(integer=True)
         ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=7)
+    axes[0].legend(fontsize=7, loc="best")
     fig.suptitle(title + "; bands: ± SEM over runs", fontsize=11)
     _save_and_close(fig, paths, dpi=150)
 
