@@ -24,7 +24,6 @@ import numpy as np
 from corrections_sim.figures import learning
 from corrections_sim.figures.learning import FigureResult, FigureSettings, RunCache
 from corrections_sim.figures.presets import read_preset
-from corrections_sim.study import LEARNERS
 
 FIGURE = "fig6"
 #: Keys a column may set; everything else is shared by all columns.
@@ -133,7 +132,3 @@ def matrix(settings: RobustnessSettings, results: Sequence[FigureResult]) -> lis
             rows.append(row)
     return rows
 
-
-def learner_order(names: Sequence[str]) -> list[str]:
-    order = {name: i for i, name in enumerate(LEARNERS)}
-    return sorted(names, key=order.get)
