@@ -131,4 +131,3 @@ def matrix(settings: RobustnessSettings, results: Sequence[FigureResult]) -> lis
             row["coverage_2sigma"] = calib["coverage_2sigma_mean"] if calib else None
             rows.append(row)
     return rows
-
