@@ -104,6 +104,7 @@ def plot_learning_curves(
     title: str,
     paths,
     bands: dict[str, tuple[float, float]] | None = None,
+    n_environments: int = 48,
 ) -> None:
     """Estimate error, regret and calibration against iteration.
 
@@ -123,8 +124,16 @@ def plot_learning_curves(
     fig, axes = plt.subplots(1, 4, figsize=(17, 4.4))
     panels = (
         ("estimate_error", "Estimate error ‖θ̂ − θ*‖₁", "error (L1, weight units)"),
-        ("regret", "Regret (full objective), Σ over 48 envs", "regret (reward units)"),
-        ("regret_paper", "Regret θ*·Φ only (paper's), Σ over 48 envs", "regret (reward units)"),
+        (
+            "regret",
+            f"Regret (full objective), Σ over {n_environments} envs",
+            "regret (reward units)",
+        ),
+        (
+            "regret_paper",
+            f"Regret θ*·Φ only (paper's), Σ over {n_environments} envs",
+            "regret (reward units)",
+        ),
     )
     for ax, (key, label, ylabel) in zip(axes, panels, strict=False):
         for learner, data in curves.items():

@@ -75,3 +75,42 @@ def record(argv: Sequence[str]) -> dict:
         "versions": versions(),
         "git": git_commit(),
     }
+
+
+#: Modules that cannot change a learning run's numbers (files, plots, CLI, other figures).
+EDGE_MODULES = (
+    "run.py",
+    "store.py",
+    "plotting.py",
+    "render.py",
+    "bench.py",
+    "bench_ik.py",
+    "models.py",
+    "video.py",
+    "executors.py",
+    "output_folder.py",
+    "provenance.py",
+    "report.py",
+)
+#: Of ``figures/``, the modules a learning run executes (the others make files or figs. 1–3).
+FIGURE_MODULES = ("figures/learning.py", "figures/study_file.py")
+
+
+def code_fingerprint() -> str:
+    """Hash of the sources a learning run executes and of the solver versions: part of the run
+    cache's key, so runs made by other code never mix with these."""
+    import hashlib
+
+    digest = hashlib.sha256()
+    root = Path(__file__).resolve().parent
+    for path in sorted(root.rglob("*.py")):
+        name = path.relative_to(root).as_posix()
+        if name in EDGE_MODULES or (name.startswith("figures/") and name not in FIGURE_MODULES):
+            continue
+        if name.startswith("experiments/"):  # the presets, in a wheel; settings are in the key
+            continue
+        digest.update(name.encode())
+        digest.update(path.read_bytes())
+    for name, value in sorted(versions().items()):
+        digest.update(f"{name}={value}".encode())
+    return digest.hexdigest()[:16]

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import csv
 import json
 import os
 import re
@@ -177,110 +176,55 @@ class Progress:
         )
 
 
-def _write_csv(path: Path, rows: list[dict]) -> None:
-    with open(path, "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        writer.writeheader()
-        for row in rows:
-            writer.writerow({k: (repr(v) if isinstance(v, float) else v) for k, v in row.items()})
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected an integer") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{value}: must be a positive integer")
+    return value
 
 
-_versions = provenance.versions
+def _positive_float(option: str) -> Callable[[str], float]:
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r}: expected a number") from None
+        if not (np.isfinite(value) and value > 0):
+            raise argparse.ArgumentTypeError(f"{option} must be a finite number > 0, got {text}")
+        return value
 
-#: Modules that cannot change a learning run's numbers (files, plots, CLI, other figures).
-_EDGE_MODULES = (
-    "run.py",
-    "store.py",
-    "plotting.py",
-    "render.py",
-    "bench.py",
-    "bench_ik.py",
-    "models.py",
-    "video.py",
-    "executors.py",
-    "output_folder.py",
-    "provenance.py",
-    "report.py",
-)
+    return parse
 
 
-def _code_fingerprint() -> str:
-    """Hash of the sources a learning run executes and of the solver versions: part of the run
-    cache's key, so runs made by other code never mix with these."""
-    import hashlib
-
-    digest = hashlib.sha256()
-    root = Path(__file__).resolve().parent
-    for path in sorted(root.rglob("*.py")):
-        name = path.relative_to(root).as_posix()
-        if name in _EDGE_MODULES or (name.startswith("figures/") and name != "figures/learning.py"):
-            continue
-        if name.startswith("experiments/"):  # the presets, in a wheel; settings are in the key
-            continue
-        digest.update(name.encode())
-        digest.update(path.read_bytes())
-    for name, value in sorted(_versions().items()):
-        digest.update(f"{name}={value}".encode())
-    return digest.hexdigest()[:16]
-
-
-def _floats(option: str, text: str) -> tuple[float, ...]:
+def _floats(text: str) -> tuple[float, ...]:
     try:
         values = tuple(float(v) for v in text.split(","))
     except ValueError:
-        raise UsageError(f"{option} {text!r}: expected comma-separated numbers") from None
+        raise argparse.ArgumentTypeError(f"{text!r}: expected comma-separated numbers") from None
     if not all(np.isfinite(values)):
-        raise UsageError(f"{option} {text!r}: every value must be finite")
+        raise argparse.ArgumentTypeError(f"{text!r}: every value must be finite")
     return values
 
 
-def _matrix(option: str, text: str) -> tuple[tuple[float, ...], ...]:
+def _matrix(text: str) -> tuple[tuple[float, ...], ...]:
     """'a,b' is diag(a, b); 'a,b;c,d' is a full matrix, rows separated by ';'."""
-    rows = [_floats(option, row) for row in text.split(";")]
+    rows = [_floats(row) for row in text.split(";")]
     if len(rows) == 1:
         return tuple(
             tuple(v if i == j else 0.0 for j in range(len(rows[0]))) for i, v in enumerate(rows[0])
         )
     if any(len(r) != len(rows) for r in rows):
-        raise UsageError(f"{option} {text!r}: expected a square matrix, rows separated by ';'")
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: expected a square matrix, rows separated by ';'"
+        )
     return tuple(rows)
 
 
-#: Learning options whose parsed value is the setting's value, under the same name.
-_PASSED_AS_IS = (
-    "user",
-    "user_step",
-    "user_waypoints",
-    "correction_model",
-    "correction_step",
-    "correction_waypoints",
-    "fixed_alpha",
-)
-
-
-def _learning_overrides(args: argparse.Namespace) -> dict:
-    for name in ("runs", "iterations", "workers"):
-        value = getattr(args, name)
-        if value is not None and value < 1:
-            raise UsageError(f"--{name} {value}: must be a positive integer")
-    overrides = {"runs": args.runs, "iterations": args.iterations, "seed": args.seed}
-    if args.theta_star is not None:
-        overrides["theta_star"] = _floats("--theta-star", args.theta_star)
-    if args.theta0 is not None:
-        overrides["theta0"] = _floats("--theta0", args.theta0)
-    if args.cov0 is not None:
-        overrides["cov0"] = _matrix("--cov0", args.cov0)
-    if args.learners is not None:
-        overrides["learners"] = tuple(n.strip() for n in args.learners.split(","))
-    alpha = args.fixed_alpha
-    if alpha is not None and not (np.isfinite(alpha) and alpha > 0):
-        raise UsageError(f"--fixed-alpha {alpha}: fixed_alpha must be a finite number > 0")
-    for name in _PASSED_AS_IS:
-        if getattr(args, name) is not None:
-            overrides[name] = getattr(args, name)
-    if args.warm_start:
-        overrides["warm_start"] = True
-    return overrides
+def _names(text: str) -> tuple[str, ...]:
+    return tuple(n.strip() for n in text.split(","))
 
 
 def _check_executor_options(args: argparse.Namespace) -> None:
@@ -313,45 +257,6 @@ def _executor(args: argparse.Namespace) -> Iterator[tuple[Executor, str]]:
         yield executor, f"dask {args.scheduler}, {n} workers"
 
 
-def run_learning_figure(args: argparse.Namespace) -> list[Path]:
-    """Figs. 4/5: learning curves, CSV, summary and plots; resumable (see README)."""
-    from corrections_sim.figures import learning
-    from corrections_sim.store import CorruptRun, RunStore, StoreLocked
-
-    try:
-        settings = learning.load_settings(
-            args.figure, quick=args.quick, overrides=_learning_overrides(args)
-        )
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
-    _check_executor_options(args)
-    out = _out(args)
-    final = out / args.figure
-    resolved = settings.as_dict()
-    notice = _check_replace(args, final, args.figure, resolved)
-    with contextlib.ExitStack() as stack:
-        # The cluster is reached (or the pool started) before anything is written.
-        first = stack.enter_context(_executor(args))
-        _writable_dir(out)
-        store = RunStore(
-            out / ".runs" / args.figure,
-            {"figure": args.figure, "settings": _run_key(settings), "code": _code_fingerprint()},
-        )
-        try:
-            stack.enter_context(store.lock())
-        except StoreLocked as exc:
-            raise UsageError(f"--out {out}: {exc}") from None
-        _say(notice)
-        try:
-            return _learning_figure(args, settings, store, final, first)
-        except Interrupted as exc:
-            kept = len(store.load_all())
-            exc.kept = f"{kept} finished run{'s' if kept != 1 else ''} kept in {store.folder}"
-            raise
-        except CorruptRun as exc:
-            raise RuntimeError(str(exc)) from None
-
-
 @contextlib.contextmanager
 def _staging(final: Path) -> Iterator[Path]:
     """A scratch folder beside ``final``; its files replace ``final``'s only if the body
@@ -367,291 +272,169 @@ def _staging(final: Path) -> Iterator[Path]:
         shutil.rmtree(staging, ignore_errors=True)
 
 
-def _learning_figure(args, settings, store, final: Path, first) -> list[Path]:
+def _open_caches(out: Path, name: str, keys: dict, stack: contextlib.ExitStack) -> dict:
+    """A :class:`~corrections_sim.store.RunStore` per part under ``OUT/.runs/<name>/``, keyed
+    by the settings and the code's fingerprint, each locked for the whole command."""
+    from corrections_sim.store import RunStore, StoreLocked
+
+    root = out / ".runs" / name
+    code = provenance.code_fingerprint()
+    stores = {}
+    for part, key in keys.items():
+        store = RunStore(
+            root / part if part else root, {"figure": name, "settings": key, "code": code}
+        )
+        try:
+            stack.enter_context(store.lock())
+        except StoreLocked as exc:
+            raise UsageError(f"--out {out}: {exc}") from None
+        stores[part] = store
+    return stores
+
+
+def _cache_folder(stores: dict, out: Path, name: str) -> Path:
+    return next(iter(stores.values())).folder if len(stores) == 1 else out / ".runs" / name
+
+
+def _kept(stores: dict, out: Path, name: str) -> str:
+    kept = sum(len(store.load_all()) for store in stores.values())
+    return (
+        f"{kept} finished run{'s' if kept != 1 else ''} kept in {_cache_folder(stores, out, name)}"
+    )
+
+
+def _overrides(args: argparse.Namespace, figure) -> dict:
+    """The options given that ``figure`` takes, as parsed values, by destination."""
+    return {n: getattr(args, n) for n in figure.options if getattr(args, n) is not None}
+
+
+def run_figure(args: argparse.Namespace, figure) -> list[Path]:
+    """Any registered figure: its settings, the executor, the output folder, the run (resumed
+    from its caches, on a new pool if a worker dies), its files and summary.json, written
+    only if everything succeeded."""
     from concurrent.futures.process import BrokenProcessPool
 
-    from corrections_sim.figures import learning
-    from corrections_sim.plotting import plot_learning_curves
-
-    s = settings.study
-    t0 = time.perf_counter()
-    progress = Progress(args.figure)
-    for attempt in range(1, WORKER_DEATH_RETRIES + 2):
-        try:
-            context = contextlib.nullcontext(first) if attempt == 1 else _executor(args)
-            with context as (executor, where):
-                result = learning.run(settings, executor, progress, cache=store)
-            break
-        except BrokenProcessPool:
-            # A worker process died (killed, out of memory): its run was lost, the finished
-            # ones are in the store; a fresh pool resumes from them.
-            if attempt > WORKER_DEATH_RETRIES:
-                raise RuntimeError(
-                    f"{args.figure}: worker processes died {attempt} times; the finished runs "
-                    f"are kept in {store.folder}, run the command again to resume"
-                ) from None
-            print(f"{args.figure}: a worker died; resuming on a new pool", file=sys.stderr)
-    wall = time.perf_counter() - t0
-
-    with _staging(final) as staging:
-        _write_csv(staging / "curves.csv", result.records)
-        _write_csv(staging / "mean_estimate.csv", result.mean_estimate)
-        stats = learning.summarize(settings, result)
-        summary = {
-            "figure": args.figure,
-            "preset": "quick" if args.quick else "paper",
-            "settings": settings.as_dict(),
-            "seed": s.seed,
-            "executor": where,
-            "versions": _versions(),
-            "wall_time_s": round(wall, 1),
-            "planner_solves": result.solves,
-            "resumed_runs": result.resumed,
-            "run_cache": str(store.folder),
-            "learning_rates": result.alphas,
-            **stats,
-            "regret_failures": int(sum(r["regret_failures"] for r in result.records)),
-            "skipped_updates": int(sum(bool(r["update_skipped"]) for r in result.records)),
-        }
-        summary.update(_learning_provenance(args, settings, result))
-        (staging / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-        title = f"{args.figure}: {learning.describe(settings)}"
-        plot_learning_curves(
-            learning.curves(settings, result.records),
-            title,
-            [staging / f"{args.figure}.png", staging / f"{args.figure}.pdf"],
-            bands={n: c["band"] for n, c in stats["calibration"].items()},
-        )
-        names = sorted(p.name for p in staging.iterdir())
-    return [final / name for name in names]
-
-
-def _learning_provenance(args, settings, result) -> dict:
-    """Summary fields beyond the statistics: where they came from, the planner, N per
-    learner, and the curves the figure draws (mean and SEM over runs at every iteration)."""
-    from corrections_sim.figures import learning
-    from corrections_sim.plotting import mean_sem
-
-    curves = learning.curves(settings, result.records)
-    shown = {}
-    for learner, data in curves.items():
-        shown[learner] = {}
-        for key in learning.METRICS:  # NEES/NIS are summarized under "calibration"
-            mean, sem = mean_sem(data[key])
-            shown[learner][key] = {"mean": mean, "sem": sem}
-    return {
-        **provenance.record(args.argv),
-        "planner": provenance.plain(settings.planner_config()),
-        "runs_per_learner": {learner: len(data["regret"]) for learner, data in curves.items()},
-        "curves": provenance.plain(shown),
-    }
-
-
-def _run_key(settings) -> dict:
-    """The settings a run's numbers depend on: all but which learners run (a run of one
-    learner is the same whichever others run beside it), so adding a learner to a figure
-    reuses the runs already made."""
-    return {k: v for k, v in settings.as_dict().items() if k != "learners"}
-
-
-def run_robustness_figure(args: argparse.Namespace) -> list[Path]:
-    """Fig. 6: learners × simulated users, resumable per column like figs. 4/5."""
-    from corrections_sim.figures import robustness
-    from corrections_sim.plotting import plot_robustness_matrix
-    from corrections_sim.store import CorruptRun, RunStore, StoreLocked
+    from corrections_sim.store import CorruptRun
 
     try:
-        settings = robustness.load_settings(quick=args.quick, overrides=_learning_overrides(args))
+        settings = figure.load(quick=args.quick, overrides=_overrides(args, figure))
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     _check_executor_options(args)
     out = _out(args)
-    final = out / robustness.FIGURE
-    notice = _check_replace(args, final, robustness.FIGURE, settings.as_dict())
-    code = _code_fingerprint()
+    name = figure.folder(settings)
+    final = out / name
+    recorded = figure.recorded(settings, quick=args.quick)
+    notice = _check_replace(args, final, name, recorded)
     t0 = time.perf_counter()
-    try:
-        with contextlib.ExitStack() as held:
-            # The cluster is reached (or the pool started) before anything is written.
-            executor, where = held.enter_context(_executor(args))
-            _writable_dir(out)
-            stores = [
-                RunStore(
-                    out / ".runs" / robustness.FIGURE / f"column-{i}",
-                    {"figure": robustness.FIGURE, "settings": _run_key(c.settings), "code": code},
-                )
-                for i, c in enumerate(settings.columns)
-            ]
-            for store in stores:
-                held.enter_context(store.lock())
-            _say(notice)
-            try:
-                results = robustness.run(
-                    settings, executor, Progress(robustness.FIGURE), caches=stores
-                )
-            except Interrupted as exc:
-                kept = sum(len(store.load_all()) for store in stores)
-                exc.kept = (
-                    f"{kept} finished run{'s' if kept != 1 else ''} kept in "
-                    f"{out / '.runs' / robustness.FIGURE}"
-                )
-                raise
-    except StoreLocked as exc:
-        raise UsageError(f"--out {out}: {exc}") from None
-    except CorruptRun as exc:
-        raise RuntimeError(str(exc)) from None
-    wall = time.perf_counter() - t0
-    rows = robustness.matrix(settings, results)
-    with _staging(final) as staging:
-        _write_csv(staging / "matrix.csv", rows)
-        _write_csv(
-            staging / "curves.csv",
-            [
-                {"user": c.label, **rec}
-                for c, result in zip(settings.columns, results, strict=True)
-                for rec in result.records
-            ],
-        )
-        first = settings.columns[0].settings
-        summary = {
-            "figure": robustness.FIGURE,
-            "preset": "quick" if args.quick else "paper",
-            "settings": settings.as_dict(),
-            "executor": where,
-            "versions": _versions(),
-            "wall_time_s": round(wall, 1),
-            "planner_solves": sum(r.solves for r in results),
-            "resumed_runs": sum(r.resumed for r in results),
-            "matrix": rows,
-            **provenance.record(args.argv),
-            "planner": provenance.plain(first.planner_config()),
-            "runs_per_learner": {n: first.study.runs_of(n) for n in settings.learners},
-        }
-        (staging / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-        title = (
-            f"fig6: learners × simulated users; {first.study.runs} runs × "
-            f"{first.study.iterations} corrections; " + learning_title_prior(first)
-        )
-        plot_robustness_matrix(rows, title, [staging / "fig6.png", staging / "fig6.pdf"])
-        names = sorted(p.name for p in staging.iterdir())
-    return [final / name for name in names]
-
-
-def learning_title_prior(settings) -> str:
-    """θ*, θ̂⁰ and P⁰ of a learning figure's settings, without the user."""
-    from corrections_sim.figures import learning
-
-    return learning.describe(settings).rsplit(";", 1)[0]
-
-
-def run_uncertainty_figure(args: argparse.Namespace) -> list[Path]:
-    """Figs. 1–3: where to learn (heat maps of eq. A1) and how to deploy (A2–A4)."""
-    from corrections_sim.figures import deployment, selection
-    from corrections_sim.figures.presets import read_preset
-
-    _check_executor_options(args)
-    figure = args.figure if args.figure != "all" else args.current
-    module = deployment if figure in deployment.FIGURES else selection
-    try:
-        settings = module.load_settings(figure, quick=args.quick)
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
-    out = _out(args)
-    final = out / figure
-    preset = provenance.plain(read_preset(figure, args.quick))
-    notice = _check_replace(args, final, figure, preset)
-    t0 = time.perf_counter()
-    with _executor(args) as (executor, where):
-        final = _writable_dir(out) / figure
+    with contextlib.ExitStack() as stack:
+        # The cluster is reached (or the pool started) before anything is written.
+        first = stack.enter_context(_executor(args))
+        _writable_dir(out)
+        caches = _open_caches(out, name, figure.cache_keys(settings), stack)
         _say(notice)
-        result = module.run(settings, executor, Progress(figure, unit="task"))
+        try:
+            for attempt in range(1, WORKER_DEATH_RETRIES + 2):
+                try:
+                    context = contextlib.nullcontext(first) if attempt == 1 else _executor(args)
+                    with context as (executor, where):
+                        progress = Progress(name, unit=figure.unit)
+                        result = figure.run(settings, executor, progress, caches or None)
+                    break
+                except BrokenProcessPool:
+                    # A worker process died (killed, out of memory): its run was lost, the
+                    # finished ones are in the caches; a fresh pool resumes from them.
+                    if not caches:
+                        raise RuntimeError(f"{name}: a worker process died") from None
+                    if attempt > WORKER_DEATH_RETRIES:
+                        raise RuntimeError(
+                            f"{name}: worker processes died {attempt} times; "
+                            f"{_kept(caches, out, name)}, run the command again to resume"
+                        ) from None
+                    print(f"{name}: a worker died; resuming on a new pool", file=sys.stderr)
+        except Interrupted as exc:
+            if caches:
+                exc.kept = _kept(caches, out, name)
+            raise
+        except CorruptRun as exc:
+            raise RuntimeError(str(exc)) from None
     wall = time.perf_counter() - t0
     with _staging(final) as staging:
-        module.write(settings, result, staging)
-        # What the figure shows: the best cell of each heat map (figs. 1-2), the deployed
-        # trajectories' features and rewards per panel and rule (fig. 3).
-        shown = (
-            {"maps": result.maps} if module is selection else {"trajectories": result.trajectories}
-        )
+        fields = figure.write(settings, result, staging)
         summary = {
-            "figure": figure,
+            "figure": name,
             "preset": "quick" if args.quick else "paper",
-            "settings": preset,
+            "settings": recorded,
             "executor": where,
-            "versions": _versions(),
+            "versions": provenance.versions(),
             "wall_time_s": round(wall, 1),
-            **provenance.record(args.argv),
-            "planner": provenance.plain(settings.planner_config()),
-            "results": provenance.plain(shown),
         }
+        if caches:
+            summary["run_cache"] = str(_cache_folder(caches, out, name))
+        summary.update(fields)
+        summary.update(provenance.record(args.argv))
         (staging / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
         names = sorted(p.name for p in staging.iterdir())
     return [final / name for name in names]
 
 
 def run_all(args: argparse.Namespace) -> list[Path]:
-    """Figs. 1–6 one after the other (the scene render is ``run scene``)."""
+    """Every figure of the paper, fig1 to fig6, one after the other (the scene render is
+    ``run scene``); each takes the options that apply to it."""
     written = []
-    for figure in ("fig1", "fig2", "fig3"):
-        args.current = figure
-        written += run_uncertainty_figure(args)
-    for figure in ("fig4", "fig5"):
-        written += run_learning_figure(argparse.Namespace(**{**vars(args), "figure": figure}))
-    written += run_robustness_figure(argparse.Namespace(**{**vars(args), "figure": "fig6"}))
+    for figure in _figures().values():
+        if figure.in_all:
+            written += run_figure(args, figure)
     return written
 
 
-COMMANDS: dict[str, tuple[Callable[[argparse.Namespace], list[Path]], str]] = {
-    "fig1": (run_uncertainty_figure, "where to learn, one feature: heat maps of eq. (A1)"),
-    "fig2": (run_uncertainty_figure, "where to learn, two features: the best start moves"),
-    "fig3": (run_uncertainty_figure, "risk-sensitive deployment, eqs. (A2)-(A4) and exact (A3)"),
-    "fig4": (run_learning_figure, "PP vs KF vs AL, equal initial uncertainty"),
-    "fig5": (run_learning_figure, "PP vs KF vs AL, laptop known, table uncertain"),
-    "fig6": (run_robustness_figure, "beyond the paper: learners x simulated users, calibration"),
+def _figures() -> dict:
+    from corrections_sim.figures.registry import figures
+
+    return figures()
+
+
+#: Commands that are not figures: (function, help).
+TOOLS: dict[str, tuple[Callable[[argparse.Namespace], list[Path]], str]] = {
     "scene": (run_scene, "render the scene with optimal paths for two preferences"),
     "all": (run_all, "fig1 to fig6, one after the other"),
     "video": (run_video, "animate corrections of a recorded fig4/fig5 run (MP4 or GIF)"),
 }
-
-
-_FIGURE_OPTIONS = ("out", "quick", "force", "workers", "scheduler")
-_LEARNING_OPTIONS = (
-    *_FIGURE_OPTIONS,
-    "runs",
-    "iterations",
-    "seed",
-    "theta_star",
-    "theta0",
-    "cov0",
-    "learners",
-    *_PASSED_AS_IS,
-    "warm_start",
-)
-#: The options each command takes; any other option given is refused, not ignored.
-APPLIES: dict[str, tuple[str, ...]] = {
+#: The options each tool takes; a figure takes the common ones and its own ``options``.
+TOOL_OPTIONS: dict[str, tuple[str, ...]] = {
     "scene": ("out", "env"),
-    "fig1": _FIGURE_OPTIONS,
-    "fig2": _FIGURE_OPTIONS,
-    "fig3": _FIGURE_OPTIONS,
-    "fig4": _LEARNING_OPTIONS,
-    "fig5": _LEARNING_OPTIONS,
-    "fig6": _LEARNING_OPTIONS,
-    "all": _LEARNING_OPTIONS,  # the learning options go to figs. 4-6
     "video": ("out", "source", "learner", "run", "corrections", "model", "video_file"),
 }
 
 
+def applies(command: str) -> tuple[str, ...]:
+    """The options ``command`` takes; any other option given is refused, not ignored."""
+    from corrections_sim.figures.registry import COMMON_OPTIONS
+
+    figures = _figures()
+    if command in figures:
+        return (*COMMON_OPTIONS, *figures[command].options)
+    if command == "all":  # each figure takes what applies to it
+        options = [o for f in figures.values() if f.in_all for o in f.options]
+        return tuple(dict.fromkeys((*COMMON_OPTIONS, *options)))
+    return TOOL_OPTIONS[command]
+
+
 def _check_applies(args: argparse.Namespace) -> None:
     """Refuse an option the command does not take (``scene --runs 5``, ``fig4 --env X``)."""
-    allowed = APPLIES[args.figure]
+    allowed = applies(args.figure)
     for name in (a.dest for a in parser()._actions):
         if name in ("help", "figure") or name in allowed:
             continue
         if getattr(args, name) not in (None, False):
             takes = ", ".join("--" + n.replace("_", "-") for n in allowed)
-            raise UsageError(
-                f"--{name.replace('_', '-')}: does not apply to {args.figure} (it takes {takes})"
-            )
+            label = "FILE" if name == "study_file" else f"--{name.replace('_', '-')}"
+            raise UsageError(f"{label}: does not apply to {args.figure} (it takes {takes})")
+
+
+#: A value that starts with a minus sign but is a number or a list of numbers ("-1,1",
+#: "-.5,1;0,2", "-1e-3"): a value, never an option.
+_NUMBERS = re.compile(r"-\.?\d[\d.eE+\-]*([,;]\s*[-+]?\.?\d[\d.eE+\-]*)*")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -660,12 +443,23 @@ class _Parser(argparse.ArgumentParser):
     def error(self, message: str):
         self.exit(2, f"error: {message} (see --help)\n")
 
+    def _parse_optional(self, arg_string: str):
+        # argparse reads any token that starts with a minus sign and is not a plain number
+        # as an option, so "--theta-star -1,1" would lack its value; a list of numbers is a
+        # value wherever it stands.
+        if _NUMBERS.fullmatch(arg_string):
+            return None
+        return super()._parse_optional(arg_string)
+
 
 def parser() -> argparse.ArgumentParser:
     # Imported here, not at the top: they load the planner's stack (CasADi, MuJoCo, pinocchio),
     # and main() has its interrupt handlers in place by the time this runs.
     from corrections_sim.corrections import CORRECTION_KINDS
-    from corrections_sim.study import LEARNERS, USERS
+    from corrections_sim.figures.study_file import learner_names, user_names
+
+    figures = _figures()
+    commands = {**{n: f.help for n, f in figures.items()}, **{n: t[1] for n, t in TOOLS.items()}}
 
     p = _Parser(
         prog="python -m corrections_sim.run",
@@ -678,8 +472,14 @@ def parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "figure",
-        choices=sorted(COMMANDS),
-        help="what to produce: " + "; ".join(f"{k}: {v[1]}" for k, v in COMMANDS.items()),
+        choices=sorted(commands),
+        help="what to produce: " + "; ".join(f"{k}: {v}" for k, v in commands.items()),
+    )
+    p.add_argument(
+        "study_file",
+        nargs="?",
+        metavar="FILE",
+        help="for 'study': the study file (TOML; see README, and experiments/ for examples)",
     )
     p.add_argument(
         "--out",
@@ -693,26 +493,34 @@ def parser() -> argparse.ArgumentParser:
         help="replace a figure folder made with other settings or another preset (without "
         "it, such a folder is left alone and the command refuses)",
     )
-    g = p.add_argument_group("learning figures (fig4, fig5, fig6); defaults come from the preset")
-    g.add_argument("--runs", type=int, help="runs of PP, KF and EKF (AL runs once)")
-    g.add_argument("--iterations", type=int, help="corrections per run")
+    g = p.add_argument_group(
+        "learning studies (fig4, fig5, fig6, study); defaults come from the study file"
+    )
+    g.add_argument("--runs", type=_positive_int, help="runs of PP, KF and EKF (AL runs once)")
+    g.add_argument("--iterations", type=_positive_int, help="corrections per run")
     g.add_argument("--seed", type=int, help="root seed of every random draw")
-    g.add_argument("--theta-star", metavar="W,W", help="the user's true weights θ*, e.g. 1,-1")
-    g.add_argument("--theta0", metavar="W,W", help="the robot's initial estimate θ̂⁰, e.g. 0,0")
+    g.add_argument(
+        "--theta-star", type=_floats, metavar="W,W", help="the user's true weights θ*, e.g. -1,1"
+    )
+    g.add_argument(
+        "--theta0", type=_floats, metavar="W,W", help="the robot's initial estimate θ̂⁰, e.g. 0,0"
+    )
     g.add_argument(
         "--cov0",
+        type=_matrix,
         metavar="P",
         help="initial covariance P⁰: 'a,b' for diag(a, b) or 'a,b;c,d' row by row "
         "(symmetric positive definite)",
     )
     g.add_argument(
         "--learners",
+        type=_names,
         metavar="L,L",
-        help="which learners, from " + ", ".join(LEARNERS) + " (e.g. PP,KF,AL,KF-C,AL-C,PP-C)",
+        help="which learners, from " + ", ".join(learner_names()) + " (e.g. PP,KF,AL,KF-C)",
     )
     g.add_argument(
         "--user",
-        choices=USERS,
+        choices=user_names(),
         help="biased: moves its worst waypoint(s) (paper); deform: pushes its worst waypoint "
         "and the path deforms smoothly; noisy: Φ(ξ*) + Gaussian noise",
     )
@@ -732,7 +540,7 @@ def parser() -> argparse.ArgumentParser:
     g.add_argument("--correction-waypoints", type=int, help="how many waypoints KF-C's model moves")
     g.add_argument(
         "--fixed-alpha",
-        type=float,
+        type=_positive_float("fixed_alpha"),
         help="a fixed learning rate for PP and PP-C (default: from KF's / KF-C's gains)",
     )
     g.add_argument(
@@ -757,7 +565,9 @@ def parser() -> argparse.ArgumentParser:
     )
     x = p.add_argument_group("where the runs execute")
     x.add_argument(
-        "--workers", type=int, help="local worker processes (default: the number of cores)"
+        "--workers",
+        type=_positive_int,
+        help="local worker processes (default: the number of cores)",
     )
     x.add_argument(
         "--scheduler",
@@ -767,37 +577,19 @@ def parser() -> argparse.ArgumentParser:
     return p
 
 
-#: Options whose value may start with a minus sign (a vector or matrix of weights).
-_VECTOR_OPTIONS = ("--theta-star", "--theta0", "--cov0")
-_NEGATIVE_VALUE = re.compile(r"-\.?\d")
-
-
-def _attach_negative_values(argv: Sequence[str]) -> list[str]:
-    """``--theta-star -1,1`` as ``--theta-star=-1,1``: argparse reads a value that starts with
-    a minus sign and is not a plain number as an option of its own."""
-    out: list[str] = []
-    i = 0
-    while i < len(argv):
-        token = argv[i]
-        following = argv[i + 1] if i + 1 < len(argv) else ""
-        if token in _VECTOR_OPTIONS and _NEGATIVE_VALUE.match(following):
-            out.append(f"{token}={following}")
-            i += 2
-            continue
-        out.append(token)
-        i += 1
-    return out
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Run one command; 0 on success, 1 on a failure, 2 on bad input, 130 on SIGINT/SIGTERM."""
     with interrupts():  # from the start: the heavy imports happen inside
         try:
             given = list(sys.argv[1:] if argv is None else argv)
-            args = parser().parse_args(_attach_negative_values(given))
+            args = parser().parse_args(given)
             args.argv = given
             _check_applies(args)
-            written = COMMANDS[args.figure][0](args)
+            figures = _figures()
+            if args.figure in figures:
+                written = run_figure(args, figures[args.figure])
+            else:
+                written = TOOLS[args.figure][0](args)
         except UsageError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2

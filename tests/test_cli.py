@@ -199,9 +199,20 @@ def test_a_worker_that_dies_is_replaced_and_its_run_redone(uninterrupted, tmp_pa
 
 
 def test_a_vector_that_starts_with_a_minus_sign_is_a_value():
-    argv = cli._attach_negative_values(["fig4", "--theta-star", "-1,1", "--cov0", "-.5,1"])
-    assert argv == ["fig4", "--theta-star=-1,1", "--cov0=-.5,1"]
-    args = cli.parser().parse_args(argv)
-    assert (args.theta_star, args.cov0) == ("-1,1", "-.5,1")
-    # Options are left alone: "--theta-star --runs 3" is still a missing value.
-    assert cli._attach_negative_values(["--theta-star", "--runs"]) == ["--theta-star", "--runs"]
+    args = cli.parser().parse_args(
+        ["fig4", "--theta-star", "-1,1", "--cov0", "-.5,1;1,2", "--theta0", "-1e-3,0"]
+    )
+    assert args.theta_star == (-1.0, 1.0)
+    assert args.cov0 == ((-0.5, 1.0), (1.0, 2.0))
+    assert args.theta0 == (-0.001, 0.0)
+    assert cli.parser().parse_args(["fig4", "--seed", "-3"]).seed == -3
+    # An option is still an option: "--theta-star --runs 3" lacks the vector.
+    with pytest.raises(SystemExit):
+        cli.parser().parse_args(["fig4", "--theta-star", "--runs", "3"])
+
+
+def test_a_negative_first_weight_reaches_the_settings(earlier, capsys):
+    # Typed as a person would, the vector is the value; a wrong length is then the error.
+    assert _main(["fig4", "--theta-star", "-1,1,0", "--out", str(earlier)]) == 2
+    err = capsys.readouterr().err
+    assert "theta_star: expected 2 weights" in err and err.count("\n") == 1, err

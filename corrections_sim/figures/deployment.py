@@ -30,7 +30,8 @@ import numpy as np
 from corrections_sim.environments import Environment, paper_environments
 from corrections_sim.features import feature_counts
 from corrections_sim.figures import presets
-from corrections_sim.figures.presets import Scene
+from corrections_sim.figures.presets import PresetFigure, Scene
+from corrections_sim.figures.registry import register
 from corrections_sim.learners import Belief
 from corrections_sim.planner import (
     Planner,
@@ -471,3 +472,13 @@ def _title(settings: DeploymentSettings) -> str:
         "Risk-averse / -seeking (the paper's rule): plan for the γ ∈ Γ with the lowest / highest "
         "best reward; exact max-min: the plan with the best worst case over Γ"
     )
+
+
+register(
+    PresetFigure(
+        "fig3",
+        "risk-sensitive deployment, eqs. (A2)-(A4) and exact (A3)",
+        __name__,
+        ("trajectories",),
+    )
+)

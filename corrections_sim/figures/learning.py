@@ -1,12 +1,13 @@
 """Figs. 4 and 5: the learners of :data:`corrections_sim.study.LEARNERS` (the paper's PP, KF and
 AL, and EKF, KF-C, AL-C, PP-C) learning from a simulated user's corrections.
 
-Settings live as data in ``experiments/fig4.toml`` and ``fig5.toml`` (a paper-scale and a quick
-preset each). :func:`run` executes every (learner, run) on any ``concurrent.futures``
-executor (a process pool, a Dask client's executor) and returns tidy records. The curves do
-not depend on the executor, the number of workers or the order in which runs finish: each
-run draws from its own generator, made from (seed, learner stream, run), and everything is
-put back in (learner, run) order before anything is averaged.
+Settings live as data: a study file each (``experiments/fig4.toml``, ``fig5.toml``; any other
+with ``run study FILE``, see :mod:`corrections_sim.figures.study_file`). :func:`run` executes
+every (learner, run) on any ``concurrent.futures`` executor (a process pool, a Dask client's
+executor) and returns tidy records. The curves do not depend on the executor, the number of
+workers or the order in which runs finish: each run draws from its own generator, made from
+(seed, learner stream, run), and everything is put back in (learner, run) order before
+anything is averaged.
 
 Order: first the plans every run shares (the user's ξ*(θ*, E) and the robot's ξ*(θ̂⁰, E) in
 all environments, one task); then the runs of every learner with a covariance; a PP-type
@@ -20,18 +21,28 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from concurrent.futures import Executor, Future, as_completed
-from dataclasses import dataclass, fields
-from typing import Protocol
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from corrections_sim import calibration
-from corrections_sim.environments import paper_environments
-from corrections_sim.figures.presets import read_preset
+from corrections_sim import calibration, provenance
+from corrections_sim.environments import (
+    LAPTOP_OFFSETS,
+    START_POSITIONS,
+    TABLE_POSITIONS,
+    Environment,
+)
+from corrections_sim.figures import study_file
+from corrections_sim.figures.output import write_records
+from corrections_sim.figures.presets import EXPERIMENTS_DIR
+from corrections_sim.figures.registry import Caches, RunCache, register
 from corrections_sim.learners import learning_rate_schedule
 from corrections_sim.metrics import mean_sem
 from corrections_sim.planner import PlannerConfig, shared_planner
 from corrections_sim.study import (
+    DEFAULT_LEARNERS,
     LEARNERS,
     PlanBook,
     PlanEntries,
@@ -43,65 +54,155 @@ from corrections_sim.study import (
 )
 
 FIGURES = ("fig4", "fig5")
+#: Features of figs. 4–5 and the default of a study file.
 FEATURES = ("laptop", "table")
 #: Figures and tables list learners in the registry's order.
 _ORDER = {name: i for i, name in enumerate(LEARNERS)}
+N_PAPER_ENVIRONMENTS = len(START_POSITIONS) * len(TABLE_POSITIONS) * len(LAPTOP_OFFSETS)
 #: Curves averaged over runs, and the metrics compared between learners.
 METRICS = ("estimate_error", "regret", "regret_paper")
 
 
 @dataclass(frozen=True)
 class FigureSettings:
-    """A figure's study settings plus the planner's multi-start count."""
+    """A learning study: its study settings, features, environments and planner settings.
+
+    Attributes:
+        study: learners, user, prior, counts (see :class:`~corrections_sim.study.StudySettings`).
+        n_starts: the planner's multi-start count.
+        features: the features θ weighs, in order (k of them).
+        environments: "paper" (the 48), or paper environment names and specs of the user's own
+            (see :mod:`corrections_sim.figures.study_file`).
+        name: the figure or study file's name (output folder, titles); not a setting.
+        description: a line for the plot's title; not a setting.
+    """
 
     study: StudySettings
     n_starts: int = 1
+    features: tuple[str, ...] = FEATURES
+    environments: study_file.Environments = study_file.PAPER
+    name: str = field(default="", compare=False)
+    description: str = field(default="", compare=False)
 
     def planner_config(self) -> PlannerConfig:
-        return PlannerConfig(features=FEATURES, n_starts=self.n_starts)
+        return PlannerConfig(features=self.features, n_starts=self.n_starts)
+
+    def envs(self) -> tuple[Environment, ...]:
+        """The study's environments (memoized per process)."""
+        return study_file.resolve(self.environments)
 
     def as_dict(self) -> dict:
         d = {f.name: getattr(self.study, f.name) for f in fields(self.study)}
         d["n_starts"] = self.n_starts
+        d["features"] = list(self.features)
+        d["environments"] = study_file.as_data(self.environments)
         return d
 
 
 def load_settings(figure: str, *, quick: bool, overrides: dict | None = None) -> FigureSettings:
-    """Settings of ``figure`` from ``experiments/<figure>.toml`` with command-line overrides.
+    """Settings of ``figure`` from its study file ``experiments/<figure>.toml`` with
+    command-line overrides.
 
     Raises:
         ValueError: unknown figure or a bad value (the message names the field).
     """
     if figure not in FIGURES:
         raise ValueError(f"figure {figure!r}: choose one of {', '.join(FIGURES)}")
-    values = read_preset(figure, quick)
+    return load_file(
+        EXPERIMENTS_DIR / f"{figure}.toml", name=figure, quick=quick, overrides=overrides
+    )
+
+
+def load_file(source, *, name: str, quick: bool, overrides: dict | None = None) -> FigureSettings:
+    """Settings from a study file (a path, or a resource of the installed package), with
+    command-line overrides.
+
+    Raises:
+        ValueError: a bad file or value (the message names the key; see ``study_file``).
+    """
+    values = study_file.read(source, quick=quick)
     values.update({k: v for k, v in (overrides or {}).items() if v is not None})
-    return settings_from_values(values)
+    return settings_from_values(values, name=name)
 
 
-def settings_from_values(values: dict) -> FigureSettings:
-    """A figure's settings from a flat mapping of :class:`StudySettings` keys and ``n_starts``.
+def settings_from_values(values: dict, *, name: str = "") -> FigureSettings:
+    """A study's settings from a flat mapping of study-file keys (``study_file.settings_keys``).
+
+    Sizes are checked first (:func:`study_file.check_sizes`), so nothing is built for a
+    study that cannot fit.
 
     Raises:
         ValueError: an unknown key or a bad value (the message names the field).
     """
     values = dict(values)
-    n_starts = int(values.pop("n_starts", 1))
-    known = {f.name for f in fields(StudySettings)}
-    unknown = sorted(set(values) - known)
-    if unknown:
-        raise ValueError(f"settings: unknown keys {unknown}")
-    if len(values["theta_star"]) != len(FEATURES):
+    study_file.check_keys(values)
+    description = values.pop("description", "")
+    if not isinstance(description, str):
+        raise ValueError(f"description = {description!r}: expected a string")
+    features = study_file.check_features(values.pop("features", FEATURES))
+    k = len(features)
+    learners = values.get("learners", DEFAULT_LEARNERS)
+    if isinstance(learners, list | tuple):
+        for i, learner in enumerate(learners):
+            if learner not in study_file.learner_names():
+                raise ValueError(
+                    f"learners[{i}] = {learner!r}: unknown learner (choose from "
+                    f"{', '.join(study_file.learner_names())})"
+                )
+    user = values.get("user", "biased")
+    if user not in study_file.user_names():
         raise ValueError(
-            f"theta_star: expected {len(FEATURES)} weights for the features {FEATURES}, "
-            f"got {len(values['theta_star'])}"
+            f"user = {user!r}: unknown user (choose from {', '.join(study_file.user_names())})"
         )
-    values["theta_star"] = tuple(values["theta_star"])
-    values["theta0"] = tuple(values["theta0"])
-    values["cov0"] = tuple(tuple(row) for row in values["cov0"])
+    raw_envs = values.pop("environments", study_file.PAPER)
+    n_envs = len(raw_envs) if isinstance(raw_envs, list | tuple) else N_PAPER_ENVIRONMENTS
+    values.setdefault("runs", 10)
+    values.setdefault("iterations", 12)
+    study_file.check_sizes(
+        values, n_envs, len(learners) if isinstance(learners, list | tuple) else 1
+    )
+    n_starts = values.pop("n_starts", 1)
+    if "theta_star" not in values:
+        raise ValueError("theta_star: missing (the simulated user's true weights)")
+    theta_star = values["theta_star"]
+    if not isinstance(theta_star, list | tuple) or len(theta_star) != k:
+        raise ValueError(
+            f"theta_star: expected {k} weights for the features {features}, got "
+            f"{len(theta_star) if isinstance(theta_star, list | tuple) else repr(theta_star)}"
+        )
+    values.setdefault("theta0", [0.0] * k)
+    values.setdefault("cov0", [[float(i == j) for j in range(k)] for i in range(k)])
+    for key in ("theta_star", "theta0"):
+        if not isinstance(values[key], list | tuple) or not all(
+            not isinstance(v, bool) and isinstance(v, int | float) for v in values[key]
+        ):
+            raise ValueError(f"{key} = {values[key]!r}: expected a list of numbers")
+    cov0 = values["cov0"]
+    if not isinstance(cov0, list | tuple) or not all(
+        isinstance(row, list | tuple)
+        and all(not isinstance(v, bool) and isinstance(v, int | float) for v in row)
+        for row in cov0
+    ):
+        raise ValueError(f"cov0 = {cov0!r}: expected a {k} x {k} matrix (a list of rows)")
+    if len(cov0) != k or any(len(row) != k for row in cov0):
+        raise ValueError(f"cov0: expected a {k} x {k} matrix for the features {features}")
+    values["theta_star"] = tuple(float(v) for v in values["theta_star"])
+    values["theta0"] = tuple(float(v) for v in values["theta0"])
+    values["cov0"] = tuple(tuple(float(v) for v in row) for row in cov0)
     if "learners" in values:
         values["learners"] = tuple(values["learners"])
-    settings = FigureSettings(study=StudySettings(**values), n_starts=n_starts)
+    try:
+        study = StudySettings(**values)
+    except TypeError as exc:  # a value of the wrong type that the checks above let through
+        raise ValueError(f"settings: {exc}") from None
+    settings = FigureSettings(
+        study=study,
+        n_starts=n_starts,
+        features=features,
+        environments=study_file.parse_environments(raw_envs),
+        name=name,
+        description=description,
+    )
     settings.planner_config()  # validates n_starts
     return settings
 
@@ -125,7 +226,7 @@ def prepare(settings: FigureSettings) -> Shared:
     """Solve the shared plans; a task for a worker (the caller needs no planner)."""
     s = settings.study
     planner = shared_planner(settings.planner_config())
-    envs = paper_environments()
+    envs = settings.envs()
     target = Target.solve(planner, np.array(s.theta_star), envs)
     book = PlanBook(planner)
     evaluate(book, target, envs, np.array(s.theta0, float))
@@ -143,7 +244,7 @@ def run_one(
         run,
         s,
         shared_planner(settings.planner_config()),
-        paper_environments(),
+        settings.envs(),
         shared.target,
         s.make_user(),
         np.random.default_rng(seq),
@@ -157,7 +258,7 @@ def mean_estimate_point(
 ) -> tuple[float, float, int, int]:
     """(regret, paper regret, failed environments, solves) of one θ; a worker task."""
     book = PlanBook(shared_planner(settings.planner_config()), shared.prior)
-    regret, paper, failed = evaluate(book, shared.target, paper_environments(), np.array(theta))
+    regret, paper, failed = evaluate(book, shared.target, settings.envs(), np.array(theta))
     return regret, paper, failed, book.solves
 
 
@@ -174,14 +275,6 @@ def _mean_thetas(
             theta = np.mean([[r[f"theta_{i}"] for i in range(s.k)] for r in at_t], axis=0)
             out.append((learner, t, len(at_t), tuple(float(v) for v in theta)))
     return out
-
-
-class RunCache(Protocol):
-    """Where finished runs live between invocations (e.g. ``store.RunStore``)."""
-
-    def load_all(self) -> Mapping[tuple[str, int], RunResult]: ...
-
-    def save(self, learner: str, run: int, result: RunResult) -> object: ...
 
 
 @dataclass(frozen=True)
@@ -430,3 +523,153 @@ def describe(settings: FigureSettings) -> str:
     if s.user_waypoints != 1:
         user += f", {s.user_waypoints} waypoints"
     return f"θ* = {_vector(s.theta_star)}, θ̂⁰ = {_vector(s.theta0)}, P⁰ = {prior}; {user} user"
+
+
+# --- files, and the figures registered by name -------------------------------------------------
+
+#: Command-line options of a learning study (their argparse destinations), beyond the common ones.
+OPTIONS = (
+    "runs",
+    "iterations",
+    "seed",
+    "theta_star",
+    "theta0",
+    "cov0",
+    "learners",
+    "user",
+    "user_step",
+    "user_waypoints",
+    "correction_model",
+    "correction_step",
+    "correction_waypoints",
+    "fixed_alpha",
+    "warm_start",
+)
+
+
+def run_key(settings: FigureSettings) -> dict:
+    """The settings a run's numbers depend on: all but which learners run (a run of one
+    learner is the same whichever others run beside it), so adding a learner to a study
+    reuses the runs already made."""
+    return {k: v for k, v in settings.as_dict().items() if k != "learners"}
+
+
+def shown_curves(settings: FigureSettings, result: FigureResult) -> dict:
+    """What the plot draws: mean and SEM over runs at every iteration, per learner and metric
+    (NEES/NIS are summarized under "calibration")."""
+    from corrections_sim.plotting import mean_sem
+
+    shown = {}
+    for learner, data in curves(settings, result.records).items():
+        shown[learner] = {}
+        for key in METRICS:
+            mean, sem = mean_sem(data[key])
+            shown[learner][key] = {"mean": mean, "sem": sem}
+    return shown
+
+
+def write(settings: FigureSettings, result: FigureResult, folder: Path, name: str) -> dict:
+    """curves.csv, mean_estimate.csv and the plot (PNG, PDF) in ``folder``; returns the
+    summary's fields (statistics, provenance of the numbers, the curves drawn)."""
+    from corrections_sim.plotting import plot_learning_curves
+
+    write_records(folder / "curves.csv", result.records)
+    write_records(folder / "mean_estimate.csv", result.mean_estimate)
+    stats = summarize(settings, result)
+    data = curves(settings, result.records)
+    title = f"{name}: {describe(settings)}"
+    if settings.description:
+        title = f"{name}: {settings.description}\n{describe(settings)}"
+    plot_learning_curves(
+        data,
+        title,
+        [folder / f"{name}.png", folder / f"{name}.pdf"],
+        bands={n: c["band"] for n, c in stats["calibration"].items()},
+        n_environments=len(settings.envs()),
+    )
+    return {
+        "seed": settings.study.seed,
+        "planner_solves": result.solves,
+        "resumed_runs": result.resumed,
+        "learning_rates": result.alphas,
+        **stats,
+        "regret_failures": int(sum(r["regret_failures"] for r in result.records)),
+        "skipped_updates": int(sum(bool(r["update_skipped"]) for r in result.records)),
+        "planner": provenance.plain(settings.planner_config()),
+        "runs_per_learner": {learner: len(d["regret"]) for learner, d in data.items()},
+        "curves": provenance.plain(shown_curves(settings, result)),
+    }
+
+
+@dataclass(frozen=True)
+class LearningStudy:
+    """A learning study as a registered figure: fig4 and fig5 read ``experiments/<name>.toml``;
+    ``study`` reads the file given on the command line (its name is the file's stem).
+
+    Attributes:
+        name: the command.
+        help: one line for ``--help``.
+        path: the study file; None for ``study``, whose file is the ``study_file`` option.
+    """
+
+    name: str
+    help: str
+    path: Any = None
+    unit: str = "run"
+
+    @property
+    def options(self) -> tuple[str, ...]:
+        return OPTIONS if self.path is not None else ("study_file", *OPTIONS)
+
+    @property
+    def in_all(self) -> bool:
+        return self.path is not None
+
+    def load(self, *, quick: bool, overrides: Mapping[str, Any]) -> FigureSettings:
+        overrides = dict(overrides)
+        if self.path is not None:
+            return load_file(self.path, name=self.name, quick=quick, overrides=overrides)
+        given = overrides.pop("study_file", None)
+        if not given:
+            raise ValueError(
+                "study: give a study file, e.g. run study experiments/three_features.toml"
+            )
+        path = Path(given)
+        try:
+            return load_file(path, name=path.stem, quick=quick, overrides=overrides)
+        except ValueError as exc:
+            raise ValueError(f"{path}: {exc}") from None
+
+    def folder(self, settings: FigureSettings) -> str:
+        return settings.name
+
+    def cache_keys(self, settings: FigureSettings) -> dict[str, dict]:
+        return {"": run_key(settings)}
+
+    def recorded(self, settings: FigureSettings, *, quick: bool) -> dict:
+        return settings.as_dict()
+
+    def run(
+        self,
+        settings: FigureSettings,
+        executor: Executor,
+        progress: Callable[[int, int], None] | None,
+        cache: Caches | None,
+    ) -> FigureResult:
+        return run(settings, executor, progress, cache=(cache or {}).get(""))
+
+    def write(self, settings: FigureSettings, result: FigureResult, folder: Path) -> dict:
+        return write(settings, result, folder, settings.name)
+
+
+register(
+    LearningStudy(
+        "fig4", "PP vs KF vs AL, equal initial uncertainty", EXPERIMENTS_DIR / "fig4.toml"
+    )
+)
+register(
+    LearningStudy(
+        "fig5", "PP vs KF vs AL, laptop known, table uncertain", EXPERIMENTS_DIR / "fig5.toml"
+    )
+)
+register(LearningStudy("study", "a learning study described in a TOML file (see README)"))

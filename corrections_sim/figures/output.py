@@ -40,6 +40,20 @@ def write_csv(path: Path, rows: Sequence[dict]) -> Path:
     return path
 
 
+def write_records(path: Path, rows: Sequence[dict]) -> Path:
+    """Write the tidy records of a learning study (figs. 4–6, study files) to ``path``.
+
+    The committed curves were written this way (``csv`` module defaults: CRLF line ends;
+    floats with ``repr``, None as an empty cell), so the same records give the same bytes.
+    """
+    with open(path, "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer.writeheader()
+        for row in rows:
+            writer.writerow({k: (repr(v) if isinstance(v, float) else v) for k, v in row.items()})
+    return Path(path)
+
+
 def _cell(value):
     if isinstance(value, float | np.floating):
         return repr(float(value))

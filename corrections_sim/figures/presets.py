@@ -8,11 +8,14 @@ Every value is checked where it enters, and a bad one is refused with a one-line
 from __future__ import annotations
 
 import functools
+import importlib
 import math
 import tomllib
+from collections.abc import Mapping
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -226,3 +229,48 @@ def _cached_configuration(position: tuple[float, ...]) -> np.ndarray:
 def _configuration(position) -> np.ndarray:
     """configuration_at, memoized per process (the goal recurs in every grid cell)."""
     return _cached_configuration(tuple(float(v) for v in position))
+
+
+@dataclass(frozen=True)
+class PresetFigure:
+    """Figs. 1–3 as registered figures: a module with ``load_settings(figure, quick=,
+    overrides=)``, ``run(settings, executor, progress)`` and ``write(settings, result,
+    folder)``, looked up when called; ``shown`` names the result's fields that the summary
+    records (what the figure shows)."""
+
+    name: str
+    help: str
+    module: str
+    shown: tuple[str, ...]
+    options: tuple[str, ...] = ()
+    unit: str = "task"
+    in_all: bool = True
+
+    def _module(self):
+        return importlib.import_module(self.module)
+
+    def load(self, *, quick: bool, overrides: Mapping[str, Any]):
+        return self._module().load_settings(self.name, quick=quick, overrides=dict(overrides))
+
+    def folder(self, settings) -> str:
+        return self.name
+
+    def cache_keys(self, settings) -> dict[str, dict]:
+        return {}  # a few minutes at most: not resumable
+
+    def recorded(self, settings, *, quick: bool) -> dict:
+        from corrections_sim import provenance
+
+        return provenance.plain(read_preset(self.name, quick))
+
+    def run(self, settings, executor, progress, cache):
+        return self._module().run(settings, executor, progress)
+
+    def write(self, settings, result, folder: Path) -> dict:
+        from corrections_sim import provenance
+
+        self._module().write(settings, result, folder)
+        return {
+            "planner": provenance.plain(settings.planner_config()),
+            "results": provenance.plain({k: getattr(result, k) for k in self.shown}),
+        }

@@ -15,15 +15,20 @@ the user keys of :class:`~corrections_sim.study.StudySettings` (``user``, ``user
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Executor
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from corrections_sim import provenance
 from corrections_sim.figures import learning
-from corrections_sim.figures.learning import FigureResult, FigureSettings, RunCache
+from corrections_sim.figures.learning import FigureResult, FigureSettings
+from corrections_sim.figures.output import write_records
 from corrections_sim.figures.presets import read_preset
+from corrections_sim.figures.registry import Caches, RunCache, register
 
 FIGURE = "fig6"
 #: Keys a column may set; everything else is shared by all columns.
@@ -131,3 +136,72 @@ def matrix(settings: RobustnessSettings, results: Sequence[FigureResult]) -> lis
             row["coverage_2sigma"] = calib["coverage_2sigma_mean"] if calib else None
             rows.append(row)
     return rows
+
+
+def write(settings: RobustnessSettings, results: Sequence[FigureResult], folder: Path) -> dict:
+    """matrix.csv, curves.csv (every column's records, labelled by user) and the plot in
+    ``folder``; returns the summary's fields."""
+    from corrections_sim.plotting import plot_robustness_matrix
+
+    rows = matrix(settings, results)
+    write_records(folder / "matrix.csv", rows)
+    write_records(
+        folder / "curves.csv",
+        [
+            {"user": c.label, **rec}
+            for c, result in zip(settings.columns, results, strict=True)
+            for rec in result.records
+        ],
+    )
+    first = settings.columns[0].settings
+    title = (
+        f"fig6: learners × simulated users; {first.study.runs} runs × "
+        f"{first.study.iterations} corrections; " + learning.describe(first).rsplit(";", 1)[0]
+    )
+    plot_robustness_matrix(rows, title, [folder / "fig6.png", folder / "fig6.pdf"])
+    return {
+        "planner_solves": sum(r.solves for r in results),
+        "resumed_runs": sum(r.resumed for r in results),
+        "matrix": rows,
+        "planner": provenance.plain(first.planner_config()),
+        "runs_per_learner": {n: first.study.runs_of(n) for n in settings.learners},
+    }
+
+
+@dataclass(frozen=True)
+class RobustnessFigure:
+    """Fig. 6 as a registered figure; resumable per column (``column-<i>`` caches)."""
+
+    name: str = FIGURE
+    help: str = "beyond the paper: learners x simulated users, calibration"
+    options: tuple[str, ...] = learning.OPTIONS
+    unit: str = "run"
+    in_all: bool = True
+
+    def load(self, *, quick: bool, overrides: Mapping[str, Any]) -> RobustnessSettings:
+        return load_settings(quick=quick, overrides=dict(overrides))
+
+    def folder(self, settings: RobustnessSettings) -> str:
+        return self.name
+
+    def cache_keys(self, settings: RobustnessSettings) -> dict[str, dict]:
+        return {f"column-{i}": learning.run_key(c.settings) for i, c in enumerate(settings.columns)}
+
+    def recorded(self, settings: RobustnessSettings, *, quick: bool) -> dict:
+        return settings.as_dict()
+
+    def run(
+        self,
+        settings: RobustnessSettings,
+        executor: Executor,
+        progress: Callable[[int, int], None] | None,
+        cache: Caches | None,
+    ) -> list[FigureResult]:
+        caches = [(cache or {}).get(f"column-{i}") for i in range(len(settings.columns))]
+        return run(settings, executor, progress, caches=caches)
+
+    def write(self, settings: RobustnessSettings, result: list[FigureResult], folder: Path) -> dict:
+        return write(settings, result, folder)
+
+
+register(RobustnessFigure())

@@ -34,7 +34,8 @@ import numpy as np
 
 from corrections_sim.environments import CUP_WORKSPACE, Environment, laptop_range
 from corrections_sim.figures import presets
-from corrections_sim.figures.presets import Scene
+from corrections_sim.figures.presets import PresetFigure, Scene
+from corrections_sim.figures.registry import register
 from corrections_sim.learners import (
     Belief,
     KalmanNoise,
@@ -557,3 +558,11 @@ def _title(settings: SelectionSettings) -> str:
         f"{settings.figure}: where would one correction teach the robot most?  Features ({names}),"
         f" the robot's estimate θ̂ = {_fmt(settings.theta)}; lighter = learns more"
     )
+
+
+register(
+    PresetFigure("fig1", "where to learn, one feature: heat maps of eq. (A1)", __name__, ("maps",))
+)
+register(
+    PresetFigure("fig2", "where to learn, two features: the best start moves", __name__, ("maps",))
+)
