@@ -358,6 +358,14 @@ def run_figure(args: argparse.Namespace, figure) -> list[Path]:
             raise
         except CorruptRun as exc:
             raise RuntimeError(str(exc)) from None
+        except (ValueError, TypeError) as exc:
+            # A value the checks could not see until it ran (a user's or learner's code that
+            # raises): one line naming it; the runs that finished stay in the caches.
+            kept = f"; {_kept(caches, out, name)}" if caches else ""
+            first_line = str(exc).splitlines()[0] if str(exc) else ""
+            raise UsageError(
+                f"{name}: a run failed: {type(exc).__name__}: {first_line}{kept}"
+            ) from None
     wall = time.perf_counter() - t0
     with _staging(final) as staging:
         fields = figure.write(settings, result, staging)

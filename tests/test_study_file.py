@@ -1,0 +1,254 @@
+"""Study files (``run study FILE``): the examples in experiments/ run on quick settings and show
+what they claim; bad input is one line naming the key and the file, exit 2, and nothing
+already computed is lost.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import json
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from corrections_sim import run as cli
+from corrections_sim.figures import learning, study_file
+
+EXPERIMENTS = Path(__file__).resolve().parents[1] / "experiments"
+SENTINEL = "results made earlier, which a failed command must not touch\n"
+GOOD = """\
+features = ["laptop", "table"]
+theta_star = [1.0, -1.0]
+runs = 1
+iterations = 1
+learners = ["KF"]
+"""
+MINE = (
+    '{ name = "mine", start = [0.45, 0.50, 0.28], laptop = [0.55, 0.05, 0.2], table = [0.55, 0.0] }'
+)
+
+
+def _main(argv: list[str]) -> int:
+    try:
+        return cli.main(argv)
+    except SystemExit as exc:
+        return int(exc.code)
+
+
+def _rows(path: Path) -> list[dict]:
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def _mean(rows: list[dict], learner: str, key: str, t: int) -> float:
+    return float(
+        np.mean(
+            [float(r[key]) for r in rows if r["learner"] == learner and int(r["iteration"]) == t]
+        )
+    )
+
+
+# --- the examples ------------------------------------------------------------------------------
+
+
+def test_three_features_every_weight_moves_towards_the_truth(tmp_path):
+    argv = ["study", str(EXPERIMENTS / "three_features.toml"), "--quick", "--workers", "2"]
+    assert _main([*argv, "--out", str(tmp_path)]) == 0
+    folder = tmp_path / "three_features"
+    assert {p.name for p in folder.iterdir()} >= {
+        "curves.csv",
+        "mean_estimate.csv",
+        "summary.json",
+        "three_features.png",
+        "three_features.pdf",
+    }
+    rows = _rows(folder / "curves.csv")
+    summary = json.loads((folder / "summary.json").read_text())
+    assert summary["figure"] == "three_features" and summary["preset"] == "quick"
+    assert summary["planner"]["features"] == ["laptop", "table", "coffee"]
+    theta_star = summary["settings"]["theta_star"]
+    last = summary["settings"]["iterations"]
+    assert not any(r["update_skipped"] for r in rows)
+    # KF: each weight, laptop and table and coffee, ends nearer θ* than it started.
+    for i, star in enumerate(theta_star):
+        start, end = _mean(rows, "KF", f"theta_{i}", 0), _mean(rows, "KF", f"theta_{i}", last)
+        assert abs(end - star) < abs(start - star), (i, start, end)
+    for learner in ("KF", "AL"):
+        # The coffee weight moves a good part of the way (its prior is 0, θ* is 3).
+        assert _mean(rows, learner, "theta_2", last) > 0.8
+        assert _mean(rows, learner, "regret", last) < 0.9 * _mean(rows, learner, "regret", 0)
+
+
+def test_own_environments_are_the_ones_the_study_runs_in(tmp_path):
+    argv = ["study", str(EXPERIMENTS / "own_environments.toml"), "--quick", "--workers", "1"]
+    assert _main([*argv, "--out", str(tmp_path)]) == 0
+    folder = tmp_path / "own_environments"
+    summary = json.loads((folder / "summary.json").read_text())
+    listed = summary["settings"]["environments"]
+    names = [e if isinstance(e, str) else e["name"] for e in listed]
+    assert len(names) == 6 and "left-near" in names and "s0-t0-l1" in names
+    rows = _rows(folder / "curves.csv")
+    assert {r["environment"] for r in rows if r["iteration"] != "0"} <= set(names)
+    assert all(r["regret_failures"] == "0" for r in rows)
+    for learner in ("PP", "KF", "AL"):
+        assert _mean(rows, learner, "estimate_error", 3) < _mean(rows, learner, "estimate_error", 0)
+    # The same file again resumes every run and gives the same bytes.
+    before = (folder / "curves.csv").read_bytes()
+    assert _main([*argv, "--out", str(tmp_path)]) == 0
+    assert (folder / "curves.csv").read_bytes() == before
+    again = json.loads((folder / "summary.json").read_text())
+    assert again["resumed_runs"] == sum(again["runs_per_learner"].values())
+
+
+def test_figs_4_and_5_are_study_files_with_the_same_settings():
+    for figure in learning.FIGURES:
+        via_figure = learning.load_settings(figure, quick=True)
+        via_file = learning.load_file(EXPERIMENTS / f"{figure}.toml", name=figure, quick=True)
+        assert via_figure == via_file
+        assert via_file.environments == study_file.PAPER and len(via_file.envs()) == 48
+
+
+# --- bad input ---------------------------------------------------------------------------------
+
+
+@pytest.fixture
+def earlier(tmp_path: Path) -> Path:
+    """An output folder that already holds the study's results."""
+    (tmp_path / "out" / "bad").mkdir(parents=True)
+    (tmp_path / "out" / "bad" / "curves.csv").write_text(SENTINEL)
+    return tmp_path
+
+
+def _replace(text: str, old: str, new: str) -> str:
+    assert old in text
+    return text.replace(old, new)
+
+
+@pytest.mark.parametrize(
+    ("content", "names"),
+    [
+        (GOOD + "colour = 3\n", ["colour", "unknown key"]),
+        (GOOD + "[quick]\nrunz = 3\n", ["quick.runz"]),
+        (_replace(GOOD, '"table"]', '"table", "sofa"]'), ["features[2]", "sofa"]),
+        (_replace(GOOD, '["laptop", "table"]', "[]"), ["features"]),
+        (_replace(GOOD, "[1.0, -1.0]", "[1.0, -1.0, 0.5]"), ["theta_star", "2 weights"]),
+        (GOOD + "theta0 = [0.0]\n", ["theta0"]),
+        (GOOD + "cov0 = [[1.0, 2.0], [2.0, 1.0]]\n", ["cov0", "positive definite"]),
+        (GOOD + "cov0 = [[1.0, 0.0]]\n", ["cov0", "2 x 2"]),
+        (GOOD + 'user = "lazy"\n', ["user", "lazy", "unknown user"]),
+        (_replace(GOOD, '["KF"]', '["KF", "XX"]'), ["learners[1]", "XX", "unknown learner"]),
+        (GOOD + "user_step = 1.5\n", ["user_step"]),
+        (GOOD + 'environments = ["s9-t9-l9"]\n', ["environments[0]", "s9-t9-l9"]),
+        (
+            GOOD + "environments = [" + MINE.replace("0.45, 0.50, 0.28", "1.5, 0.5, 0.3") + "]\n",
+            ["environments[0].start", "unreachable"],
+        ),
+        (
+            GOOD + "environments = [" + MINE.replace("0.45, 0.50, 0.28", "0.55, 0.3, 0.04") + "]\n",
+            ["environments[0].start", "collides"],
+        ),
+        (
+            GOOD + "environments = [" + MINE.replace("0.55, 0.05, 0.2", "0.95, 0.05, 0.2") + "]\n",
+            ["environments[0].laptop", "off the table"],
+        ),
+        (
+            GOOD
+            + "environments = ["
+            + MINE.replace("table = [0.55, 0.0]", "table = [0.9, 0.0]")
+            + "]\n",
+            ["environments[0]", "table"],
+        ),
+        (GOOD + "environments = [" + MINE + ", " + MINE + "]\n", ["environments[1].name"]),
+        (GOOD + "environments = 48\n", ["environments"]),
+        ("runs = 1\nruns = 2\n", ["invalid TOML", "line 2"]),
+        ('features = ["laptop"]\nruns = = 3\n', ["invalid TOML", "line 2"]),
+        (GOOD.replace("runs = 1", "runs = 99999999999999999"), ["runs", "100,000"]),
+        (GOOD.replace("runs = 1", "runs = 0"), ["runs"]),
+        (GOOD.replace("runs = 1", "runs = 2.5"), ["runs", "integer"]),
+        (GOOD.replace("iterations = 1", "iterations = 10001"), ["iterations", "10,000"]),
+        (GOOD + "seed = -1\n", ["seed"]),
+        (GOOD + "n_starts = 7000\n", ["n_starts"]),
+        (GOOD + "attenuation_points = 10000000000\n", ["attenuation_points"]),
+        (
+            GOOD.replace("runs = 1", "runs = 90000").replace("iterations = 1", "iterations = 30"),
+            ["records"],
+        ),
+        (
+            GOOD.replace("runs = 1", "runs = 20000").replace("iterations = 1", "iterations = 99"),
+            ["planner solves", "environments"],
+        ),
+        (GOOD.replace("theta_star = [1.0, -1.0]\n", ""), ["theta_star", "missing"]),
+    ],
+)
+def test_bad_study_files_are_one_line_naming_the_key_and_file(earlier, capsys, content, names):
+    path = earlier / "bad.toml"
+    path.write_text(content)
+    status = _main(["study", str(path), "--out", str(earlier / "out")])
+    err = capsys.readouterr().err
+    assert status == 2, err
+    assert err.count("\n") == 1 and err.startswith("error: ") and "Traceback" not in err, err
+    assert str(path) in err, err
+    for name in names:
+        assert name in err, err
+    assert (earlier / "out" / "bad" / "curves.csv").read_text() == SENTINEL
+    assert not (earlier / "out" / ".runs").exists()
+
+
+def test_a_missing_file_and_a_missing_argument_are_named(tmp_path, capsys):
+    assert _main(["study", str(tmp_path / "nowhere.toml"), "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "nowhere.toml" in err and "cannot read" in err and err.count("\n") == 1
+    assert _main(["study", "--out", str(tmp_path)]) == 2
+    assert "study file" in capsys.readouterr().err
+    assert _main(["fig4", str(tmp_path / "x.toml"), "--out", str(tmp_path)]) == 2
+    assert "FILE: does not apply to fig4" in capsys.readouterr().err
+
+
+def _fails_on_the_second_run(settings, shared, learner, run, alphas=None):
+    if run == 1:
+        raise ValueError("my learner cannot handle this environment")
+    return learning_run_one(settings, shared, learner, run, alphas)
+
+
+learning_run_one = learning.run_one
+
+
+def test_a_plug_in_that_raises_is_one_line_and_finished_runs_are_kept(
+    tmp_path, capsys, monkeypatch
+):
+    path = tmp_path / "mine.toml"
+    path.write_text(GOOD.replace("runs = 1", "runs = 2"))
+
+    @contextlib.contextmanager
+    def threads(args):
+        with ThreadPoolExecutor(max_workers=1) as pool:
+            yield pool, "test threads"
+
+    monkeypatch.setattr(cli, "_executor", threads)
+    monkeypatch.setattr(learning, "run_one", _fails_on_the_second_run)
+    argv = ["study", str(path), "--out", str(tmp_path / "out")]
+    assert _main(argv) == 2
+    err = capsys.readouterr().err
+    errors = [line for line in err.splitlines() if not line.startswith("mine: ")]  # progress
+    assert len(errors) == 1 and errors[0].startswith("error: mine: a run failed"), err
+    assert "ValueError: my learner cannot handle" in err and "Traceback" not in err, err
+    assert "1 finished run kept" in err, err
+    assert not (tmp_path / "out" / "mine").exists()
+
+    monkeypatch.setattr(learning, "run_one", learning_run_one)
+    assert _main(argv) == 0
+    summary = json.loads((tmp_path / "out" / "mine" / "summary.json").read_text())
+    assert summary["resumed_runs"] == 1
+
+
+def test_sizes_are_refused_before_anything_is_built(monkeypatch):
+    def no_environments(*args):
+        raise AssertionError("environments were built for a study that cannot fit")
+
+    monkeypatch.setattr(study_file, "parse_environments", no_environments)
+    values = {"theta_star": [1.0, -1.0], "runs": 10**40, "iterations": 12}
+    with pytest.raises(ValueError, match="runs"):
+        learning.settings_from_values(values)
