@@ -2,6 +2,7 @@
 
     python -m corrections_sim.run fig4             # results/fig4/ (CSV, summary, PNG, PDF)
     python -m corrections_sim.run fig5 --quick     # results/quick/fig5/ (what CI runs)
+    python -m corrections_sim.run study my.toml    # results/my/ (a study file, see README)
     python -m corrections_sim.run scene            # results/scene.png
 
 Bad input ends with a one-line message on stderr and exit status 2; nothing already in the
@@ -472,7 +473,7 @@ def parser() -> argparse.ArgumentParser:
     p = _Parser(
         prog="python -m corrections_sim.run",
         description="Reproduce a figure of Losey & O'Malley (CoRL 2018) headless. "
-        "Figures 4 and 5 are resumable: finished runs are kept in OUT/.runs/<figure>/ "
+        "Figures 4-6 and study files are resumable: finished runs are kept in OUT/.runs/<figure>/ "
         "(keyed by a hash of the settings and the code) and an interrupted command, run "
         "again, only computes what is missing. Ctrl-C or SIGTERM stops the command within "
         "seconds (exit status 130). A figure folder made with other settings or another "

@@ -92,3 +92,17 @@ def test_a_new_figure_is_one_registration_and_runs_through_the_command_line(
     assert capsys.readouterr().err == "error: runs = 11: at most 10\n"
     assert cli.main(["toy", "--iterations", "2", "--out", str(tmp_path)]) == 2
     assert "--iterations: does not apply to toy" in capsys.readouterr().err
+
+
+def test_run_all_makes_the_paper_figures_in_order_without_touching_the_arguments(
+    tmp_path, monkeypatch
+):
+    made = []
+
+    def fake(args, figure):
+        made.append((figure.name, args.runs, args.figure))
+        return []
+
+    monkeypatch.setattr(cli, "run_figure", fake)
+    assert cli.main(["all", "--quick", "--runs", "2", "--out", str(tmp_path)]) == 0
+    assert made == [(name, 2, "all") for name in PAPER]
