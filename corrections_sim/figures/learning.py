@@ -69,7 +69,8 @@ class FigureSettings:
 
     Attributes:
         study: learners, user, prior, counts (see :class:`~corrections_sim.study.StudySettings`).
-        n_starts: the planner's multi-start count.
+        planner: planner settings as (name, value) pairs, passed to ``PlannerConfig``
+            (``study_file.PLANNER_SETTINGS``: ``n_starts``, the multi-start count).
         features: the features θ weighs, in order (k of them).
         environments: "paper" (the 48), or paper environment names and specs of the user's own
             (see :mod:`corrections_sim.figures.study_file`).
@@ -78,14 +79,14 @@ class FigureSettings:
     """
 
     study: StudySettings
-    n_starts: int = 1
+    planner: tuple[tuple[str, Any], ...] = tuple(study_file.PLANNER_SETTINGS.items())
     features: tuple[str, ...] = FEATURES
     environments: study_file.Environments = study_file.PAPER
     name: str = field(default="", compare=False)
     description: str = field(default="", compare=False)
 
     def planner_config(self) -> PlannerConfig:
-        return PlannerConfig(features=self.features, n_starts=self.n_starts)
+        return PlannerConfig(features=self.features, **dict(self.planner))
 
     def envs(self) -> tuple[Environment, ...]:
         """The study's environments (memoized per process)."""
@@ -93,7 +94,7 @@ class FigureSettings:
 
     def as_dict(self) -> dict:
         d = {f.name: getattr(self.study, f.name) for f in fields(self.study)}
-        d["n_starts"] = self.n_starts
+        d.update(self.planner)
         d["features"] = list(self.features)
         d["environments"] = study_file.as_data(self.environments)
         return d
@@ -161,7 +162,7 @@ def settings_from_values(values: dict, *, name: str = "") -> FigureSettings:
     study_file.check_sizes(
         values, n_envs, len(learners) if isinstance(learners, list | tuple) else 1
     )
-    n_starts = values.pop("n_starts", 1)
+    planner = tuple((k, values.pop(k, v)) for k, v in study_file.PLANNER_SETTINGS.items())
     if "theta_star" not in values:
         raise ValueError("theta_star: missing (the simulated user's true weights)")
     theta_star = values["theta_star"]
@@ -197,13 +198,13 @@ def settings_from_values(values: dict, *, name: str = "") -> FigureSettings:
         raise ValueError(f"settings: {exc}") from None
     settings = FigureSettings(
         study=study,
-        n_starts=n_starts,
+        planner=planner,
         features=features,
         environments=study_file.parse_environments(raw_envs),
         name=name,
         description=description,
     )
-    settings.planner_config()  # validates n_starts
+    settings.planner_config()  # validates the planner settings
     return settings
 
 

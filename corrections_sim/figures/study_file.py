@@ -27,8 +27,13 @@ from typing import Any
 from corrections_sim.environments import GOAL_POSITION, Environment, paper_environments
 from corrections_sim.features import FEATURE_NAMES
 
+#: Planner settings a study file takes, with their defaults: passed to
+#: :class:`~corrections_sim.planner.PlannerConfig` by name (which checks them). A new one is
+#: a line here (and, for the command line, an option whose destination is in
+#: ``learning.OPTIONS``).
+PLANNER_SETTINGS: dict[str, Any] = {"n_starts": 1}
 #: Keys of a study file that are not :class:`~corrections_sim.study.StudySettings` fields.
-STUDY_KEYS = ("description", "features", "environments", "n_starts")
+STUDY_KEYS = ("description", "features", "environments", *PLANNER_SETTINGS)
 #: ``environments`` value meaning the paper's 48 (the default).
 PAPER = "paper"
 #: Keys of one environment of the user's own (``goal`` is optional).
