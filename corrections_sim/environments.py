@@ -204,6 +204,26 @@ def configuration_at(cup_position, yaw: float = 0.0) -> np.ndarray:
     return q
 
 
+#: The wrist joint that tilts the hand (and the cup) away from hand-down: joint 6 (index 5).
+TILT_JOINT = 5
+
+
+def tilted(q, angle: float) -> np.ndarray:
+    """``q`` (7,) with the wrist (joint 6) turned by ``angle`` rad: the cup tilts (0.9 rad from
+    hand-down gives ≈ 52°, coffee feature ≈ 0.19 per waypoint) and its centre moves a few cm.
+
+    Environments whose start and goal hold the cup tilted make the coffee weight learnable:
+    from an upright start the robot keeps the cup upright whatever θ_coffee ≤ 0 (README).
+
+    Raises:
+        ValueError: the turned joint leaves its range.
+    """
+    out = np.array(q, dtype=float, copy=True)
+    out[TILT_JOINT] += float(angle)
+    _check_in_limits("tilted q", out)
+    return out
+
+
 @functools.cache
 def paper_environments() -> tuple[Environment, ...]:
     """The 48 environments of the study: 4 starts x 3 table positions x 4 laptop poses."""
