@@ -269,3 +269,34 @@ def test_example_custom_feature_plans_with_it():
     out = _run_example("custom_feature.py")
     assert out["env_params"]["person_x"] == 0.45
     assert out["seek"] > out["ignore"] + 0.5 > out["avoid"] + 0.5
+
+
+def test_a_plugin_learner_runs_through_the_figures_pipeline():
+    """learning.run (executor, PP-type ordering, learning rates) takes a registered learner
+    without a covariance that needs no rates; plotting gives it a colour and its label."""
+    code = f"""
+import json, runpy
+from concurrent.futures import ThreadPoolExecutor
+runpy.run_path({str(EXAMPLES / "custom_learner.py")!r})
+from corrections_sim.figures import learning
+from corrections_sim.plotting import learner_label, learner_style
+s = learning.settings_from_values(dict(
+    theta_star=[1.0, -1.0], theta0=[0.0, 0.0], cov0=[[1.0, 0.0], [0.0, 1.0]], runs=1,
+    iterations=1, seed=3, learners=["KF", "PP", "NPP"], learner_params={{"NPP": {{"step": 0.5}}}}))
+with ThreadPoolExecutor(1) as pool:
+    result = learning.run(s, pool, mean_estimate=False)
+rows = [r for r in result.records if r["learner"] == "NPP"]
+print(json.dumps({{"order": [r["learner"] for r in result.records][::2],
+                  "npp": [r["estimate_error"] for r in rows], "alphas": sorted(result.alphas),
+                  "label": learner_label("NPP"), "style": learner_style("NPP")}}))
+"""
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=600, check=False
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    out = json.loads(done.stdout.strip().splitlines()[-1])
+    assert out["order"] == ["PP", "KF", "NPP"]
+    assert out["alphas"] == ["PP"]
+    assert out["npp"][0] == pytest.approx(2.0) and out["npp"][1] < 2.0
+    assert out["label"] == "Normalized perceptron (NPP)"
+    assert out["style"] == ["#9467bd", "-"]
