@@ -126,9 +126,7 @@ class Learner(abc.ABC):
         """
         return cls(**params)
 
-    def choose(
-        self, ctx: LearnerContext, belief: Belief, draw: int
-    ) -> int:  # pragma: no cover - trivial
+    def choose(self, ctx: LearnerContext, belief: Belief, draw: int) -> int:
         """Index of Eᵗ in ``ctx.envs``; ``draw`` is the run's random choice."""
         return draw
 
