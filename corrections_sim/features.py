@@ -98,11 +98,22 @@ def check_feature_names(names: tuple[str, ...]) -> tuple[str, ...]:
 def fingerprint(names: tuple[str, ...]) -> str:
     """What of the registries shapes a compiled solver over ``names``: each feature's source
     (a plug-in's lives outside this module) and the environment's parameter names, in order."""
-    import inspect
-
-    parts = [inspect.getsource(FEATURES[name]) for name in check_feature_names(names)]
+    parts = [_source(FEATURES[name]) for name in check_feature_names(names)]
     parts.append(",".join(ENV_PARAMETERS))
     return "\n".join(parts)
+
+
+def _source(function: Feature) -> str:
+    """A feature's source text, or its compiled code where there is no source file
+    (``python -c``, ``exec``)."""
+    import inspect
+    import marshal
+
+    try:
+        return inspect.getsource(function)
+    except (OSError, TypeError):
+        code = getattr(function, "__code__", None)
+        return marshal.dumps(code).hex() if code is not None else repr(function)
 
 
 def _logistic(x: ca.SX) -> ca.SX:
