@@ -41,6 +41,10 @@ from corrections_sim.robot import N_ARM_JOINTS, symbolic_fk
 
 #: The paper's features (the registry, :data:`FEATURES`, may hold more).
 FEATURE_NAMES = ("laptop", "table", "coffee")
+#: The environment's own parameters (laptop x, y, yaw; table x, y). The vector's length with
+#: plug-in parameters is :func:`~corrections_sim.environments.n_env_params`; symbolic code
+#: must use that.
+N_ENV_PARAMS = 5
 
 LAPTOP_SCALE = 0.15  # m, σ_l
 TABLE_SCALE = 0.20  # m, σ_t
