@@ -2,16 +2,26 @@
 
 An :class:`Environment` is a frozen value. It is validated where it is made, so a laptop off
 the table or a start outside the joint limits never reaches the planner.
+
+Its parameters, the numbers features and the planner's constraints read, have names
+(:data:`ENV_PARAMETERS`): ``laptop_x``, ``laptop_y``, ``laptop_yaw``, ``table_x``,
+``table_y``, and whatever a plug-in registers with :func:`register_env_parameter` (a new
+field with a default, set per environment through ``Environment(extra={...})``).
+:meth:`Environment.params` is the vector of all of them in registration order; symbolic code
+reads an entry by name (:func:`env_index`), never by position. Register parameters when a
+plug-in module is imported, before any planner is built: the vector's length is part of it.
 """
 
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from corrections_sim import geometry as g
+from corrections_sim.registry import Registry
 from corrections_sim.robot import N_ARM_JOINTS, inverse_kinematics, joint_limits
 
 
@@ -45,6 +55,8 @@ class Environment:
         laptop: laptop pose on the table top, (x, y, yaw) of the keyboard centre.
         table: table centre (x, y); the top is at ``geometry.TABLE_TOP_Z``.
         name: a short label for plots and logs.
+        extra: values of registered extra parameters (:func:`register_env_parameter`) by
+            name; one left out takes its default.
     """
 
     q_start: np.ndarray
@@ -52,6 +64,7 @@ class Environment:
     laptop: np.ndarray
     table: np.ndarray
     name: str = field(default="")
+    extra: Mapping[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         n = N_ARM_JOINTS
@@ -59,6 +72,16 @@ class Environment:
         object.__setattr__(self, "q_goal", _frozen_array("q_goal", self.q_goal, (n,)))
         object.__setattr__(self, "laptop", _frozen_array("laptop", self.laptop, (3,)))
         object.__setattr__(self, "table", _frozen_array("table", self.table, (2,)))
+        extra = {}
+        for key, value in dict(self.extra).items():
+            spec = ENV_PARAMETERS[key]
+            if spec.default is None:
+                raise ValueError(f"extra: {key!r} is one of the environment's own fields")
+            value = float(value)
+            if not np.isfinite(value):
+                raise ValueError(f"extra.{key} = {value} must be finite")
+            extra[key] = value
+        object.__setattr__(self, "extra", extra)
         _check_in_limits("q_start", self.q_start)
         _check_in_limits("q_goal", self.q_goal)
         tx, ty = self.table
@@ -80,7 +103,11 @@ class Environment:
 
     def key(self) -> bytes:
         """Bytes that identify this environment's contents (for caches)."""
-        return b"".join(a.tobytes() for a in (self.q_start, self.q_goal, self.laptop, self.table))
+        arrays = (self.q_start, self.q_goal, self.laptop, self.table)
+        key = b"".join(a.tobytes() for a in arrays)
+        if self.extra:
+            key += repr(sorted(self.extra.items())).encode()
+        return key
 
     def __eq__(self, other: object) -> bool:
         return isinstance(other, Environment) and self.key() == other.key()
@@ -89,8 +116,55 @@ class Environment:
         return hash(self.key())
 
     def params(self) -> np.ndarray:
-        """The environment as the planner's parameter vector: laptop (3), table (2)."""
-        return np.concatenate([self.laptop, self.table])
+        """The named parameters as a vector, in :data:`ENV_PARAMETERS` order (n,)."""
+        return np.array([spec.value(self) for spec in ENV_PARAMETERS.values()], dtype=float)
+
+    def param(self, name: str) -> float:
+        """One named parameter, e.g. ``env.param("laptop_yaw")``."""
+        return float(ENV_PARAMETERS[name].value(self))
+
+
+@dataclass(frozen=True)
+class EnvParameter:
+    """A named number of an environment.
+
+    Attributes:
+        value: how to read it from an :class:`Environment`.
+        default: None for the environment's own fields; else the value of an extra
+            parameter an environment does not set.
+    """
+
+    value: Callable[[Environment], float]
+    default: float | None = None
+
+
+ENV_PARAMETERS: Registry[EnvParameter] = Registry("environment parameter")
+"""Every named environment parameter, in the order of :meth:`Environment.params`."""
+for _i, _name in enumerate(("laptop_x", "laptop_y", "laptop_yaw")):
+    ENV_PARAMETERS.register(_name, EnvParameter(lambda e, i=_i: e.laptop[i]))
+for _i, _name in enumerate(("table_x", "table_y")):
+    ENV_PARAMETERS.register(_name, EnvParameter(lambda e, i=_i: e.table[i]))
+
+
+def register_env_parameter(name: str, default: float) -> EnvParameter:
+    """Add an extra environment parameter ``name`` (an environment sets it through
+    ``extra={name: value}``; the others have ``default``)."""
+    default = float(default)
+    if not np.isfinite(default):
+        raise ValueError(f"{name}: default = {default} must be finite")
+    spec = EnvParameter(lambda e: e.extra.get(name, default), default)
+    return ENV_PARAMETERS.register(name, spec)
+
+
+def env_index(name: str) -> int:
+    """Position of parameter ``name`` in :meth:`Environment.params` (for symbolic code)."""
+    ENV_PARAMETERS[name]
+    return list(ENV_PARAMETERS).index(name)
+
+
+def n_env_params() -> int:
+    """Length of :meth:`Environment.params`."""
+    return len(ENV_PARAMETERS)
 
 
 # --- the study's 48 environments ---------------------------------------------------------------
@@ -128,6 +202,26 @@ def configuration_at(cup_position, yaw: float = 0.0) -> np.ndarray:
             "(no IK solution within the joint limits)"
         )
     return q
+
+
+#: The wrist joint that tilts the hand (and the cup) away from hand-down: joint 6 (index 5).
+TILT_JOINT = 5
+
+
+def tilted(q, angle: float) -> np.ndarray:
+    """``q`` (7,) with the wrist (joint 6) turned by ``angle`` rad: the cup tilts (0.9 rad from
+    hand-down gives ≈ 52°, coffee feature ≈ 0.19 per waypoint) and its centre moves a few cm.
+
+    Environments whose start and goal hold the cup tilted make the coffee weight learnable:
+    from an upright start the robot keeps the cup upright whatever θ_coffee ≤ 0 (README).
+
+    Raises:
+        ValueError: the turned joint leaves its range.
+    """
+    out = np.array(q, dtype=float, copy=True)
+    out[TILT_JOINT] += float(angle)
+    _check_in_limits("tilted q", out)
+    return out
 
 
 @functools.cache

@@ -31,9 +31,8 @@ import casadi as ca
 import numpy as np
 
 from corrections_sim import geometry as g
-from corrections_sim.environments import Environment
+from corrections_sim.environments import Environment, env_index, n_env_params
 from corrections_sim.features import (
-    N_ENV_PARAMS,
     check_feature_names,
     feature_counts,
     symbolic_features,
@@ -66,13 +65,14 @@ def _soft_min(values: list[ca.SX]) -> ca.SX:
 def _gaps(poses: dict, env: ca.SX) -> tuple[list[ca.SX], list[ca.SX]]:
     """Per-sphere clearances: height above the table top + CLEARANCE (m), and the laptop
     keep-out ellipsoid's level set minus 1 (dimensionless); both must stay >= 0."""
-    cyaw, syaw = ca.cos(env[2]), ca.sin(env[2])
+    laptop_x, laptop_y, yaw = (env[env_index(n)] for n in ("laptop_x", "laptop_y", "laptop_yaw"))
+    cyaw, syaw = ca.cos(yaw), ca.sin(yaw)
     semi = np.array(g.LAPTOP_KEEPOUT_SEMI_AXES)
     table_gaps, laptop_gaps = [], []
     for sphere, c in zip(ARM_SPHERES, sphere_centers_symbolic(poses), strict=True):
         table_gaps.append(c[2] - sphere.radius - (g.TABLE_TOP_Z + g.CLEARANCE))
-        dx = c[0] - env[0]
-        dy = c[1] - env[1]
+        dx = c[0] - laptop_x
+        dy = c[1] - laptop_y
         dz = c[2] - (g.TABLE_TOP_Z + g.LAPTOP_KEEPOUT_CENTER_Z)
         lx = cyaw * dx + syaw * dy
         ly = -syaw * dx + cyaw * dy
@@ -82,9 +82,9 @@ def _gaps(poses: dict, env: ca.SX) -> tuple[list[ca.SX], list[ca.SX]]:
 
 
 @functools.cache
-def _gap_function() -> ca.Function:
+def _gap_function(n_params: int) -> ca.Function:
     q = ca.SX.sym("q", N_ARM_JOINTS)
-    e = ca.SX.sym("e", N_ENV_PARAMS)
+    e = ca.SX.sym("e", n_params)
     frames = tuple(dict.fromkeys(s.frame for s in ARM_SPHERES))
     table_gaps, laptop_gaps = _gaps(symbolic_fk(q, frames), e)
     return ca.Function(
@@ -95,7 +95,8 @@ def _gap_function() -> ca.Function:
 def clearance(q: np.ndarray, env: Environment) -> tuple[float, float]:
     """The planner's constraints at one configuration (7,): (smallest table gap in m,
     smallest laptop keep-out level minus 1). Both >= 0 means the configuration is allowed."""
-    table_gap, laptop_gap = _gap_function()(np.asarray(q, float), env.params())
+    params = env.params()
+    table_gap, laptop_gap = _gap_function(len(params))(np.asarray(q, float), params)
     return float(table_gap), float(laptop_gap)
 
 
@@ -221,6 +222,7 @@ def build_key(config: PlannerConfig) -> str:
     h.update(ca.__version__.encode())
     for module in (geometry, robot, features, sys.modules[__name__]):
         h.update(inspect.getsource(module).encode())
+    h.update(features.fingerprint(config.features).encode())  # plug-in features, env params
     return h.hexdigest()[:20]
 
 
@@ -287,7 +289,7 @@ def trajectory_terms(cfg: PlannerConfig) -> TrajectoryTerms:
     """Build the symbols and expressions every trajectory NLP of ``cfg`` shares."""
     n_free = cfg.n_waypoints - 2
     x = ca.SX.sym("x", n_free * N_ARM_JOINTS)
-    env = ca.SX.sym("env", N_ENV_PARAMS)
+    env = ca.SX.sym("env", n_env_params())
     q_start = ca.SX.sym("q_start", N_ARM_JOINTS)
     q_goal = ca.SX.sym("q_goal", N_ARM_JOINTS)
     qs = ca.reshape(x, N_ARM_JOINTS, n_free)

@@ -64,39 +64,30 @@ def save_scene_figure(
         plt.close(fig)
 
 
-#: Colour and line style per learner; the correction-aware variants share their paper
-#: learner's colour, dashed. Names come from ``study.LEARNERS``.
-LEARNER_STYLE = {
-    "PP": ("#7f7f7f", "-"),
-    "KF": ("#1f77b4", "-"),
-    "EKF": ("#2ca02c", "-"),
-    "AL": ("#d62728", "-"),
-    "PP-C": ("#7f7f7f", "--"),
-    "KF-C": ("#1f77b4", "--"),
-    "AL-C": ("#d62728", "--"),
-    "KF-A": ("#9467bd", "-."),
-    "BP": ("#8c564b", ":"),
-}
+#: Colours for learners that name no ``style`` (see :class:`corrections_sim.learner.Learner`).
 _EXTRA_COLOURS = ("#9467bd", "#8c564b", "#e377c2", "#17becf", "#bcbd22")
 
 
 def learner_style(name: str) -> tuple[str, str]:
-    """(colour, line style) of a learner; learners without a fixed style get the next free
-    colour in a stable order of their names."""
-    if name in LEARNER_STYLE:
-        return LEARNER_STYLE[name]
-    from corrections_sim.study import LEARNERS
+    """(colour, line style) of a learner: its own ``style``, or else the next free colour in
+    the registry's order of the learners without one. The correction-aware variants share
+    their paper learner's colour, dashed."""
+    from corrections_sim.learner import LEARNERS
 
-    extra = [n for n in LEARNERS if n not in LEARNER_STYLE]
+    cls = LEARNERS.get(name)
+    if cls is not None and cls.style is not None:
+        return cls.style
+    extra = [n for n, c in LEARNERS.items() if c.style is None]
     i = extra.index(name) if name in extra else 0
     return _EXTRA_COLOURS[i % len(_EXTRA_COLOURS)], "-"
 
 
 def learner_label(name: str) -> str:
-    from corrections_sim.study import LEARNERS
+    """A learner's label in figures (its registered name if it has none)."""
+    from corrections_sim.learner import LEARNERS
 
-    spec = LEARNERS.get(name)
-    return spec.label if spec is not None and spec.label else name
+    cls = LEARNERS.get(name)
+    return cls.label if cls is not None and cls.label else name
 
 
 def plot_learning_curves(

@@ -11,102 +11,45 @@ Planner solves are memoized per run (:class:`PlanBook`): the robot's own traject
 UKF's mean sigma point and the regret in Eᵗ are one solve, not three. Plans every run shares
 (those of the common prior θ̂⁰) can be solved once and handed to each run's book.
 
-Learners live in one table, :data:`LEARNERS` (a :class:`LearnerSpec` each): how they update,
-what they believe a correction shows, whether they choose environments, where PP-type
-learners take their step size from. The loop knows no learner by name:
-
-* "PP" (eq. B5, αᵗ from the KF runs' gains as in the paper), "PP-C" (the same with αᵗ from
-  KF-C's gains, so that no learner wins by a larger step alone);
-* "KF" (the UKF the paper simulates, h(θ) = Φ(ξ*(θ, E))), "EKF" (eqs. K4–K7 with
-  H = ∂Φ(ξ*(θ, E))/∂θ by central differences of the planner, step ``ekf_step``);
-* "KF-C", the correction-aware UKF: hₜ(θ) = Φ(C(ξᵗ, ξ*(θ, E)), E), the features of the
-  correction a person with preference θ would make to the robot's current trajectory ξᵗ,
-  under the robot's correction model C (``correction_model``, see
-  :mod:`corrections_sim.corrections`). It reuses the sigma points' plans; no extra solves;
-* "AL" and "AL-C": KF and KF-C with Eᵗ chosen by eq. (A1) from their predicted covariance;
-* remedies that assume nothing about *how* people correct: "KF-A", a UKF for corrections that
-  deliver an unknown fraction a ~ log-uniform[``attenuation_min``, ``attenuation_max``] of the
-  intended feature change (:mod:`corrections_sim.learners.attenuated`), and "BP", a Gaussian
-  posterior under a Boltzmann model, P(ξ_h ≻ ξᵗ | θ) = σ(β θ·(Φ_h − Φ(ξᵗ))), β integrated out
-  over [``beta_min``, ``beta_max``] (:mod:`corrections_sim.learners.preference_posterior`).
+Learners and simulated users are plug-ins, registered by name
+(:data:`~corrections_sim.learner.LEARNERS`, :data:`~corrections_sim.human.USERS`); the loop
+calls their protocols (:class:`~corrections_sim.learner.Learner`,
+:class:`~corrections_sim.human.User`) and knows none by name. The paper's learners are in
+:mod:`corrections_sim.paper_learners`.
 
 Everything random flows from ``np.random.Generator`` objects made from the study's seed.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from corrections_sim import calibration
 from corrections_sim.corrections import CORRECTION_KINDS, CorrectionModel
 from corrections_sim.environments import Environment
-from corrections_sim.features import feature_counts
-from corrections_sim.human import BiasedUser, DeformingUser, NoisyOptimalUser
+from corrections_sim.human import USERS, Situation, User, make_user, user_parameters
+from corrections_sim.learner import LEARNERS, LearnerContext, Step, make_learner
 from corrections_sim.learners import (
     Attenuation,
     Belief,
     BoltzmannCorrection,
     KalmanNoise,
-    Observe,
     SigmaPoints,
-    attenuated_update,
-    ekf_update,
-    finite_difference_jacobian,
-    perceptron_update,
-    posterior_update,
-    select_environment,
-    ukf_predicted_covariance,
-    ukf_update,
 )
-from corrections_sim.metrics import estimate_error, regret_terms
-from corrections_sim.planner import Plan, Planner, PlanningError, smoothness_cost
+from corrections_sim.metrics import estimate_error
+from corrections_sim.planner import Planner, PlanningError
+from corrections_sim.plans import (  # noqa: F401  (re-exported: part of this module's API)
+    PlanBook,
+    PlanEntries,
+    Target,
+    correction_observer,
+    evaluate,
+)
 
-
-@dataclass(frozen=True)
-class LearnerSpec:
-    """What distinguishes one learner from another; the study loop reads nothing else.
-
-    Attributes:
-        update: "perceptron" (eq. B5), "ukf", "ekf", "attenuated" (KF-A) or "posterior" (BP).
-        observation: what the learner believes a correction shows: "optimal" (the features
-            of ξ*(θ, E), the paper's model) or "correction" (of C(ξᵗ, ξ*(θ, E))).
-        active: chooses Eᵗ by eq. (A1) instead of at random.
-        rate_from: PP-type learners: the learner whose Kalman gains give αᵗ.
-        stream: random stream of its runs; learners on one stream share their environment
-            draws run by run (common random numbers), so they are compared paired.
-        label: name in figures.
-    """
-
-    update: str
-    observation: str = "optimal"
-    active: bool = False
-    rate_from: str | None = None
-    stream: int = 0
-    label: str = ""
-
-    @property
-    def has_covariance(self) -> bool:
-        """Whether its P means something (the perceptron carries P⁰ unchanged)."""
-        return self.update != "perceptron"
-
-
-#: Every learner, in the order figures and tables list them.
-LEARNERS: dict[str, LearnerSpec] = {
-    "PP": LearnerSpec("perceptron", rate_from="KF", label="Preference Perceptron (PP)"),
-    "KF": LearnerSpec("ukf", label="Kalman filter (KF)"),
-    "EKF": LearnerSpec("ekf", label="Extended Kalman filter (EKF)"),
-    "AL": LearnerSpec("ukf", active=True, stream=1, label="Active learning (AL)"),
-    "PP-C": LearnerSpec("perceptron", rate_from="KF-C", label="PP, α from KF-C's gains (PP-C)"),
-    "KF-C": LearnerSpec("ukf", observation="correction", label="Correction-aware KF (KF-C)"),
-    "AL-C": LearnerSpec(
-        "ukf", observation="correction", active=True, stream=1, label="Correction-aware AL (AL-C)"
-    ),
-    "KF-A": LearnerSpec("attenuated", label="Attenuated-correction KF (KF-A)"),
-    "BP": LearnerSpec("posterior", label="Boltzmann preference posterior (BP)"),
-}
 #: The paper's three; the others are opt-in (``learners`` in the settings, ``--learners``).
 DEFAULT_LEARNERS = ("PP", "KF", "AL")
 #: Largest counts accepted: a run is ~50 planner solves per iteration (≈ 0.1 s), so these are
@@ -114,8 +57,13 @@ DEFAULT_LEARNERS = ("PP", "KF", "AL")
 MAX_COUNT = {"runs": 100_000, "iterations": 10_000}
 #: Records (learner × run × iteration) a study may hold in memory (≈ 2 kB each).
 MAX_RECORDS = 2_000_000
-#: Simulated users by name (see :meth:`StudySettings.make_user`).
-USERS = ("biased", "deform", "noisy")
+#: Study settings keys that set a user's parameter when the user has it (the paper's users'
+#: parameters predate ``user_params``); ``user_params`` overrides them.
+_USER_KEYS = {
+    "step": lambda s: s.user_step,
+    "waypoints": lambda s: s.user_waypoints,
+    "noise": lambda s: float(np.sqrt(s.observation_noise)),
+}
 
 
 @dataclass(frozen=True)
@@ -154,6 +102,11 @@ class StudySettings:
             level of the solver's tolerance.
         fixed_alpha: if set, PP's learning rate; otherwise αᵗ = mean diag(Kᵗ) over KF runs.
         learners: which learners the study runs, names from ``LEARNERS``.
+        user_params: parameters of the user by name (see
+            :func:`~corrections_sim.human.user_parameters`); they override ``user_step``,
+            ``user_waypoints`` and the noisy user's √N.
+        learner_params: per learner name, its parameters (see
+            :func:`~corrections_sim.learner.make_learner`); the paper's take none.
     """
 
     theta_star: tuple[float, ...]
@@ -184,6 +137,8 @@ class StudySettings:
     warm_start: bool = False
     fixed_alpha: float | None = None
     learners: tuple[str, ...] = field(default=DEFAULT_LEARNERS)
+    user_params: Mapping[str, Any] = field(default_factory=dict)
+    learner_params: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         k = len(self.theta_star)
@@ -213,11 +168,10 @@ class StudySettings:
             raise ValueError("observation_noise must be > 0")
         if self.fixed_alpha is not None and not self.fixed_alpha > 0:
             raise ValueError(f"fixed_alpha = {self.fixed_alpha} must be > 0")
-        unknown = [n for n in self.learners if n not in LEARNERS]
-        if unknown or not self.learners or len(set(self.learners)) != len(self.learners):
-            raise ValueError(
-                f"learners: {list(self.learners)} must be distinct names from {', '.join(LEARNERS)}"
-            )
+        try:
+            LEARNERS.check(self.learners)
+        except ValueError as exc:
+            raise ValueError(f"learners: {exc}") from None
         for name in self.learners:
             source = LEARNERS[name].rate_from
             if source and self.fixed_alpha is None and source not in self.learners:
@@ -225,8 +179,10 @@ class StudySettings:
                     f"learners: {name} takes its learning rate from {source}'s gains; add "
                     f"{source} or set fixed_alpha (--fixed-alpha)"
                 )
-        if self.user not in USERS:
-            raise ValueError(f"user = {self.user!r} must be one of {', '.join(USERS)}")
+        try:
+            USERS[self.user]
+        except ValueError as exc:
+            raise ValueError(f"user: {exc}") from None
         if not (np.isfinite(self.ekf_step) and self.ekf_step > 0):
             raise ValueError(f"ekf_step = {self.ekf_step} must be finite and > 0")
         # The user and the sigma points validate their own parameters; build them here so
@@ -236,8 +192,10 @@ class StudySettings:
             CorrectionModel(waypoints=self.user_waypoints)
         except ValueError as exc:
             raise ValueError(f"user_{exc}") from None
-        if self.user != "biased" and self.user_waypoints != 1:
-            raise ValueError(f"user_waypoints = {self.user_waypoints}: only the biased user has it")
+        if "waypoints" not in user_parameters(self.user) and self.user_waypoints != 1:
+            raise ValueError(
+                f"user_waypoints = {self.user_waypoints}: the {self.user} user has no waypoints"
+            )
         if self.correction_model not in CORRECTION_KINDS:
             raise ValueError(
                 f"correction_model = {self.correction_model!r} must be one of {CORRECTION_KINDS}"
@@ -252,6 +210,11 @@ class StudySettings:
                 build()
             except ValueError as exc:
                 raise ValueError(_rename_fields(str(exc))) from None
+        for name in self.learner_params:
+            if name not in self.learners:
+                raise ValueError(f"learner_params: {name!r} is not one of the learners")
+        for name in self.learners:
+            self.make_learner(name)
         # Validates P⁰ (symmetric positive definite) and θ̂⁰ where they enter, under the
         # names the caller used rather than Belief's.
         try:
@@ -273,13 +236,32 @@ class StudySettings:
     def sigma(self) -> SigmaPoints:
         return SigmaPoints(alpha=self.sigma_alpha, beta=self.sigma_beta, kappa=self.sigma_kappa)
 
-    def make_user(self) -> BiasedUser | DeformingUser | NoisyOptimalUser:
-        """The simulated user these settings name; the noisy one's std is √N per feature."""
-        if self.user == "noisy":
-            return NoisyOptimalUser(noise=float(np.sqrt(self.observation_noise)))
-        if self.user == "deform":
-            return DeformingUser(step=self.user_step)
-        return BiasedUser(step=self.user_step, waypoints=self.user_waypoints)
+    def user_arguments(self) -> dict[str, Any]:
+        """The user's parameters: from ``user_step``, ``user_waypoints`` and √N (the noisy
+        user's std per feature) where the user has them, overridden by ``user_params``."""
+        known = user_parameters(self.user)
+        params = {key: get(self) for key, get in _USER_KEYS.items() if key in known}
+        params.update(self.user_params)
+        return params
+
+    def make_user(self) -> User:
+        """The simulated user these settings name (see :func:`~corrections_sim.human.make_user`).
+
+        Raises:
+            ValueError: a bad parameter, named by the settings key it came from.
+        """
+        try:
+            return make_user(self.user, self.user_arguments())
+        except ValueError as exc:
+            message = str(exc)
+            for key in ("step", "waypoints"):
+                if key not in self.user_params:
+                    message = message.replace(f": {key} = ", f": user_{key} = ")
+            raise ValueError(message) from None
+
+    def make_learner(self, name: str):
+        """Learner ``name`` built for these settings with its ``learner_params``."""
+        return make_learner(name, self, self.learner_params.get(name))
 
     def attenuation(self) -> Attenuation:
         """KF-A's prior on the delivered fraction a."""
@@ -333,125 +315,6 @@ def _rename_fields(message: str) -> str:
     return message
 
 
-PlanEntries = dict[tuple[bytes, bytes], "Plan | PlanningError"]
-"""Memoized solves: (θ bytes, environment key) -> the plan or the failure."""
-
-
-class PlanBook:
-    """Memoized ξ*(θ, E) for one run: identical problems are solved once.
-
-    Failures are memoized too (as the exception), so a failing problem costs one solve.
-    ``known`` seeds the book with plans solved elsewhere (e.g. the shared prior's, see
-    :meth:`entries`); they count as neither solves nor failures here.
-
-    With ``warm_start``, a new problem starts from the book's plan in the same environment
-    whose θ is nearest (Euclidean; the first solved wins a tie), and falls back to the
-    planner's cold starts if that fails. Along a run θ̂ moves in small steps, so this saves
-    IPOPT iterations; the answer can then depend on what was solved before (the same local
-    optimum up to the solver's tolerance when the landscape has one basin nearby, see README).
-    """
-
-    def __init__(
-        self, planner: Planner, known: PlanEntries | None = None, *, warm_start: bool = False
-    ) -> None:
-        self.planner = planner
-        self.warm_start = warm_start
-        self._plans: dict[tuple[bytes, bytes], Plan | PlanningError] = dict(known or {})
-        # Per environment, the converged plans in the order they were solved: (θ (k,), plan).
-        self._by_env: dict[bytes, list[tuple[np.ndarray, Plan]]] = {}
-        for (theta, env_key), plan in self._plans.items():
-            if isinstance(plan, Plan):
-                self._by_env.setdefault(env_key, []).append((np.frombuffer(theta), plan))
-        self.solves = 0
-        self.failures = 0
-
-    @staticmethod
-    def _key(theta: np.ndarray, env: Environment) -> tuple[bytes, bytes]:
-        return (np.asarray(theta, float).tobytes(), env.key())
-
-    def entries(self) -> PlanEntries:
-        """Everything solved so far (plans and failures), to seed other books with."""
-        return dict(self._plans)
-
-    def _solve(self, theta: np.ndarray, env: Environment) -> Plan:
-        near = self._by_env.get(env.key()) if self.warm_start else None
-        if near:
-            distances = [float(np.sum((t - theta) ** 2)) for t, _ in near]
-            start = near[int(np.argmin(distances))][1].trajectory
-            try:
-                return self.planner.solve(theta, env, inits=[start])
-            except PlanningError:
-                self.solves += 1  # the warm start failed; the cold starts get their chance
-        return self.planner.solve(theta, env)
-
-    def plan(self, theta: np.ndarray, env: Environment) -> Plan:
-        theta = np.asarray(theta, float)
-        key = self._key(theta, env)
-        hit = self._plans.get(key)
-        if hit is None:
-            self.solves += 1
-            try:
-                hit = self._solve(theta, env)
-                self._by_env.setdefault(key[1], []).append((theta.copy(), hit))
-            except PlanningError as exc:
-                self.failures += 1
-                hit = exc
-            self._plans[key] = hit
-        if isinstance(hit, PlanningError):
-            raise hit
-        return hit
-
-    def observe(self, env: Environment) -> Callable[[np.ndarray], np.ndarray]:
-        """h(θ) = Φ(ξ*(θ, E), E) as the learners' batch callable (n, k) -> (n, k)."""
-
-        def h(thetas: np.ndarray) -> np.ndarray:
-            return np.array([self.plan(t, env).features for t in np.atleast_2d(thetas)])
-
-        return h
-
-
-@dataclass(frozen=True)
-class Target:
-    """The user's side of every environment: θ* and its optimal plans ξ*(θ*, E)."""
-
-    theta_star: np.ndarray
-    plans: tuple[Plan, ...]
-
-    @classmethod
-    def solve(cls, planner: Planner, theta_star, envs: Sequence[Environment]) -> Target:
-        theta = np.asarray(theta_star, float)
-        return cls(theta_star=theta, plans=tuple(planner.solve(theta, e) for e in envs))
-
-
-def evaluate(
-    book: PlanBook, target: Target, envs: Sequence[Environment], theta_hat: np.ndarray
-) -> tuple[float, float, int]:
-    """(regret, paper regret, failed environments) of θ̂ summed over ``envs``.
-
-    An environment whose plan fails is left out of both sums and counted instead.
-    """
-    lam = book.planner.config.smoothness
-    full = paper = 0.0
-    failed = 0
-    for env, star in zip(envs, target.plans, strict=True):
-        try:
-            plan = book.plan(theta_hat, env)
-        except PlanningError:
-            failed += 1
-            continue
-        f, p = regret_terms(
-            target.theta_star,
-            star.features,
-            smoothness_cost(star.trajectory),
-            plan.features,
-            smoothness_cost(plan.trajectory),
-            lam,
-        )
-        full += f
-        paper += p
-    return full, paper, failed
-
-
 @dataclass(frozen=True)
 class RunResult:
     """Records of one learner run and the Kalman gains it used (for PP's learning rate)."""
@@ -461,38 +324,6 @@ class RunResult:
     solves: int
 
 
-@dataclass(frozen=True, eq=False)
-class _Step:
-    """One learner update: the new belief, and what calibration needs of it."""
-
-    belief: Belief
-    gain: np.ndarray | None  # (k, k); None for the perceptron
-    innovation: np.ndarray  # (k,)
-    innovation_cov: np.ndarray | None  # (k, k) predicted S; None if the learner has none
-
-
-def correction_observer(
-    book: PlanBook, env: Environment, robot: np.ndarray, model: CorrectionModel, names
-) -> Observe:
-    """hₜ(θ) = Φ(C(ξᵗ, ξ*(θ, E)), E) as a batch callable (n, k) -> (n, k).
-
-    The correction a person with preference θ would make to the robot's trajectory ``robot``
-    (T, 7) under the correction model ``model``; ξ*(θ, E) comes from ``book`` (memoized, so
-    the plans the paper's filter would solve are the only ones solved).
-    """
-    params = env.params()
-
-    def h(thetas: np.ndarray) -> np.ndarray:
-        return np.array(
-            [
-                feature_counts(model.apply(robot, book.plan(t, env).trajectory), params, names)
-                for t in np.atleast_2d(thetas)
-            ]
-        )
-
-    return h
-
-
 def run_learner(
     learner: str,
     run: int,
@@ -500,7 +331,7 @@ def run_learner(
     planner: Planner,
     envs: Sequence[Environment],
     target: Target,
-    user,
+    user: User,
     rng: np.random.Generator,
     alphas: np.ndarray | None = None,
     known: PlanEntries | None = None,
@@ -515,16 +346,12 @@ def run_learner(
         known: plans solved before the run (see :class:`PlanBook`); the results are the same
             with or without them, only the solve count differs.
     """
-    if learner not in LEARNERS:
-        raise ValueError(f"learner {learner!r} must be one of {', '.join(LEARNERS)}")
-    spec = LEARNERS[learner]
-    if spec.update == "perceptron" and alphas is None:
+    cls = LEARNERS[learner]
+    if cls.needs_rates() and alphas is None:
         raise ValueError(f"alphas: {learner} needs a learning rate per iteration")
+    agent = settings.make_learner(learner)
     book = PlanBook(planner, known, warm_start=settings.warm_start)
     names = planner.config.features
-    noise, sigma = settings.noise(), settings.sigma()
-    model = settings.correction(planner.config.n_waypoints)
-    attenuation, boltzmann = settings.attenuation(), settings.boltzmann()
     belief = settings.prior()
     k, n_iter = settings.k, settings.iterations
     # Drawn up front so PP and KF run r see the same environments (common random numbers).
@@ -532,33 +359,7 @@ def run_learner(
     gains = np.full((n_iter, k, k), np.nan)
     records = []
 
-    def observer(env: Environment) -> Observe:
-        """What this learner believes a correction in ``env`` shows, as a function of θ."""
-        if spec.observation == "correction":
-            robot = book.plan(belief.theta, env).trajectory
-            return correction_observer(book, env, robot, model, names)
-        return book.observe(env)
-
-    def update(env: Environment, mine: Plan, phi_h: np.ndarray, t: int) -> _Step:
-        if spec.update == "perceptron":
-            new = perceptron_update(belief, mine.features, phi_h, float(alphas[t]))
-            return _Step(new, None, phi_h - mine.features, None)
-        if spec.update == "posterior":
-            post = posterior_update(belief, None, mine.features, phi_h, boltzmann)
-            return _Step(post.belief, post.gain, post.innovation, None)
-        if spec.update == "attenuated":
-            step = attenuated_update(
-                belief, book.observe(env), mine.features, phi_h, noise, attenuation, sigma
-            )
-        elif spec.update == "ekf":
-            jac = finite_difference_jacobian(book.observe(env), belief.theta, settings.ekf_step)
-            step = ekf_update(belief, jac, mine.features, phi_h, noise)
-        else:
-            # Innovation against Φ(ξᵗ) (eq. K5); for KF-C that is hₜ(θ̂), since C(ξᵗ, ξᵗ) = ξᵗ.
-            step = ukf_update(belief, observer(env), phi_h, noise, sigma, reference=mine.features)
-        return _Step(step.belief, step.gain, step.innovation, step.innovation_cov)
-
-    def record(t: int, env_name: str, skipped: str, step: _Step | None) -> None:
+    def record(t: int, env_name: str, skipped: str, step: Step | None) -> None:
         regret, paper, failed = evaluate(book, target, envs, belief.theta)
         rec = {
             "learner": learner,
@@ -576,11 +377,11 @@ def run_learner(
         for i in range(k):
             for j in range(i, k):
                 rec[f"cov_{i}{j}"] = float(belief.cov[i, j])
-        # None (an empty CSV cell) where there is nothing to normalize by: the perceptron
-        # has no covariance, and the prior no innovation.
+        # None (an empty CSV cell) where there is nothing to normalize by: a learner without
+        # a covariance (the perceptron), and the prior no innovation.
         rec["nees"] = (
             calibration.nees(belief.theta, belief.cov, target.theta_star)
-            if spec.has_covariance
+            if cls.has_covariance
             else None
         )
         rec["nis"] = (
@@ -592,27 +393,30 @@ def run_learner(
 
     record(0, "", "", None)
     for t in range(n_iter):
-        if spec.active:
-            # Eq. (A1) over the environments whose plans exist; one that fails is no candidate.
-            candidates, covs = [], []
-            for i, env in enumerate(envs):
-                try:
-                    covs.append(ukf_predicted_covariance(belief, observer(env), noise, sigma))
-                    candidates.append(i)
-                except PlanningError:
-                    continue
-            idx = candidates[select_environment(covs)] if candidates else int(draws[t])
-        else:
-            idx = int(draws[t])
+        ctx = LearnerContext(
+            book=book,
+            envs=envs,
+            features=names,
+            n_waypoints=planner.config.n_waypoints,
+            alphas=alphas,
+            rng=rng,
+            iteration=t,
+        )
+        idx = _index(learner, agent.choose(ctx, belief, int(draws[t])), len(envs))
         env = envs[idx]
         skipped = ""
         step = None
         try:
             mine = book.plan(belief.theta, env)
-            phi_h = user.correction_features(
-                mine.trajectory, target.plans[idx].trajectory, env.params(), names, rng
+            situation = Situation(
+                robot=mine.trajectory,
+                intended=target.plans[idx].trajectory,
+                env=env,
+                features=names,
+                theta_star=target.theta_star,
             )
-            step = update(env, mine, phi_h, t)
+            phi_h = np.asarray(user.correction_features(situation, rng), dtype=float)
+            step = agent.update(ctx, belief, env, mine, phi_h)
             belief = step.belief
             if step.gain is not None:
                 gains[t] = step.gain
@@ -620,3 +424,10 @@ def run_learner(
             skipped = str(exc).splitlines()[0]
         record(t + 1, env.name, skipped, step)
     return RunResult(records=tuple(records), gains=gains, solves=book.solves)
+
+
+def _index(learner: str, idx, n: int) -> int:
+    """A learner's choice of environment, refused unless it is an index into the n."""
+    if isinstance(idx, bool) or not isinstance(idx, int | np.integer) or not 0 <= idx < n:
+        raise ValueError(f"learner {learner}: chose environment {idx!r}, not an index in [0, {n})")
+    return int(idx)

@@ -111,7 +111,7 @@ def test_users_use_the_same_corrections():
         deformation_correction(robot, intended, 1.0),
     )
     assert not BiasedUser().stochastic and not DeformingUser().stochastic
-    with pytest.raises(ValueError, match="user_waypoints"):
+    with pytest.raises(ValueError, match="waypoints = 5"):
         BiasedUser(waypoints=5).corrected_trajectory(robot, intended)  # 4 free waypoints
-    with pytest.raises(ValueError, match="user_step"):
+    with pytest.raises(ValueError, match="step = 2.0"):
         DeformingUser(step=2.0)

@@ -8,10 +8,9 @@ import pytest
 
 from corrections_sim import geometry as g
 from corrections_sim import robot
-from corrections_sim.environments import configuration_at
+from corrections_sim.environments import configuration_at, n_env_params
 from corrections_sim.features import (
     FEATURE_NAMES,
-    N_ENV_PARAMS,
     check_feature_names,
     feature_counts,
     waypoint_feature_function,
@@ -50,7 +49,7 @@ def test_features_lie_in_unit_interval(rng):
 def test_gradients_match_central_differences(rng):
     f = waypoint_feature_function(ALL)
     q_sym = ca.MX.sym("q", robot.N_ARM_JOINTS)
-    e_sym = ca.MX.sym("e", N_ENV_PARAMS)
+    e_sym = ca.MX.sym("e", n_env_params())
     jac = ca.Function(
         "phi_jacobian", [q_sym, e_sym], [ca.jacobian(f(q_sym, e_sym), ca.vertcat(q_sym, e_sym))]
     )
@@ -125,9 +124,9 @@ def test_bad_feature_names_raise(names):
     with pytest.raises(ValueError, match="features"):
         waypoint_feature_function(names)
     with pytest.raises(ValueError, match="features"):
-        feature_counts(np.zeros((3, robot.N_ARM_JOINTS)), np.zeros(N_ENV_PARAMS), names)
+        feature_counts(np.zeros((3, robot.N_ARM_JOINTS)), np.zeros(n_env_params()), names)
 
 
 def test_wrong_trajectory_shape_raises():
     with pytest.raises(ValueError, match="trajectory"):
-        feature_counts(np.zeros((3, 6)), np.zeros(N_ENV_PARAMS), ALL)
+        feature_counts(np.zeros((3, 6)), np.zeros(n_env_params()), ALL)

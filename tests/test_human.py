@@ -9,7 +9,7 @@ import pytest
 
 from corrections_sim.environments import Environment, paper_environments
 from corrections_sim.features import feature_counts
-from corrections_sim.human import BiasedUser, NoisyOptimalUser
+from corrections_sim.human import BiasedUser, NoisyOptimalUser, Situation
 from corrections_sim.planner import Planner
 
 THETA_STAR = np.array([1.0, -1.0])  # seek the laptop, avoid the table
@@ -17,6 +17,11 @@ ROBOT_THETA = np.array([0.0, 0.0])  # the robot's prior: smoothness only
 # One environment of each start, spread over the table and laptop poses.
 ENV_NAMES = ("s0-t0-l0", "s0-t2-l1", "s1-t1-l2", "s2-t0-l3", "s3-t0-l0", "s3-t2-l1")
 NAMES = ("laptop", "table")
+
+
+def _situation(robot, intended, env, names) -> Situation:
+    theta = np.zeros(len(names))
+    return Situation(robot=robot, intended=intended, env=env, features=names, theta_star=theta)
 
 
 @pytest.fixture(scope="module")
@@ -88,7 +93,7 @@ def test_biased_user_features_are_those_of_the_corrected_trajectory(envs):
     intended = robot.copy()
     intended[5:8, 1] += np.array([0.2, 0.4, 0.2])
     user = BiasedUser(step=0.5)
-    phi_h = user.correction_features(robot, intended, env.params(), NAMES, rng=None)
+    phi_h = user.correction_features(_situation(robot, intended, env, NAMES), None)
     expected = feature_counts(user.corrected_trajectory(robot, intended), env.params(), NAMES)
     np.testing.assert_array_equal(phi_h, expected)
     assert phi_h.shape == (2,)
@@ -108,7 +113,7 @@ def test_biased_correction_improves_the_robot_under_the_users_reward(planner, en
         mine = planner.solve(ROBOT_THETA, env)
         star = planner.solve(THETA_STAR, env)
         phi_h = user.correction_features(
-            mine.trajectory, star.trajectory, env.params(), planner.config.features, rng=None
+            _situation(mine.trajectory, star.trajectory, env, planner.config.features), None
         )
         gain = float(THETA_STAR @ (phi_h - mine.features))
         gains.append(gain)
@@ -132,7 +137,10 @@ def test_noisy_optimal_user_is_phi_star_plus_gaussian_noise(envs):
     rng = np.random.default_rng(3)
     n = 4000
     draws = np.array(
-        [user.correction_features(intended, intended, env.params(), NAMES, rng) for _ in range(n)]
+        [
+            user.correction_features(_situation(intended, intended, env, NAMES), rng)
+            for _ in range(n)
+        ]
     )
     assert draws.shape == (n, 2)
     # Mean within 4 standard errors of Φ(ξ*); sample std within 5 % of σ (n = 4000: ≈ 1.1 %).
@@ -151,14 +159,19 @@ def test_noisy_optimal_user_ignores_the_robot_and_is_deterministic_given_the_see
     def draws(seed: int) -> np.ndarray:
         rng = np.random.default_rng(seed)
         return np.array(
-            [user.correction_features(robot, intended, env.params(), NAMES, rng) for _ in range(5)]
+            [
+                user.correction_features(_situation(robot, intended, env, NAMES), rng)
+                for _ in range(5)
+            ]
         )
 
     np.testing.assert_array_equal(draws(11), draws(11))
     assert not np.allclose(draws(11), draws(12))
     # The robot's trajectory plays no part: same seed, different robot, same draw.
-    a = user.correction_features(robot, intended, env.params(), NAMES, np.random.default_rng(5))
-    b = user.correction_features(intended, intended, env.params(), NAMES, np.random.default_rng(5))
+    a = user.correction_features(_situation(robot, intended, env, NAMES), np.random.default_rng(5))
+    b = user.correction_features(
+        _situation(intended, intended, env, NAMES), np.random.default_rng(5)
+    )
     np.testing.assert_array_equal(a, b)
 
 
@@ -166,7 +179,7 @@ def test_noise_free_optimal_user_shows_phi_star_exactly(envs):
     env = envs[3]
     intended = np.linspace(env.q_start, env.q_goal, 12)
     phi = NoisyOptimalUser(noise=0.0).correction_features(
-        intended, intended, env.params(), NAMES, np.random.default_rng(0)
+        _situation(intended, intended, env, NAMES), np.random.default_rng(0)
     )
     np.testing.assert_array_equal(phi, feature_counts(intended, env.params(), NAMES))
 

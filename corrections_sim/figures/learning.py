@@ -301,7 +301,7 @@ def tasks(settings: FigureSettings) -> list[tuple[str, int]]:
     """Every (learner, run) of the figure, PP-type learners last (their learning rate needs
     the filter runs); an active learner runs once unless the user is random."""
     s = settings.study
-    names = sorted(s.learners, key=lambda n: (not LEARNERS[n].has_covariance, _ORDER[n]))
+    names = sorted(s.learners, key=lambda n: (LEARNERS[n].needs_rates(), _ORDER[n]))
     return [(name, r) for name in names for r in range(s.runs_of(name))]
 
 
@@ -312,7 +312,7 @@ def learning_rates(settings: FigureSettings, results: Mapping) -> dict[str, np.n
     rates = {}
     for name in s.learners:
         source = LEARNERS[name].rate_from
-        if LEARNERS[name].has_covariance:
+        if not LEARNERS[name].needs_rates():
             continue
         if s.fixed_alpha is not None:
             rates[name] = np.full(s.iterations, s.fixed_alpha)
@@ -371,9 +371,9 @@ def run(
             if progress:
                 progress(done, total)
 
-    execute([k for k in keys if LEARNERS[k[0]].has_covariance])
+    execute([k for k in keys if not LEARNERS[k[0]].needs_rates()])
     alphas = learning_rates(settings, results)
-    execute([k for k in keys if not LEARNERS[k[0]].has_covariance], alphas)
+    execute([k for k in keys if LEARNERS[k[0]].needs_rates()], alphas)
 
     records = [
         rec

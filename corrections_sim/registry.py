@@ -1,0 +1,99 @@
+"""Named plug-ins: one registry per kind (learners, simulated users, features).
+
+A :class:`Registry` is a read-only mapping from a name to what was registered under it, in
+registration order (the order figures and tables list them). Registering is one call or one
+decorator; looking up an unknown name fails at once with a one-line message that lists the
+known names, so a typo never falls through to a default::
+
+    from corrections_sim.learner import LEARNERS, register_learner
+
+    @register_learner("MINE")
+    class Mine(Learner): ...
+
+    LEARNERS["MINE"]    # the class
+    LEARNERS["MIEN"]    # UnknownName: unknown learner 'MIEN': known are PP, KF, …, MINE
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable, Iterator, Mapping
+from typing import Generic, TypeVar
+
+T = TypeVar("T")
+
+#: What a name may look like: it becomes a file name (``<learner>-<run>.json``) and a CSV cell.
+NAME_PATTERN = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_-]*")
+
+
+class UnknownName(KeyError, ValueError):
+    """A name that is not registered. Both a ``KeyError`` (mapping lookups) and a
+    ``ValueError`` (bad input), with a one-line message."""
+
+    def __str__(self) -> str:
+        return str(self.args[0])
+
+
+class Registry(Mapping[str, T], Generic[T]):
+    """Name -> plug-in, in registration order.
+
+    Args:
+        kind: what it holds, singular ("learner"), for messages.
+    """
+
+    def __init__(self, kind: str) -> None:
+        self.kind = kind
+        self._items: dict[str, T] = {}
+
+    def register(self, name: str, item: T, *, replace: bool = False) -> T:
+        """Add ``item`` under ``name``; returns ``item``.
+
+        Raises:
+            ValueError: a malformed name, or one already taken (unless ``replace``).
+        """
+        if not isinstance(name, str) or not NAME_PATTERN.fullmatch(name):
+            raise ValueError(
+                f"{self.kind} name {name!r}: letters, digits, '_' and '-' only, not first '-'"
+            )
+        if name in self._items and not replace:
+            raise ValueError(f"{self.kind} {name!r} is already registered")
+        self._items[name] = item
+        return item
+
+    def decorator(self, name: str, *, replace: bool = False) -> Callable[[T], T]:
+        """``@registry.decorator(name)``: register the decorated object under ``name``."""
+
+        def add(item: T) -> T:
+            return self.register(name, item, replace=replace)
+
+        return add
+
+    def unregister(self, name: str) -> None:
+        """Remove ``name`` (tests and interactive sessions; a study never needs it)."""
+        self[name]  # refuses unknown names like a lookup
+        del self._items[name]
+
+    def check(self, names) -> tuple[str, ...]:
+        """``names`` as a tuple, refused unless they are distinct registered names."""
+        names = tuple(names)
+        for name in names:
+            self[name]
+        if not names or len(set(names)) != len(names):
+            raise ValueError(f"{self.kind}s: {list(names)} must be distinct and not empty")
+        return names
+
+    def __getitem__(self, name: str) -> T:
+        try:
+            return self._items[name]
+        except (KeyError, TypeError):
+            known = ", ".join(self._items) or "none"
+            raise UnknownName(f"unknown {self.kind} {name!r}: known are {known}") from None
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._items)
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def __repr__(self) -> str:
+        return f"Registry({self.kind!r}, {list(self._items)})"

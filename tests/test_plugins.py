@@ -1,0 +1,334 @@
+"""Plug-ins: learners, users, features and environment parameters by name.
+
+Every registered learner and user is checked through the same tests (a new one never edits
+them); unknown names and parameters are refused in one line naming them; the examples in
+``examples/`` run end to end in a fresh interpreter (their registrations stay out of this one).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from corrections_sim.environments import (
+    ENV_PARAMETERS,
+    env_index,
+    paper_environments,
+    register_env_parameter,
+)
+from corrections_sim.features import FEATURES, feature_counts, register_feature
+from corrections_sim.human import USERS, Situation, User, make_user, user_parameters
+from corrections_sim.learner import LEARNERS, Learner, Step, make_learner, register_learner
+from corrections_sim.registry import Registry, UnknownName
+from corrections_sim.study import StudySettings
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+
+
+def settings(**overrides) -> StudySettings:
+    values = dict(
+        theta_star=(1.0, -1.0),
+        theta0=(0.0, 0.0),
+        cov0=((1.0, 0.0), (0.0, 1.0)),
+        iterations=2,
+        runs=2,
+        learners=tuple(LEARNERS),
+    )
+    values.update(overrides)
+    return StudySettings(**values)
+
+
+# --------------------------------------------------------------------------- the registry
+
+
+def test_an_unknown_name_is_refused_in_one_line_listing_the_known_ones():
+    reg: Registry[int] = Registry("widget")
+    reg.register("a", 1)
+    reg.register("b-2", 2)
+    with pytest.raises(UnknownName) as info:
+        reg["c"]
+    assert str(info.value) == "unknown widget 'c': known are a, b-2"
+    assert isinstance(info.value, KeyError) and isinstance(info.value, ValueError)
+    assert reg.get("c") is None and "c" not in reg
+    assert list(reg) == ["a", "b-2"]
+
+
+@pytest.mark.parametrize("name", ["", "-a", "a b", "a/b", 3])
+def test_a_malformed_name_is_refused(name):
+    with pytest.raises(ValueError, match="name"):
+        Registry("widget").register(name, 1)
+
+
+def test_a_name_is_registered_once_unless_replaced():
+    reg: Registry[int] = Registry("widget")
+    reg.register("a", 1)
+    with pytest.raises(ValueError, match="already registered"):
+        reg.register("a", 2)
+    reg.register("a", 3, replace=True)
+    assert reg["a"] == 3
+    reg.unregister("a")
+    assert "a" not in reg
+
+
+# --------------------------------------------------------------------------- learners
+
+
+def test_the_papers_learners_are_registered_in_the_figures_order():
+    assert list(LEARNERS)[:9] == ["PP", "KF", "EKF", "AL", "PP-C", "KF-C", "AL-C", "KF-A", "BP"]
+
+
+@pytest.mark.parametrize("name", list(LEARNERS))
+def test_every_learner_describes_itself_and_builds_from_settings(name):
+    cls = LEARNERS[name]
+    assert issubclass(cls, Learner)
+    assert cls.label and cls.style is not None
+    assert cls.rate_from is None or cls.rate_from in LEARNERS
+    assert isinstance(settings().make_learner(name), cls)
+
+
+def test_unknown_learners_and_parameters_are_refused_by_name():
+    with pytest.raises(ValueError, match="unknown learner 'UKF': known are PP, KF"):
+        settings(learners=("KF", "UKF"))
+    with pytest.raises(ValueError, match="learner KF: unknown parameter 'gain'"):
+        settings(learner_params={"KF": {"gain": 1.0}})
+    with pytest.raises(ValueError, match="learner_params: 'BP' is not one of the learners"):
+        settings(learners=("KF",), learner_params={"BP": {}})
+
+
+def test_a_registered_learner_takes_its_parameters_by_name():
+    @register_learner("TEST-FIXED")
+    class Fixed(Learner):
+        has_covariance = False
+
+        def __init__(self, shift: float = 0.0) -> None:
+            if not np.isfinite(shift):
+                raise ValueError(f"shift = {shift} must be finite")
+            self.shift = shift
+
+        def update(self, ctx, belief, env, plan, phi_h):
+            return Step(belief, None, phi_h - plan.features)
+
+    try:
+        s = settings(learners=("TEST-FIXED",), learner_params={"TEST-FIXED": {"shift": 2.0}})
+        assert s.make_learner("TEST-FIXED").shift == 2.0
+        assert make_learner("TEST-FIXED", s).shift == 0.0
+        with pytest.raises(ValueError, match="learner TEST-FIXED: shift = inf must be finite"):
+            settings(learners=("TEST-FIXED",), learner_params={"TEST-FIXED": {"shift": np.inf}})
+        with pytest.raises(ValueError, match=r"unknown parameter 'scale' \(known: shift\)"):
+            make_learner("TEST-FIXED", s, {"scale": 1.0})
+        with pytest.raises(TypeError, match="not a Learner subclass"):
+            register_learner("TEST-BAD")(object)
+    finally:
+        LEARNERS.unregister("TEST-FIXED")
+
+
+def test_plot_styles_and_labels_come_from_the_learners():
+    from corrections_sim.plotting import learner_label, learner_style
+
+    assert learner_style("KF-C") == ("#1f77b4", "--")
+    assert learner_label("KF") == "Kalman filter (KF)"
+    assert learner_label("not-registered") == "not-registered"
+
+
+# --------------------------------------------------------------------------- users
+
+
+def test_the_papers_users_are_registered_with_their_parameters():
+    assert list(USERS)[:3] == ["biased", "deform", "noisy"]
+    assert user_parameters("biased") == {"step": 1.0, "waypoints": 1}
+    assert user_parameters("deform") == {"step": 1.0}
+    assert user_parameters("noisy") == {"noise": 0.1}
+
+
+@pytest.mark.parametrize(
+    ("name", "params", "message"),
+    [
+        ("psychic", {}, "unknown user 'psychic': known are biased, deform, noisy"),
+        ("biased", {"stp": 0.5}, r"user biased: unknown parameter 'stp' \(known: step, waypoints"),
+        ("biased", {"step": 0.0}, r"user biased: step = 0.0 must lie in \(0, 1\]"),
+        ("biased", {"waypoints": 1.5}, "user biased: waypoints = 1.5 must be an integer"),
+        ("noisy", {"noise": -1.0}, "user noisy: noise = -1.0 must be finite and >= 0"),
+    ],
+)
+def test_bad_users_and_parameters_are_refused_in_one_line(name, params, message):
+    with pytest.raises(ValueError, match=message) as info:
+        make_user(name, params)
+    assert "\n" not in str(info.value)
+
+
+def test_settings_pass_user_params_and_keep_the_old_keys():
+    assert settings(user_step=0.5).make_user() == make_user("biased", {"step": 0.5})
+    assert settings(user_params={"step": 0.25}, user_step=0.5).make_user().step == 0.25
+    assert settings(user="noisy", observation_noise=0.04).make_user().noise == pytest.approx(0.2)
+    with pytest.raises(ValueError, match="user biased: user_step = 2.0"):
+        settings(user_step=2.0)
+    with pytest.raises(ValueError, match="user deform: unknown parameter 'waypoints'"):
+        settings(user="deform", user_params={"waypoints": 2})
+
+
+@pytest.mark.parametrize("name", list(USERS))
+def test_every_user_corrects_deterministically_given_its_generator(name):
+    env = paper_environments()[0]
+    robot = np.linspace(env.q_start, env.q_goal, 12)
+    intended = robot.copy()
+    intended[4:7, 1] += np.array([0.1, 0.3, 0.1])
+    features = ("laptop", "table")
+    seen = Situation(robot, intended, env, features, np.array([1.0, -1.0]))
+    user = make_user(name)
+    assert isinstance(user, User)
+    a = user.correction_features(seen, np.random.default_rng(3))
+    b = user.correction_features(seen, np.random.default_rng(3))
+    assert a.shape == (2,) and np.all(np.isfinite(a))
+    np.testing.assert_array_equal(a, b)
+    corrected = user.correct(seen, np.random.default_rng(3))
+    assert corrected.shape == robot.shape
+    np.testing.assert_array_equal(corrected[[0, -1]], robot[[0, -1]])  # start, goal fixed
+
+
+# --------------------------------------------------------------------------- features
+
+
+def test_environment_parameters_have_names():
+    env = paper_environments()[5]
+    names = ["laptop_x", "laptop_y", "laptop_yaw", "table_x", "table_y"]
+    assert list(ENV_PARAMETERS)[:5] == names
+    assert [env.param(n) for n in names] == [*env.laptop, *env.table]
+    assert env_index("table_x") == 3
+    with pytest.raises(ValueError, match="unknown environment parameter 'laptop_z'"):
+        env.param("laptop_z")
+
+
+def test_a_new_feature_is_one_function_and_one_environment_field():
+    register_env_parameter("test_spot_x", default=0.5)
+    try:
+
+        @register_feature("test-spot")
+        def spot(w):
+            return (w.cup[0] - w.param("test_spot_x")) ** 2
+
+        try:
+            env = paper_environments()[0]
+            moved = dataclasses.replace(env, extra={"test_spot_x": 0.0})
+            assert env.param("test_spot_x") == 0.5 and moved.param("test_spot_x") == 0.0
+            assert moved != env and len(env.params()) == 6
+            trajectory = np.linspace(env.q_start, env.q_goal, 5)
+            a = feature_counts(trajectory, env, ("test-spot", "laptop"))
+            b = feature_counts(trajectory, moved, ("test-spot", "laptop"))
+            assert a[1] == b[1] and a[0] != b[0]
+            from corrections_sim.environments import configuration_at
+
+            q = configuration_at((0.5, 0.2, 0.3))
+            assert feature_counts(np.array([q]), env, ("test-spot",))[0] == pytest.approx(
+                0.0, abs=1e-6
+            )
+        finally:
+            FEATURES.unregister("test-spot")
+    finally:
+        ENV_PARAMETERS.unregister("test_spot_x")
+    with pytest.raises(ValueError, match="unknown environment parameter"):
+        dataclasses.replace(paper_environments()[0], extra={"test_spot_x": 0.0})
+
+
+# --------------------------------------------------------------------------- examples
+
+
+def _run_example(name: str, *args: str) -> dict:
+    call = f"m['main']({', '.join(args)})"
+    code = f"import json, runpy; m = runpy.run_path({str(EXAMPLES / name)!r}); "
+    code += f"print(json.dumps({call}))"
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=600, check=False
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def test_example_custom_learner_learns():
+    out = _run_example("custom_learner.py", "iterations=4", "runs=2")
+    errors = out["mean_estimate_error"]
+    assert len(errors) == 5 and errors[0] == pytest.approx(2.0)
+    assert errors[-1] < errors[0] - 0.3  # steps of 0.3 toward θ*
+
+
+def test_example_custom_user_skips_and_corrects():
+    never = _run_example("custom_user.py", "iterations=3", "skip=1.0")
+    assert "LazyUser(skip=1.0" in never["user"]
+    # A correction that shows nothing moves no estimate.
+    assert all(theta == [0.0, 0.0] for theta in never["theta"])
+    always = _run_example("custom_user.py", "iterations=3", "skip=0.0")
+    assert always["estimate_error"][-1] < always["estimate_error"][0]
+
+
+def test_example_custom_feature_plans_with_it():
+    out = _run_example("custom_feature.py")
+    assert out["env_params"]["person_x"] == 0.45
+    assert out["seek"] > out["ignore"] + 0.5 > out["avoid"] + 0.5
+
+
+def test_a_plugin_learner_runs_through_the_figures_pipeline():
+    """learning.run (executor, PP-type ordering, learning rates) takes a registered learner
+    without a covariance that needs no rates; plotting gives it a colour and its label."""
+    code = f"""
+import json, runpy
+from concurrent.futures import ThreadPoolExecutor
+runpy.run_path({str(EXAMPLES / "custom_learner.py")!r})
+from corrections_sim.figures import learning
+from corrections_sim.plotting import learner_label, learner_style
+s = learning.settings_from_values(dict(
+    theta_star=[1.0, -1.0], theta0=[0.0, 0.0], cov0=[[1.0, 0.0], [0.0, 1.0]], runs=1,
+    iterations=1, seed=3, learners=["KF", "PP", "NPP"], learner_params={{"NPP": {{"step": 0.5}}}}))
+with ThreadPoolExecutor(1) as pool:
+    result = learning.run(s, pool, mean_estimate=False)
+rows = [r for r in result.records if r["learner"] == "NPP"]
+print(json.dumps({{"order": [r["learner"] for r in result.records][::2],
+                  "npp": [r["estimate_error"] for r in rows], "alphas": sorted(result.alphas),
+                  "label": learner_label("NPP"), "style": learner_style("NPP")}}))
+"""
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=600, check=False
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    out = json.loads(done.stdout.strip().splitlines()[-1])
+    assert out["order"] == ["PP", "KF", "NPP"]
+    assert out["alphas"] == ["PP"]
+    assert out["npp"][0] == pytest.approx(2.0) and out["npp"][1] < 2.0
+    assert out["label"] == "Normalized perceptron (NPP)"
+    assert out["style"] == ["#9467bd", "-"]
+
+
+@pytest.fixture(scope="module")
+def small_study():
+    from corrections_sim.planner import Planner, PlannerConfig
+    from corrections_sim.study import Target
+
+    planner = Planner(PlannerConfig(features=("laptop", "table"), n_starts=1))
+    envs = paper_environments()[::16]  # 3 environments
+    return planner, envs, Target.solve(planner, np.array([1.0, -1.0]), envs)
+
+
+@pytest.mark.parametrize("name", list(LEARNERS))
+def test_every_learner_runs_reproducibly_and_moves_toward_theta_star(name, small_study):
+    """The loop's contract for any registered learner: same seed, same records; a belief
+    after each correction; the estimate error falls from the prior's over 3 corrections."""
+    from corrections_sim.study import run_learner
+
+    planner, envs, target = small_study
+    s = settings(iterations=3, learners=(name, *filter(None, [LEARNERS[name].rate_from])))
+    alphas = np.full(3, 0.2) if LEARNERS[name].needs_rates() else None
+
+    def once():
+        rng = np.random.default_rng(7)
+        return run_learner(name, 0, s, planner, envs, target, s.make_user(), rng, alphas)
+
+    a, b = once(), once()
+    assert a.records == b.records
+    assert [r["iteration"] for r in a.records] == [0, 1, 2, 3]
+    assert all(r["learner"] == name and not r["update_skipped"] for r in a.records)
+    assert a.records[-1]["estimate_error"] < a.records[0]["estimate_error"]
+    assert (a.records[-1]["nees"] is None) == (not LEARNERS[name].has_covariance)
