@@ -57,7 +57,14 @@ FIGURES = ("fig4", "fig5")
 #: Features of figs. 4–5 and the default of a study file.
 FEATURES = ("laptop", "table")
 #: Figures and tables list learners in the registry's order.
-_ORDER = {name: i for i, name in enumerate(LEARNERS)}
+
+
+def _order(name: str) -> int:
+    """A learner's place in tables and plots: its registration order (plug-ins registered
+    after this module was imported included)."""
+    return list(LEARNERS).index(name)
+
+
 N_PAPER_ENVIRONMENTS = len(START_POSITIONS) * len(TABLE_POSITIONS) * len(LAPTOP_OFFSETS)
 #: Curves averaged over runs, and the metrics compared between learners.
 METRICS = ("estimate_error", "regret", "regret_paper")
@@ -82,14 +89,17 @@ class FigureSettings:
     planner: tuple[tuple[str, Any], ...] = tuple(study_file.PLANNER_SETTINGS.items())
     features: tuple[str, ...] = FEATURES
     environments: study_file.Environments = study_file.PAPER
+    plugins: tuple[study_file.PluginFile, ...] = ()
     name: str = field(default="", compare=False)
     description: str = field(default="", compare=False)
 
     def planner_config(self) -> PlannerConfig:
+        study_file.load_plugins(self.plugins)  # a plug-in feature must be known to the planner
         return PlannerConfig(features=self.features, **dict(self.planner))
 
     def envs(self) -> tuple[Environment, ...]:
         """The study's environments (memoized per process)."""
+        study_file.load_plugins(self.plugins)
         return study_file.resolve(self.environments)
 
     def as_dict(self) -> dict:
@@ -97,6 +107,8 @@ class FigureSettings:
         d.update(self.planner)
         d["features"] = list(self.features)
         d["environments"] = study_file.as_data(self.environments)
+        if self.plugins:
+            d["plugins"] = [p.as_dict() for p in self.plugins]
         return d
 
 
@@ -123,10 +135,13 @@ def load_file(source, *, name: str, quick: bool, overrides: dict | None = None) 
     """
     values = study_file.read(source, quick=quick)
     values.update({k: v for k, v in (overrides or {}).items() if v is not None})
-    return settings_from_values(values, name=name)
+    base = Path(source).resolve().parent if isinstance(source, str | Path) else None
+    return settings_from_values(values, name=name, base=base)
 
 
-def settings_from_values(values: dict, *, name: str = "") -> FigureSettings:
+def settings_from_values(
+    values: dict, *, name: str = "", base: Path | None = None
+) -> FigureSettings:
     """A study's settings from a flat mapping of study-file keys (``study_file.settings_keys``).
 
     Sizes are checked first (:func:`study_file.check_sizes`), so nothing is built for a
@@ -137,6 +152,8 @@ def settings_from_values(values: dict, *, name: str = "") -> FigureSettings:
     """
     values = dict(values)
     study_file.check_keys(values)
+    # Plug-ins first: they register the users, learners and features named below.
+    plugins = study_file.parse_plugins(values.pop("plugins", ()), base)
     description = values.pop("description", "")
     if not isinstance(description, str):
         raise ValueError(f"description = {description!r}: expected a string")
@@ -201,6 +218,7 @@ def settings_from_values(values: dict, *, name: str = "") -> FigureSettings:
         planner=planner,
         features=features,
         environments=study_file.parse_environments(raw_envs),
+        plugins=plugins,
         name=name,
         description=description,
     )
@@ -225,6 +243,7 @@ class Shared:
 
 def prepare(settings: FigureSettings) -> Shared:
     """Solve the shared plans; a task for a worker (the caller needs no planner)."""
+    study_file.load_plugins(settings.plugins)
     s = settings.study
     planner = shared_planner(settings.planner_config())
     envs = settings.envs()
@@ -238,6 +257,7 @@ def run_one(
     settings: FigureSettings, shared: Shared, learner: str, run: int, alphas=None
 ) -> RunResult:
     """One (learner, run); safe to call in a worker process."""
+    study_file.load_plugins(settings.plugins)
     s = settings.study
     seq = np.random.SeedSequence([s.seed, LEARNERS[learner].stream, run])
     return run_learner(
@@ -258,6 +278,7 @@ def mean_estimate_point(
     settings: FigureSettings, shared: Shared, theta: tuple[float, ...]
 ) -> tuple[float, float, int, int]:
     """(regret, paper regret, failed environments, solves) of one θ; a worker task."""
+    study_file.load_plugins(settings.plugins)
     book = PlanBook(shared_planner(settings.planner_config()), shared.prior)
     regret, paper, failed = evaluate(book, shared.target, settings.envs(), np.array(theta))
     return regret, paper, failed, book.solves
@@ -269,7 +290,7 @@ def _mean_thetas(
     """(learner, t, runs, mean θ̂ᵗ over runs) for every learner and iteration."""
     s = settings.study
     out = []
-    for learner in sorted(s.learners, key=_ORDER.get):
+    for learner in sorted(s.learners, key=_order):
         rows = [r for r in records if r["learner"] == learner]
         for t in range(s.iterations + 1):
             at_t = [r for r in rows if r["iteration"] == t]
@@ -301,7 +322,7 @@ def tasks(settings: FigureSettings) -> list[tuple[str, int]]:
     """Every (learner, run) of the figure, PP-type learners last (their learning rate needs
     the filter runs); an active learner runs once unless the user is random."""
     s = settings.study
-    names = sorted(s.learners, key=lambda n: (LEARNERS[n].needs_rates(), _ORDER[n]))
+    names = sorted(s.learners, key=lambda n: (LEARNERS[n].needs_rates(), _order(n)))
     return [(name, r) for name in names for r in range(s.runs_of(name))]
 
 
@@ -377,7 +398,7 @@ def run(
 
     records = [
         rec
-        for key in sorted(results, key=lambda k: (_ORDER[k[0]], k[1]))
+        for key in sorted(results, key=lambda k: (_order(k[0]), k[1]))
         for rec in results[key].records
     ]
     points = _mean_thetas(settings, records) if mean_estimate else []
@@ -413,7 +434,7 @@ def run(
 def curves(settings: FigureSettings, records: list[dict]) -> dict[str, dict[str, np.ndarray]]:
     """learner -> metric -> values (runs, T + 1), for the metrics and "nees", "nis"."""
     out = {}
-    for learner in sorted(settings.study.learners, key=_ORDER.get):
+    for learner in sorted(settings.study.learners, key=_order):
         rows = [r for r in records if r["learner"] == learner]
         runs = sorted({r["run"] for r in rows})
         out[learner] = {

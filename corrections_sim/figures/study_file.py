@@ -17,15 +17,27 @@ only (today ``study.USERS`` and ``study.LEARNERS``).
 from __future__ import annotations
 
 import functools
+import hashlib
+import importlib.util
 import math
+import re
+import sys
 import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
-from corrections_sim.environments import GOAL_POSITION, Environment, paper_environments
-from corrections_sim.features import FEATURE_NAMES
+from corrections_sim.environments import (
+    GOAL_POSITION,
+    LAPTOP_OFFSETS,
+    START_POSITIONS,
+    TABLE_POSITIONS,
+    Environment,
+    paper_environments,
+    tilted,
+)
+from corrections_sim.features import FEATURES
 
 #: Planner settings a study file takes, with their defaults: passed to
 #: :class:`~corrections_sim.planner.PlannerConfig` by name (which checks them). A new one is
@@ -33,11 +45,12 @@ from corrections_sim.features import FEATURE_NAMES
 #: ``learning.OPTIONS``).
 PLANNER_SETTINGS: dict[str, Any] = {"n_starts": 1}
 #: Keys of a study file that are not :class:`~corrections_sim.study.StudySettings` fields.
-STUDY_KEYS = ("description", "features", "environments", *PLANNER_SETTINGS)
+STUDY_KEYS = ("description", "plugins", "features", "environments", *PLANNER_SETTINGS)
 #: ``environments`` value meaning the paper's 48 (the default).
 PAPER = "paper"
-#: Keys of one environment of the user's own (``goal`` is optional).
-ENVIRONMENT_KEYS = ("name", "start", "laptop", "table", "goal")
+#: Keys of one environment of the user's own (``goal``, ``like`` and ``tilt`` are optional;
+#: with ``like``, a paper environment's name, ``start``, ``laptop`` and ``table`` are too).
+ENVIRONMENT_KEYS = ("name", "start", "laptop", "table", "goal", "like", "tilt")
 #: Integer keys and their allowed ranges: beyond these a study cannot finish (or fit).
 INTEGER_LIMITS: dict[str, tuple[int, int]] = {
     "runs": (1, 100_000),
@@ -68,6 +81,71 @@ def learner_names() -> tuple[str, ...]:
     from corrections_sim.study import LEARNERS
 
     return tuple(LEARNERS)
+
+
+@dataclass(frozen=True)
+class PluginFile:
+    """A Python file a study imports before anything else (it registers users, learners or
+    features): its absolute path and the SHA-256 of its bytes (so a changed plug-in never
+    resumes runs made with the old one)."""
+
+    path: str
+    sha256: str
+
+    def as_dict(self) -> dict:
+        return {"path": self.path, "sha256": self.sha256}
+
+
+def parse_plugins(value, base: Path | None) -> tuple[PluginFile, ...]:
+    """``plugins`` of a study file: a list of Python files, relative to the study file's
+    folder (``base``) unless absolute. Each is imported here (once per process).
+
+    Raises:
+        ValueError: names the item: a missing file, or the exception its import raised.
+    """
+    if isinstance(value, tuple) and all(isinstance(v, PluginFile) for v in value):
+        load_plugins(value)
+        return value
+    if not isinstance(value, list | tuple) or not all(isinstance(v, str) for v in value):
+        raise ValueError(f"plugins = {value!r}: expected a list of Python file paths")
+    out = []
+    for i, item in enumerate(value):
+        path = Path(item).expanduser()
+        if not path.is_absolute():
+            path = (base or Path.cwd()) / path
+        try:
+            data = path.resolve().read_bytes()
+        except OSError as exc:
+            raise ValueError(f"plugins[{i}] = {item!r}: cannot read it ({exc.strerror})") from None
+        plugin = PluginFile(str(path.resolve()), hashlib.sha256(data).hexdigest())
+        try:
+            load_plugins((plugin,))
+        except Exception as exc:  # a plug-in's own error, reported in one line
+            message = str(exc).splitlines()[0] if str(exc) else ""
+            raise ValueError(
+                f"plugins[{i}] = {item!r}: importing it raised {type(exc).__name__}: {message}"
+            ) from None
+        out.append(plugin)
+    return tuple(out)
+
+
+def load_plugins(plugins: tuple[PluginFile, ...]) -> None:
+    """Import each plug-in file once per process (workers call this before a task, so
+    registrations reach every worker, forked, spawned or on Dask)."""
+    for plugin in plugins:
+        module = f"corrections_sim_plugin_{hashlib.sha256(plugin.path.encode()).hexdigest()[:12]}"
+        if module in sys.modules:
+            continue
+        spec = importlib.util.spec_from_file_location(module, plugin.path)
+        if spec is None or spec.loader is None:
+            raise ImportError(f"{plugin.path} is not a Python file")
+        loaded = importlib.util.module_from_spec(spec)
+        sys.modules[module] = loaded
+        try:
+            spec.loader.exec_module(loaded)
+        except BaseException:
+            del sys.modules[module]
+            raise
 
 
 def settings_keys() -> tuple[str, ...]:
@@ -158,32 +236,41 @@ def check_sizes(values: Mapping[str, Any], n_environments: int, n_learners: int)
 @dataclass(frozen=True)
 class EnvironmentSpec:
     """An environment of the user's own, as written: where the cup starts and ends (cup
-    centre, m), the laptop's pose (x, y, yaw; m, rad) and the table's centre (x, y; m)."""
+    centre, m), the laptop's pose (x, y, yaw; m, rad), the table's centre (x, y; m), and how
+    far (rad) the wrist is turned at start and goal (``tilt``: 0 holds the cup upright;
+    :func:`~corrections_sim.environments.tilted`)."""
 
     name: str
     start: tuple[float, float, float]
     laptop: tuple[float, float, float]
     table: tuple[float, float]
     goal: tuple[float, float, float] = GOAL_POSITION
+    tilt: float = 0.0
 
     def environment(self) -> Environment:
         """The :class:`Environment` (IK for start and goal; raises ValueError)."""
+        q_start, q_goal = _configuration(self.start), _configuration(self.goal)
+        if self.tilt:
+            q_start, q_goal = tilted(q_start, self.tilt), tilted(q_goal, self.tilt)
         return Environment(
-            q_start=_configuration(self.start),
-            q_goal=_configuration(self.goal),
+            q_start=q_start,
+            q_goal=q_goal,
             laptop=self.laptop,
             table=self.table,
             name=self.name,
         )
 
     def as_dict(self) -> dict:
-        return {
+        out = {
             "name": self.name,
             "start": list(self.start),
             "laptop": list(self.laptop),
             "table": list(self.table),
             "goal": list(self.goal),
         }
+        if self.tilt:
+            out["tilt"] = self.tilt
+        return out
 
 
 #: ``environments`` as settings hold it: "paper", or each a paper environment's name or a spec.
@@ -273,9 +360,14 @@ def _environment_spec(key: str, item: dict) -> EnvironmentSpec:
     unknown = [k for k in item if k not in ENVIRONMENT_KEYS]
     if unknown:
         raise ValueError(f"{key}.{unknown[0]}: unknown key (takes {', '.join(ENVIRONMENT_KEYS)})")
+    if "like" in item:
+        item = {**_paper_positions(f"{key}.like", item["like"]), **item}
     for required in ("start", "laptop", "table"):
         if required not in item:
-            raise ValueError(f"{key}.{required}: missing")
+            raise ValueError(f"{key}.{required}: missing (or name a paper environment in like)")
+    tilt = item.get("tilt", 0.0)
+    if isinstance(tilt, bool) or not isinstance(tilt, int | float) or not math.isfinite(tilt):
+        raise ValueError(f"{key}.tilt = {tilt!r}: expected a finite angle in rad")
     name = item.get("name", f"env{key[len('environments[') : -1]}")
     if not isinstance(name, str) or not name:
         raise ValueError(f"{key}.name = {name!r}: expected a non-empty string")
@@ -285,6 +377,7 @@ def _environment_spec(key: str, item: dict) -> EnvironmentSpec:
         laptop=_vector(f"{key}.laptop", item["laptop"], 3),  # type: ignore[arg-type]
         table=_vector(f"{key}.table", item["table"], 2),  # type: ignore[arg-type]
         goal=_vector(f"{key}.goal", item.get("goal", GOAL_POSITION), 3),  # type: ignore[arg-type]
+        tilt=float(tilt),
     )
     for part in ("start", "goal"):
         try:
@@ -297,6 +390,8 @@ def _environment_spec(key: str, item: dict) -> EnvironmentSpec:
     try:
         env = spec.environment()
     except ValueError as exc:
+        if str(exc).startswith("tilted"):
+            raise ValueError(f"{key}.tilt = {spec.tilt}: {exc}") from None
         field = "laptop" if str(exc).startswith("laptop") else "table"
         raise ValueError(f"{key}.{field}: {exc}") from None
     for part, q in (("start", env.q_start), ("goal", env.q_goal)):
@@ -307,15 +402,32 @@ def _environment_spec(key: str, item: dict) -> EnvironmentSpec:
     return spec
 
 
+def _paper_positions(key: str, name) -> dict:
+    """The positions a paper environment ``s{i}-t{j}-l{k}`` is built from, as a study file
+    writes them (start, laptop, table; the goal is the paper's)."""
+    match = re.fullmatch(r"s(\d)-t(\d)-l(\d)", name) if isinstance(name, str) else None
+    if match is None or name not in {e.name for e in paper_environments()}:
+        raise ValueError(
+            f"{key} = {name!r}: not one of the paper's environments (s0-t0-l0 … s3-t2-l3)"
+        )
+    i, j, k = (int(d) for d in match.groups())
+    (tx, ty), (dx, dy, yaw) = TABLE_POSITIONS[j], LAPTOP_OFFSETS[k]
+    return {
+        "start": list(START_POSITIONS[i]),
+        "laptop": [tx + dx, ty + dy, yaw],
+        "table": [tx, ty],
+    }
+
+
 def check_features(value) -> tuple[str, ...]:
-    """A non-empty ordered list of distinct names from ``features.FEATURE_NAMES``."""
+    """A non-empty ordered list of distinct names from ``features.FEATURES`` (the paper's
+    three and any registered plug-in)."""
     if not isinstance(value, list | tuple) or not value:
         raise ValueError(f"features = {value!r}: expected a non-empty list of feature names")
     for i, name in enumerate(value):
-        if name not in FEATURE_NAMES:
+        if name not in FEATURES:
             raise ValueError(
-                f"features[{i}] = {name!r}: unknown feature "
-                f"(choose from {', '.join(FEATURE_NAMES)})"
+                f"features[{i}] = {name!r}: unknown feature (choose from {', '.join(FEATURES)})"
             )
     if len(set(value)) != len(value):
         raise ValueError(f"features = {list(value)}: each feature at most once")
