@@ -190,7 +190,8 @@ def test_unconverged_nlp_raises_with_the_status(envs):
         ({"features": ("table", "table")}, "features"),
         ({"n_starts": 0}, "n_starts"),
         ({"max_iter": 0}, "max_iter"),
-        ({"max_wall_time": 0.0}, "max_wall_time"),
+        ({"solver": "snopt"}, "solver = 'snopt'"),
+        ({"solver": "fatrop", "n_waypoints": 3}, "n_waypoints"),
         ({"tol": -1e-6}, "tol"),
     ],
 )
@@ -211,6 +212,7 @@ def test_build_key_tracks_the_config():
             {"features": ("laptop", "table", "coffee")},
             {"max_iter": 100},
             {"jit": False},
+            {"solver": "ipopt"},
         )
     }
-    assert len(keys) == 6
+    assert len(keys) == 7
