@@ -193,9 +193,16 @@ class Plan:
     solver: str = "ipopt"
 
 
-# Deterministic initial guesses: the straight joint-space line, then the line bent by a
-# half-sine bump on (shoulder, elbow) that lifts or lowers the hand mid-way.
-_GUESS_BUMPS: tuple[tuple[float, float], ...] = ((0.0, 0.0), (-0.35, 0.45), (0.25, -0.3))
+# Deterministic initial guesses: the straight joint-space line bent by a half-sine bump (rad at
+# mid-path, per joint). Chosen by measurement over 400 off-grid problems at figs. 4-5's
+# settings against 30 random restarts (README): the base turned one way with the shoulder
+# lifted, the other way, then elbow and wrist folded. Within 1% of the restarts' best: one
+# guess 97.5% (the straight line 96.0%), two 98.5%, three 99.5%.
+_GUESS_BUMPS: tuple[tuple[float, ...], ...] = (
+    (0.3, 0.25, 0.2, 0.0, 0.0, 0.1, 0.0),
+    (-0.3, 0.15, -0.2, 0.0, 0.0, 0.1, 0.0),
+    (0.0, 0.0, 0.0, -0.45, 0.0, -0.4, 0.0),
+)
 
 
 def initial_guesses(env: Environment, n_waypoints: int, count: int) -> list[np.ndarray]:
@@ -203,12 +210,7 @@ def initial_guesses(env: Environment, n_waypoints: int, count: int) -> list[np.n
     s = np.linspace(0.0, 1.0, n_waypoints)[:, None]
     line = (1 - s) * env.q_start + s * env.q_goal
     lo, hi = joint_limits()
-    guesses = []
-    for d2, d4 in _GUESS_BUMPS[:count]:
-        bump = np.zeros(N_ARM_JOINTS)
-        bump[1], bump[3] = d2, d4
-        guesses.append(np.clip(line + np.sin(np.pi * s) * bump, lo, hi))
-    return guesses
+    return [np.clip(line + np.sin(np.pi * s) * np.array(b), lo, hi) for b in _GUESS_BUMPS[:count]]
 
 
 def smoothness_cost(trajectory: np.ndarray) -> float:

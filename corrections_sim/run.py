@@ -255,6 +255,7 @@ _PASSED_AS_IS = (
     "correction_step",
     "correction_waypoints",
     "fixed_alpha",
+    "solver",
 )
 
 
@@ -734,6 +735,10 @@ def parser() -> argparse.ArgumentParser:
         "--fixed-alpha",
         type=float,
         help="a fixed learning rate for PP and PP-C (default: from KF's / KF-C's gains)",
+    )
+    g.add_argument(
+        "--solver",
+        help="the planner's solver (default fatrop; ipopt is the original path)",
     )
     g.add_argument(
         "--warm-start",

@@ -52,17 +52,19 @@ METRICS = ("estimate_error", "regret", "regret_paper")
 
 @dataclass(frozen=True)
 class FigureSettings:
-    """A figure's study settings plus the planner's multi-start count."""
+    """A figure's study settings plus the planner's multi-start count and solver."""
 
     study: StudySettings
     n_starts: int = 1
+    solver: str = "fatrop"
 
     def planner_config(self) -> PlannerConfig:
-        return PlannerConfig(features=FEATURES, n_starts=self.n_starts)
+        return PlannerConfig(features=FEATURES, n_starts=self.n_starts, solver=self.solver)
 
     def as_dict(self) -> dict:
         d = {f.name: getattr(self.study, f.name) for f in fields(self.study)}
         d["n_starts"] = self.n_starts
+        d["solver"] = self.solver
         return d
 
 
@@ -80,13 +82,15 @@ def load_settings(figure: str, *, quick: bool, overrides: dict | None = None) ->
 
 
 def settings_from_values(values: dict) -> FigureSettings:
-    """A figure's settings from a flat mapping of :class:`StudySettings` keys and ``n_starts``.
+    """A figure's settings from a flat mapping of :class:`StudySettings` keys, ``n_starts``
+    and ``solver``.
 
     Raises:
         ValueError: an unknown key or a bad value (the message names the field).
     """
     values = dict(values)
     n_starts = int(values.pop("n_starts", 1))
+    solver = str(values.pop("solver", "fatrop"))
     known = {f.name for f in fields(StudySettings)}
     unknown = sorted(set(values) - known)
     if unknown:
@@ -101,8 +105,8 @@ def settings_from_values(values: dict) -> FigureSettings:
     values["cov0"] = tuple(tuple(row) for row in values["cov0"])
     if "learners" in values:
         values["learners"] = tuple(values["learners"])
-    settings = FigureSettings(study=StudySettings(**values), n_starts=n_starts)
-    settings.planner_config()  # validates n_starts
+    settings = FigureSettings(study=StudySettings(**values), n_starts=n_starts, solver=solver)
+    settings.planner_config()  # validates n_starts and solver
     return settings
 
 
