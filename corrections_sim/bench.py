@@ -26,7 +26,6 @@ from corrections_sim.planner import (
     PlannerConfig,
     PlanningError,
     clearance,
-    initial_guesses,
     smoothness_cost,
 )
 from corrections_sim.robot import N_ARM_JOINTS, joint_limits
