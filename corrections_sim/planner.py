@@ -234,14 +234,21 @@ def cache_dir() -> Path:
     return Path(env) if env else Path.home() / ".cache" / "corrections_sim"
 
 
+#: The settings that shape the compiled functions (the others are solver options, given when
+#: the library is loaded, so changing them never recompiles).
+_BUILD_FIELDS = ("features", "n_waypoints", "smoothness", "solver")
+
+
 def build_key(config: PlannerConfig) -> str:
-    """Hash of everything that shapes the compiled solver: settings, code, CasADi version."""
+    """Hash of everything that shapes the compiled library: the NLP's settings and solver
+    (waypoint or stage form), the code, the CasADi version."""
     import sys
 
     from corrections_sim import features, geometry, robot
 
     h = hashlib.sha256()
-    h.update(json.dumps(asdict(config), sort_keys=True).encode())
+    shaping = {name: value for name, value in asdict(config).items() if name in _BUILD_FIELDS}
+    h.update(json.dumps(shaping, sort_keys=True).encode())
     h.update(ca.__version__.encode())
     for module in (geometry, robot, features, sys.modules[__name__]):
         h.update(inspect.getsource(module).encode())
