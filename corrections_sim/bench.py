@@ -404,8 +404,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument(
         "--n-starts",
         type=int,
-        default=1,
-        help="planner: initial guesses of a default solve (default 1, as figs. 4-5)",
+        default=3,
+        help="planner: initial guesses of a default solve (default 3, as figs. 4-5)",
     )
     parser.add_argument(
         "--solver",
