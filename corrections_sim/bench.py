@@ -404,8 +404,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument(
         "--n-starts",
         type=int,
-        default=3,
-        help="planner: initial guesses of a default solve (default 3, as figs. 4-5)",
+        default=4,
+        help="planner: initial guesses of a default solve (default 4, as figs. 4-5)",
     )
     parser.add_argument(
         "--solver",
