@@ -553,6 +553,10 @@ def parser() -> argparse.ArgumentParser:
         help="a fixed learning rate for PP and PP-C (default: from KF's / KF-C's gains)",
     )
     g.add_argument(
+        "--solver",
+        help="the planner's solver (default fatrop; ipopt is the original path)",
+    )
+    g.add_argument(
         "--warm-start",
         action="store_true",
         default=None,

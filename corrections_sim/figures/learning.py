@@ -566,6 +566,7 @@ OPTIONS = (
     "correction_waypoints",
     "fixed_alpha",
     "warm_start",
+    "solver",
 )
 
 

@@ -43,7 +43,7 @@ from corrections_sim.features import FEATURES
 #: :class:`~corrections_sim.planner.PlannerConfig` by name (which checks them). A new one is
 #: a line here (and, for the command line, an option whose destination is in
 #: ``learning.OPTIONS``).
-PLANNER_SETTINGS: dict[str, Any] = {"n_starts": 1}
+PLANNER_SETTINGS: dict[str, Any] = {"n_starts": 1, "solver": "fatrop"}
 #: Keys of a study file that are not :class:`~corrections_sim.study.StudySettings` fields.
 STUDY_KEYS = ("description", "plugins", "features", "environments", *PLANNER_SETTINGS)
 #: ``environments`` value meaning the paper's 48 (the default).
