@@ -123,8 +123,16 @@ def run_bench(
 
     lines: list[str] = []
     rows: list[tuple[str, str, str]] = []
-    extra = ["--iterations", str(iterations)] if iterations else []
-    extra += ["--solver", solver]
+    common = ["--iterations", str(iterations)] if iterations else []
+    extra = [*common, "--solver", solver]
+
+    def report(m: Measurement, label: str) -> None:
+        lines.append(
+            f"slice, {label}: {m.runs_wall:.1f} s, {m.solves} solves, "
+            f"{m.solves_per_second:.0f} solves/s"
+        )
+        say(lines[-1])
+
     if full:
         say(f"paper-scale fig. 4 ({solver}) on the default process pool (this takes minutes) ...")
         m = m_full = measure("paper fig4", ["fig4", *extra])
@@ -141,17 +149,14 @@ def run_bench(
             )
         )
         say(lines[-1])
-    slice_argv = ["fig4", "--runs", str(slice_runs), "--learners", "PP,KF", *extra]
+    slice_base = ["fig4", "--runs", str(slice_runs), "--learners", "PP,KF", *common]
+    slice_argv = [*slice_base, "--solver", solver]
     say(f"slice: {slice_runs} runs each of PP and KF: {solver} and ipopt on 2 workers ...")
     two = measure("2 workers", [*slice_argv, "--workers", "2"])
-    ipopt = measure("ipopt", [*slice_argv, "--workers", "2", "--solver", "ipopt"])
+    ipopt = measure("ipopt", [*slice_base, "--solver", "ipopt", "--workers", "2"])
     solver_ratio = ipopt.runs_wall / two.runs_wall
-    for m in (two, ipopt):
-        lines.append(
-            f"slice, {m.label} ({m.executor}): {m.runs_wall:.1f} s, {m.solves} solves, "
-            f"{m.solves_per_second:.0f} solves/s"
-        )
-        say(lines[-1])
+    for m, label in ((two, solver), (ipopt, "ipopt")):
+        report(m, f"{label} ({m.executor})")
     rows.append(
         (
             f"{solver} >= {TARGET_SOLVER_RATIO}x faster than ipopt",
@@ -174,11 +179,7 @@ def run_bench(
     speedup = one.runs_wall / two.runs_wall
     ratio = dask.runs_wall / two.runs_wall
     for m in (one, dask):
-        lines.append(
-            f"slice, {m.executor}: {m.runs_wall:.1f} s, {m.solves} solves, "
-            f"{m.solves_per_second:.0f} solves/s"
-        )
-        say(lines[-1])
+        report(m, m.executor)
     lines.append(f"peak RSS per worker: process pool {peak_pool:.0f} MiB, Dask {peak_dask:.0f} MiB")
     rows += [
         (

@@ -41,10 +41,6 @@ from corrections_sim.robot import N_ARM_JOINTS, symbolic_fk
 
 #: The paper's features (the registry, :data:`FEATURES`, may hold more).
 FEATURE_NAMES = ("laptop", "table", "coffee")
-#: The environment's own parameters (laptop x, y, yaw; table x, y). The vector's length with
-#: plug-in parameters is :func:`~corrections_sim.environments.n_env_params`; symbolic code
-#: must use that.
-N_ENV_PARAMS = 5
 
 LAPTOP_SCALE = 0.15  # m, σ_l
 TABLE_SCALE = 0.20  # m, σ_t
@@ -75,19 +71,16 @@ class Waypoint:
 Feature = Callable[[Waypoint], ca.SX]
 """A feature: the waypoint's symbols -> a scalar CasADi expression in [0, 1], smooth."""
 
-FEATURES: Registry[Feature] = Registry("feature")
+FEATURES: Registry[Feature] = Registry(
+    "feature", check=lambda f: None if callable(f) else "is not callable"
+)
 """Every feature by name, in registration order."""
 
 
 def register_feature(name: str, *, replace: bool = False):
     """Decorator: register a :data:`Feature` function under ``name``."""
 
-    def add(function: Feature) -> Feature:
-        if not callable(function):
-            raise TypeError(f"feature {name!r}: {function!r} is not callable")
-        return FEATURES.register(name, function, replace=replace)
-
-    return add
+    return FEATURES.decorator(name, replace=replace)
 
 
 def check_feature_names(names: tuple[str, ...]) -> tuple[str, ...]:

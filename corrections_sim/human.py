@@ -76,19 +76,13 @@ class User(abc.ABC):
         return feature_counts(self.correct(situation, rng), situation.env, situation.features)
 
 
-USERS: Registry[type[User]] = Registry("user")
+USERS: Registry[type[User]] = Registry("user", check=Registry.subclass_of(User))
 """Every simulated user by name."""
 
 
 def register_user(name: str, *, replace: bool = False):
     """Class decorator: register a :class:`User` subclass (a dataclass) under ``name``."""
-
-    def add(cls: type[User]) -> type[User]:
-        if not (isinstance(cls, type) and issubclass(cls, User)):
-            raise TypeError(f"user {name!r}: {cls!r} is not a User subclass")
-        return USERS.register(name, cls, replace=replace)
-
-    return add
+    return USERS.decorator(name, replace=replace)
 
 
 def user_parameters(name: str) -> dict[str, Any]:

@@ -138,19 +138,13 @@ class Learner(abc.ABC):
         ξᵗ in ``env``. May raise ``PlanningError`` (the update is then skipped)."""
 
 
-LEARNERS: Registry[type[Learner]] = Registry("learner")
+LEARNERS: Registry[type[Learner]] = Registry("learner", check=Registry.subclass_of(Learner))
 """Every learner by name, in the order figures and tables list them."""
 
 
 def register_learner(name: str, *, replace: bool = False):
     """Class decorator: register a :class:`Learner` subclass under ``name``."""
-
-    def add(cls: type[Learner]) -> type[Learner]:
-        if not (isinstance(cls, type) and issubclass(cls, Learner)):
-            raise TypeError(f"learner {name!r}: {cls!r} is not a Learner subclass")
-        return LEARNERS.register(name, cls, replace=replace)
-
-    return add
+    return LEARNERS.decorator(name, replace=replace)
 
 
 def make_learner(

@@ -120,7 +120,7 @@ class PlannerConfig:
     """Settings that shape the NLP (everything here is part of the build).
 
     Attributes:
-        features: names of the features θ weighs, in order (see ``features.FEATURE_NAMES``).
+        features: names of the features θ weighs, in order (see ``features.FEATURES``).
         n_waypoints: T, waypoints including the fixed start and goal.
         smoothness: λ > 0, weight of Σ‖Δq‖².
         n_starts: how many of the deterministic initial guesses a cold solve tries.

@@ -39,10 +39,13 @@ class Registry(Mapping[str, T], Generic[T]):
 
     Args:
         kind: what it holds, singular ("learner"), for messages.
+        check: what a registered item must be: returns None for a good item, else what is
+            wrong with it ("is not a User subclass"), refused with a ``TypeError``.
     """
 
-    def __init__(self, kind: str) -> None:
+    def __init__(self, kind: str, check: Callable[[object], str | None] | None = None) -> None:
         self.kind = kind
+        self._check = check
         self._items: dict[str, T] = {}
 
     def register(self, name: str, item: T, *, replace: bool = False) -> T:
@@ -50,7 +53,11 @@ class Registry(Mapping[str, T], Generic[T]):
 
         Raises:
             ValueError: a malformed name, or one already taken (unless ``replace``).
+            TypeError: an item the registry's ``check`` refuses.
         """
+        problem = self._check(item) if self._check is not None else None
+        if problem is not None:
+            raise TypeError(f"{self.kind} {name!r}: {item!r} {problem}")
         if not isinstance(name, str) or not NAME_PATTERN.fullmatch(name):
             raise ValueError(
                 f"{self.kind} name {name!r}: letters, digits, '_' and '-' only, not first '-'"
@@ -67,6 +74,16 @@ class Registry(Mapping[str, T], Generic[T]):
             return self.register(name, item, replace=replace)
 
         return add
+
+    @staticmethod
+    def subclass_of(base: type) -> Callable[[object], str | None]:
+        """A ``check`` that accepts subclasses of ``base`` only."""
+
+        def check(item: object) -> str | None:
+            ok = isinstance(item, type) and issubclass(item, base)
+            return None if ok else f"is not a {base.__name__} subclass"
+
+        return check
 
     def unregister(self, name: str) -> None:
         """Remove ``name`` (tests and interactive sessions; a study never needs it)."""

@@ -180,7 +180,7 @@ def figure_settings(record: RunRecord):
 
 
 def planner_config(record: RunRecord) -> PlannerConfig:
-    """The figure's planner (its features and multi-start count)."""
+    """The figure's planner as the run had it (features, multi-start count, solver)."""
     return figure_settings(record).planner_config()
 
 

@@ -94,12 +94,10 @@ class FigureSettings:
     description: str = field(default="", compare=False)
 
     def planner_config(self) -> PlannerConfig:
-        study_file.load_plugins(self.plugins)  # a plug-in feature must be known to the planner
         return PlannerConfig(features=self.features, **dict(self.planner))
 
     def envs(self) -> tuple[Environment, ...]:
         """The study's environments (memoized per process)."""
-        study_file.load_plugins(self.plugins)
         return study_file.resolve(self.environments)
 
     def as_dict(self) -> dict:
