@@ -80,20 +80,15 @@ def record(argv: Sequence[str]) -> dict:
 #: Modules that cannot change a learning run's numbers (files, plots, CLI, other figures).
 EDGE_MODULES = (
     "run.py",
-    "store.py",
-    "plotting.py",
-    "render.py",
-    "bench.py",
-    "bench_ik.py",
-    "models.py",
-    "video.py",
-    "executors.py",
-    "output_folder.py",
     "provenance.py",
-    "report.py",
+    "study/store.py",
+    "scene/render.py",
+    "scene/models.py",
 )
-#: Of ``figures/``, the modules a learning run executes (the others make files or figs. 1–3).
-FIGURE_MODULES = ("figures/learning.py", "figures/study_file.py")
+#: Packages that cannot change a learning run's numbers (command line, files and plots), and
+#: of ``figures/`` the modules a learning run executes (the others make files or figs. 1–3).
+EDGE_PACKAGES = ("cli/", "figures/")
+FIGURE_MODULES = ("figures/learning.py",)
 
 
 def code_fingerprint() -> str:
@@ -105,7 +100,8 @@ def code_fingerprint() -> str:
     root = Path(__file__).resolve().parent
     for path in sorted(root.rglob("*.py")):
         name = path.relative_to(root).as_posix()
-        if name in EDGE_MODULES or (name.startswith("figures/") and name not in FIGURE_MODULES):
+        edge = name.startswith(EDGE_PACKAGES) and name not in FIGURE_MODULES
+        if name in EDGE_MODULES or edge:
             continue
         if name.startswith("experiments/"):  # the presets, in a wheel; settings are in the key
             continue

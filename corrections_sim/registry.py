@@ -5,7 +5,7 @@ registration order (the order figures and tables list them). Registering is one 
 decorator; looking up an unknown name fails at once with a one-line message that lists the
 known names, so a typo never falls through to a default::
 
-    from corrections_sim.learner import LEARNERS, register_learner
+    from corrections_sim.learning.base import LEARNERS, register_learner
 
     @register_learner("MINE")
     class Mine(Learner): ...

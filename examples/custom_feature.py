@@ -17,8 +17,8 @@ import json
 
 import casadi as ca
 
-from corrections_sim.environments import ENV_PARAMETERS, register_env_parameter
-from corrections_sim.features import Waypoint, register_feature
+from corrections_sim.planning.features import Waypoint, register_feature
+from corrections_sim.scene.environments import ENV_PARAMETERS, register_env_parameter
 
 PERSON_SCALE = 0.2  # m, σ
 
@@ -39,8 +39,8 @@ def main() -> dict:
 
     import numpy as np
 
-    from corrections_sim.environments import paper_environments
-    from corrections_sim.planner import Planner, PlannerConfig
+    from corrections_sim.planning.planner import Planner, PlannerConfig
+    from corrections_sim.scene.environments import paper_environments
 
     features = ("laptop", "table", "person")
     # jit=False: no gcc build for a one-off feature set (slower solves, instant start).

@@ -16,8 +16,8 @@ import json
 
 import numpy as np
 
-from corrections_sim.learner import Learner, Step, register_learner
-from corrections_sim.learners import Belief
+from corrections_sim.learning import Belief
+from corrections_sim.learning.base import Learner, Step, register_learner
 
 
 @register_learner("NPP")
@@ -40,9 +40,9 @@ class NormalizedPerceptron(Learner):
 
 def main(iterations: int = 4, runs: int = 2) -> dict:
     """Runs NPP on four of the paper's environments; the mean estimate error per iteration."""
-    from corrections_sim.environments import paper_environments
-    from corrections_sim.planner import Planner, PlannerConfig
-    from corrections_sim.study import StudySettings, Target, run_learner
+    from corrections_sim.planning.planner import Planner, PlannerConfig
+    from corrections_sim.scene.environments import paper_environments
+    from corrections_sim.study.loop import StudySettings, Target, run_learner
 
     settings = StudySettings(
         theta_star=(1.0, -1.0),

@@ -20,8 +20,8 @@ from typing import ClassVar
 
 import numpy as np
 
-from corrections_sim.corrections import waypoint_correction
-from corrections_sim.human import Situation, User, register_user
+from corrections_sim.people.corrections import waypoint_correction
+from corrections_sim.people.users import Situation, User, register_user
 
 
 @register_user("lazy")
@@ -47,9 +47,9 @@ class LazyUser(User):
 
 def main(iterations: int = 4, skip: float = 0.5) -> dict:
     """KF learning from the lazy user on four of the paper's environments."""
-    from corrections_sim.environments import paper_environments
-    from corrections_sim.planner import Planner, PlannerConfig
-    from corrections_sim.study import StudySettings, Target, run_learner
+    from corrections_sim.planning.planner import Planner, PlannerConfig
+    from corrections_sim.scene.environments import paper_environments
+    from corrections_sim.study.loop import StudySettings, Target, run_learner
 
     settings = StudySettings(
         theta_star=(1.0, -1.0),

@@ -18,9 +18,9 @@ from pathlib import Path
 
 import pytest
 
-from corrections_sim import run as cli
+from corrections_sim.cli import main as cli
 from corrections_sim.figures import learning
-from corrections_sim.store import RunStore
+from corrections_sim.study.store import RunStore
 
 TINY = ["fig4", "--quick", "--runs", "2", "--iterations", "2"]
 SENTINEL = "results made earlier, which a failed command must not touch\n"

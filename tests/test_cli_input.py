@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from corrections_sim import run as cli
+from corrections_sim.cli import main as cli
 
 TINY = ["fig4", "--quick", "--runs", "1", "--iterations", "1", "--workers", "1"]
 

@@ -5,14 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from corrections_sim.corrections import (
+from corrections_sim.people.corrections import (
     CorrectionModel,
     deformation_correction,
     deformation_shapes,
     waypoint_correction,
     worst_waypoints,
 )
-from corrections_sim.human import BiasedUser, DeformingUser
+from corrections_sim.people.users import BiasedUser, DeformingUser
 
 
 def _pair() -> tuple[np.ndarray, np.ndarray]:

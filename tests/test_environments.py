@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from corrections_sim import robot, scene
-from corrections_sim.environments import Environment, paper_environments
-from corrections_sim.planner import clearance
+from corrections_sim.planning.planner import clearance
+from corrections_sim.scene import robot
+from corrections_sim.scene import world as scene
+from corrections_sim.scene.environments import Environment, paper_environments
 
 HOME = np.array([0.0, -0.3, 0.0, -2.2, 0.0, 2.0, np.pi / 4])
 VALID = {

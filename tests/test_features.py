@@ -6,16 +6,16 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from corrections_sim import geometry as g
-from corrections_sim import robot
-from corrections_sim.environments import configuration_at, n_env_params
-from corrections_sim.features import (
+from corrections_sim.planning.features import (
     FEATURE_NAMES,
     check_feature_names,
     feature_counts,
     waypoint_feature_function,
     waypoint_features,
 )
+from corrections_sim.scene import geometry as g
+from corrections_sim.scene import robot
+from corrections_sim.scene.environments import configuration_at, n_env_params
 
 ALL = FEATURE_NAMES
 LAPTOP, TABLE, COFFEE = (FEATURE_NAMES.index(n) for n in ("laptop", "table", "coffee"))

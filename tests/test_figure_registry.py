@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from corrections_sim import run as cli
+from corrections_sim.cli import main as cli
 from corrections_sim.figures import registry
 
 PAPER = ("fig1", "fig2", "fig3", "fig4", "fig5", "fig6")

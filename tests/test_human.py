@@ -7,10 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from corrections_sim.environments import Environment, paper_environments
-from corrections_sim.features import feature_counts
-from corrections_sim.human import BiasedUser, NoisyOptimalUser, Situation
-from corrections_sim.planner import Planner
+from corrections_sim.people.users import BiasedUser, NoisyOptimalUser, Situation
+from corrections_sim.planning.features import feature_counts
+from corrections_sim.planning.planner import Planner
+from corrections_sim.scene.environments import Environment, paper_environments
 
 THETA_STAR = np.array([1.0, -1.0])  # seek the laptop, avoid the table
 ROBOT_THETA = np.array([0.0, 0.0])  # the robot's prior: smoothness only

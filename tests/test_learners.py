@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from corrections_sim.learners import (
+from corrections_sim.learning import (
     COV_FLOOR_RTOL,
     Belief,
     KalmanNoise,

@@ -8,8 +8,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from corrections_sim import models, render, robot, scene
-from corrections_sim.environments import paper_environments
+from corrections_sim.scene import models, render, robot
+from corrections_sim.scene import world as scene
+from corrections_sim.scene.environments import paper_environments
 
 SCENE_XML = models.MODELS_DIR / models.SCENE_FILE
 
@@ -21,7 +22,7 @@ def from_file() -> mujoco.MjModel:
 
 def test_committed_models_match_the_code():
     stale = models.drift()
-    assert not stale, f"models/ drifted: {stale}; run `python -m corrections_sim.models`"
+    assert not stale, f"models/ drifted: {stale}; run `python -m corrections_sim.scene.models`"
 
 
 def test_opens_anywhere_as_the_viewer_loads_it(tmp_path):

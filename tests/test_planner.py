@@ -9,10 +9,8 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from corrections_sim import robot, scene
-from corrections_sim.environments import Environment, paper_environments
-from corrections_sim.features import feature_counts
-from corrections_sim.planner import (
+from corrections_sim.planning.features import feature_counts
+from corrections_sim.planning.planner import (
     Plan,
     Planner,
     PlannerConfig,
@@ -22,6 +20,9 @@ from corrections_sim.planner import (
     initial_guesses,
     stage_nlp,
 )
+from corrections_sim.scene import robot
+from corrections_sim.scene import world as scene
+from corrections_sim.scene.environments import Environment, paper_environments
 
 CONVERGED = {"Solve_Succeeded", "Solved_To_Acceptable_Level"}
 NEUTRAL, LAPTOP_LOVER, TABLE_LOVER = (0.0, 0.0), (1.0, -1.0), (-1.0, 1.0)

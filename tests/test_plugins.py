@@ -16,17 +16,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from corrections_sim.environments import (
+from corrections_sim.learning.base import LEARNERS, Learner, Step, make_learner, register_learner
+from corrections_sim.people.users import USERS, Situation, User, make_user, user_parameters
+from corrections_sim.planning.features import FEATURES, feature_counts, register_feature
+from corrections_sim.registry import Registry, UnknownName
+from corrections_sim.scene.environments import (
     ENV_PARAMETERS,
     env_index,
     paper_environments,
     register_env_parameter,
 )
-from corrections_sim.features import FEATURES, feature_counts, register_feature
-from corrections_sim.human import USERS, Situation, User, make_user, user_parameters
-from corrections_sim.learner import LEARNERS, Learner, Step, make_learner, register_learner
-from corrections_sim.registry import Registry, UnknownName
-from corrections_sim.study import StudySettings
+from corrections_sim.study.loop import StudySettings
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
@@ -129,7 +129,7 @@ def test_a_registered_learner_takes_its_parameters_by_name():
 
 
 def test_plot_styles_and_labels_come_from_the_learners():
-    from corrections_sim.plotting import learner_label, learner_style
+    from corrections_sim.figures.plotting import learner_label, learner_style
 
     assert learner_style("KF-C") == ("#1f77b4", "--")
     assert learner_label("KF") == "Kalman filter (KF)"
@@ -221,7 +221,7 @@ def test_a_new_feature_is_one_function_and_one_environment_field():
             a = feature_counts(trajectory, env, ("test-spot", "laptop"))
             b = feature_counts(trajectory, moved, ("test-spot", "laptop"))
             assert a[1] == b[1] and a[0] != b[0]
-            from corrections_sim.environments import configuration_at
+            from corrections_sim.scene.environments import configuration_at
 
             q = configuration_at((0.5, 0.2, 0.3))
             assert feature_counts(np.array([q]), env, ("test-spot",))[0] == pytest.approx(
@@ -279,7 +279,7 @@ import json, runpy
 from concurrent.futures import ThreadPoolExecutor
 runpy.run_path({str(EXAMPLES / "custom_learner.py")!r})
 from corrections_sim.figures import learning
-from corrections_sim.plotting import learner_label, learner_style
+from corrections_sim.figures.plotting import learner_label, learner_style
 s = learning.settings_from_values(dict(
     theta_star=[1.0, -1.0], theta0=[0.0, 0.0], cov0=[[1.0, 0.0], [0.0, 1.0]], runs=1,
     iterations=1, seed=3, learners=["KF", "PP", "NPP"], learner_params={{"NPP": {{"step": 0.5}}}}))
@@ -304,8 +304,8 @@ print(json.dumps({{"order": [r["learner"] for r in result.records][::2],
 
 @pytest.fixture(scope="module")
 def small_study():
-    from corrections_sim.planner import Planner, PlannerConfig
-    from corrections_sim.study import Target
+    from corrections_sim.planning.planner import Planner, PlannerConfig
+    from corrections_sim.study.loop import Target
 
     planner = Planner(PlannerConfig(features=("laptop", "table"), n_starts=1))
     envs = paper_environments()[::16]  # 3 environments
@@ -316,7 +316,7 @@ def small_study():
 def test_every_learner_runs_reproducibly_and_moves_toward_theta_star(name, small_study):
     """The loop's contract for any registered learner: same seed, same records; a belief
     after each correction; the estimate error falls from the prior's over 3 corrections."""
-    from corrections_sim.study import run_learner
+    from corrections_sim.study.loop import run_learner
 
     planner, envs, target = small_study
     s = settings(iterations=3, learners=(name, *filter(None, [LEARNERS[name].rate_from])))

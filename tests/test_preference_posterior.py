@@ -7,7 +7,7 @@ import pytest
 from scipy.integrate import quad
 from scipy.stats import norm
 
-from corrections_sim.learners import (
+from corrections_sim.learning import (
     Belief,
     BoltzmannCorrection,
     posterior_moment_match,

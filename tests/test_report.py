@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from corrections_sim import report
+from corrections_sim.figures import report
 
 SUMMARY = {
     "final": {

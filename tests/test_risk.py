@@ -6,11 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from corrections_sim import risk, scene
-from corrections_sim.environments import paper_environments
-from corrections_sim.features import feature_counts
-from corrections_sim.learners import Belief
-from corrections_sim.planner import Planner, PlannerConfig, smoothness_cost
+from corrections_sim.learning import Belief
+from corrections_sim.planning import risk
+from corrections_sim.planning.features import feature_counts
+from corrections_sim.planning.planner import Planner, PlannerConfig, smoothness_cost
+from corrections_sim.scene import world as scene
+from corrections_sim.scene.environments import paper_environments
 
 
 def _random_spd(rng: np.random.Generator, k: int) -> np.ndarray:

@@ -8,8 +8,9 @@ import xml.etree.ElementTree as ET
 import numpy as np
 import pytest
 
-from corrections_sim import robot, scene
-from corrections_sim.environments import configuration_at
+from corrections_sim.scene import robot
+from corrections_sim.scene import world as scene
+from corrections_sim.scene.environments import configuration_at
 
 HOME = np.array([0.0, -0.3, 0.0, -2.2, 0.0, 2.0, np.pi / 4])
 #: Spheres of ARM_SPHERES that are ours, not the URDF's: one per open finger and the cup's

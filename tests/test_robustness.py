@@ -9,7 +9,7 @@ import json
 
 import pytest
 
-from corrections_sim import run as cli
+from corrections_sim.cli import main as cli
 from corrections_sim.figures import robustness
 
 

@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from corrections_sim import geometry as g
-from corrections_sim import robot, scene
-from corrections_sim.environments import Environment
+from corrections_sim.scene import geometry as g
+from corrections_sim.scene import robot
+from corrections_sim.scene import world as scene
+from corrections_sim.scene.environments import Environment
 
 HOME = np.array([0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.785])
 ROBOT_BODIES = frozenset(
@@ -152,7 +153,7 @@ def test_bad_trajectory_is_refused(checker, waypoints, substeps, field):
 
 
 def test_render_shows_scene_and_path():
-    from corrections_sim import render
+    from corrections_sim.scene import render
 
     env = Environment(
         q_start=_ik((0.45, 0.4, 0.25)), q_goal=HOME, laptop=(0.55, -0.1, 0.0), table=(0.55, 0.0)

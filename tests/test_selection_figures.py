@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from corrections_sim.environments import Environment, laptop_range, table_holding
 from corrections_sim.figures import presets, selection
-from corrections_sim.render import cup_path
+from corrections_sim.scene.environments import Environment, laptop_range, table_holding
+from corrections_sim.scene.render import cup_path
 
 EXPERIMENTS = Path(__file__).resolve().parents[1] / "experiments"
 

@@ -16,8 +16,8 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from corrections_sim.store import CorruptRun, RunStore, StoreLocked, settings_key
-from corrections_sim.study import RunResult
+from corrections_sim.study.loop import RunResult
+from corrections_sim.study.store import CorruptRun, RunStore, StoreLocked, settings_key
 
 SETTINGS = {
     "figure": "fig4",
@@ -33,7 +33,7 @@ SETTINGS = {
 PRELUDE = """
 import json, os, pickle, signal, sys
 from pathlib import Path
-from corrections_sim.store import RunStore
+from corrections_sim.study.store import RunStore
 store = RunStore(Path(sys.argv[1]), json.loads(sys.argv[2]))
 """
 

@@ -7,10 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from corrections_sim.environments import Environment, paper_environments
-from corrections_sim.human import BiasedUser, NoisyOptimalUser
-from corrections_sim.planner import Planner, PlannerConfig, PlanningError
-from corrections_sim.study import PlanBook, StudySettings, Target, evaluate, run_learner
+from corrections_sim.people.users import BiasedUser, NoisyOptimalUser
+from corrections_sim.planning.planner import Planner, PlannerConfig, PlanningError
+from corrections_sim.scene.environments import Environment, paper_environments
+from corrections_sim.study.loop import PlanBook, StudySettings, Target, evaluate, run_learner
 
 THETA_STAR = (1.0, -1.0)
 THETA0 = (0.0, 0.0)
@@ -343,8 +343,8 @@ def test_kf_c_with_the_optimal_correction_model_is_the_papers_kf(kf_run, planner
 
 def test_kf_c_observes_the_modelled_correction(planner, envs, target):
     # Its h at θ* in an environment is exactly the features of the user's correction there.
-    from corrections_sim.features import feature_counts
-    from corrections_sim.study import correction_observer
+    from corrections_sim.planning.features import feature_counts
+    from corrections_sim.study.loop import correction_observer
 
     env = envs[1]
     book = PlanBook(planner)

@@ -16,8 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from corrections_sim import run as cli
-from corrections_sim.figures import learning, study_file
+from corrections_sim.cli import main as cli
+from corrections_sim.figures import learning
+from corrections_sim.study import schema as study_file
 
 EXPERIMENTS = Path(__file__).resolve().parents[1] / "experiments"
 SENTINEL = "results made earlier, which a failed command must not touch\n"

@@ -14,9 +14,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from corrections_sim.environments import TILT_JOINT, paper_environments, tilted
-from corrections_sim.features import feature_counts
-from corrections_sim.planner import Planner, PlannerConfig
+from corrections_sim.planning.features import feature_counts
+from corrections_sim.planning.planner import Planner, PlannerConfig
+from corrections_sim.scene.environments import TILT_JOINT, paper_environments, tilted
 
 FEATURES = ("laptop", "table", "coffee")
 
@@ -56,7 +56,7 @@ def test_coffee_features_follow_the_coffee_weight_only_when_the_cup_starts_tilte
 def test_kf_c_learns_all_three_weights_where_the_cup_starts_tilted(planner):
     """README's three-feature study in small: 8 environments (4 upright, 4 tilted), the
     deforming user, KF-C with the deformation model; each weight's error falls, coffee's too."""
-    from corrections_sim.study import StudySettings, Target, run_learner
+    from corrections_sim.study.loop import StudySettings, Target, run_learner
 
     upright = list(paper_environments()[::12])
     tilt = [

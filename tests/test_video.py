@@ -7,8 +7,9 @@ import json
 import numpy as np
 import pytest
 
-from corrections_sim import run, video
-from corrections_sim.environments import paper_environments
+from corrections_sim.cli import main as run
+from corrections_sim.figures import video
+from corrections_sim.scene.environments import paper_environments
 
 TIMING = video.Timing(substeps=1, hold=1, fps=10)
 SIZE = {"width": 160, "height": 120}
@@ -75,7 +76,7 @@ def test_video_has_every_frame_and_none_is_blank(recorded, suffix):
 
 
 def test_episode_is_the_robot_plan_corrected_at_its_worst_waypoint(recorded):
-    from corrections_sim.planner import shared_planner
+    from corrections_sim.planning.planner import shared_planner
 
     record = video.load_run(recorded, "fig4", "KF", 0)
     (episode,) = video.plan_episodes(record, (2,), shared_planner(video.planner_config(record)))

@@ -1,11 +1,11 @@
 r"""Fig. 3: risk-sensitive deployment, eqs. (A2)–(A4), and the exact max-min (A3) beside it.
 
 The robot has learned N(θ̂, P) and deploys without supervision. For each panel's P it forms
-Γ (eq. A2, :func:`corrections_sim.risk.preference_set`), solves ξ*(γ, E) for every γ ∈ Γ
+Γ (eq. A2, :func:`corrections_sim.planning.risk.preference_set`), solves ξ*(γ, E) for every γ ∈ Γ
 and deploys (eq. A4) the risk-averse ξ*(argmin_γ V(γ)), the risk-neutral ξ*(θ̂) and the
 risk-seeking ξ*(argmax_γ V(γ)), V(γ) = max_ξ γ·Φ − λS. Beyond the paper it also solves the
 exact risk-averse problem (A3), max_ξ min_γ γ·Φ − λS, in one NLP
-(:class:`corrections_sim.risk.WorstCasePlanner`), started from the 2k + 1 plans of (A4) and
+(:class:`corrections_sim.planning.risk.WorstCasePlanner`), started from the 2k + 1 plans of (A4) and
 the planner's own guesses, and compares the two rules' worst-case rewards in the figure's
 scene and over the study's 48 environments.
 
@@ -27,13 +27,12 @@ from pathlib import Path
 
 import numpy as np
 
-from corrections_sim.environments import Environment, paper_environments
-from corrections_sim.features import feature_counts
 from corrections_sim.figures import presets
 from corrections_sim.figures.presets import PresetFigure, Scene
 from corrections_sim.figures.registry import register
-from corrections_sim.learners import Belief
-from corrections_sim.planner import (
+from corrections_sim.learning import Belief
+from corrections_sim.planning.features import feature_counts
+from corrections_sim.planning.planner import (
     Planner,
     PlannerConfig,
     PlanningError,
@@ -41,7 +40,7 @@ from corrections_sim.planner import (
     shared_planner,
     smoothness_cost,
 )
-from corrections_sim.risk import (
+from corrections_sim.planning.risk import (
     ATTITUDES,
     A4Plans,
     WorstCasePlan,
@@ -50,6 +49,7 @@ from corrections_sim.risk import (
     refine_a4,
     worst_case_reward,
 )
+from corrections_sim.scene.environments import Environment, paper_environments
 
 FIGURES = ("fig3",)
 #: The trajectories a panel draws, in order: (A4) per attitude, then (A3).
@@ -170,7 +170,7 @@ class Deployment:
     Attributes:
         a4: the (A4) plans with the planner's usual starts (the paper's rule).
         refined: the (A4) plans re-solved from every plan of Γ and the (A3) trajectory
-            (:func:`corrections_sim.risk.refine_a4`): the rule without the planner's
+            (:func:`corrections_sim.planning.risk.refine_a4`): the rule without the planner's
             local-optimum noise.
         a3: the exact max-min plan, started from the (A4) plans and the planner's guesses.
     """
@@ -406,9 +406,9 @@ def write(settings: DeploymentSettings, result: DeploymentResult, folder: Path) 
     Returns:
         The paths written, in that order.
     """
-    from corrections_sim import render
     from corrections_sim.figures.output import trajectory_rows, write_csv
-    from corrections_sim.plotting import plot_deployment_figure
+    from corrections_sim.figures.plotting import plot_deployment_figure
+    from corrections_sim.scene import render
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)

@@ -1,8 +1,8 @@
-"""Figs. 4 and 5: the learners of :data:`corrections_sim.study.LEARNERS` (the paper's PP, KF and
+"""Figs. 4 and 5: the learners of :data:`corrections_sim.study.loop.LEARNERS` (the paper's PP, KF and
 AL, and EKF, KF-C, AL-C, PP-C) learning from a simulated user's corrections.
 
 Settings live as data: a study file each (``experiments/fig4.toml``, ``fig5.toml``; any other
-with ``run study FILE``, see :mod:`corrections_sim.figures.study_file`). :func:`run` executes
+with ``run study FILE``, see :mod:`corrections_sim.study.schema`). :func:`run` executes
 every (learner, run) on any ``concurrent.futures`` executor (a process pool, a Dask client's
 executor) and returns tidy records. The curves do not depend on the executor, the number of
 workers or the order in which runs finish: each run draws from its own generator, made from
@@ -13,7 +13,7 @@ Order: first the plans every run shares (the user's ξ*(θ*, E) and the robot's 
 all environments, one task); then the runs of every learner with a covariance; a PP-type
 learner's rate αᵗ is the mean of diag(Kᵗ) over the runs of the filter it follows (PP: KF, as
 in the paper §6; PP-C: KF-C), unless the settings fix α; then the PP-type runs. A
-:class:`RunCache` (see :mod:`corrections_sim.store`) makes a run resumable: finished runs
+:class:`RunCache` (see :mod:`corrections_sim.study.store`) makes a run resumable: finished runs
 are loaded instead of recomputed, and each new one is handed to it the moment it finishes.
 """
 
@@ -28,20 +28,20 @@ from typing import Any
 import numpy as np
 
 from corrections_sim import calibration, provenance
-from corrections_sim.environments import (
+from corrections_sim.figures.output import write_records
+from corrections_sim.figures.presets import EXPERIMENTS_DIR
+from corrections_sim.figures.registry import Caches, RunCache, register
+from corrections_sim.learning import learning_rate_schedule
+from corrections_sim.metrics import mean_sem
+from corrections_sim.planning.planner import PlannerConfig, shared_planner
+from corrections_sim.scene.environments import (
     LAPTOP_OFFSETS,
     START_POSITIONS,
     TABLE_POSITIONS,
     Environment,
 )
-from corrections_sim.figures import study_file
-from corrections_sim.figures.output import write_records
-from corrections_sim.figures.presets import EXPERIMENTS_DIR
-from corrections_sim.figures.registry import Caches, RunCache, register
-from corrections_sim.learners import learning_rate_schedule
-from corrections_sim.metrics import mean_sem
-from corrections_sim.planner import PlannerConfig, shared_planner
-from corrections_sim.study import (
+from corrections_sim.study import schema as study_file
+from corrections_sim.study.loop import (
     DEFAULT_LEARNERS,
     LEARNERS,
     PlanBook,
@@ -75,12 +75,12 @@ class FigureSettings:
     """A learning study: its study settings, features, environments and planner settings.
 
     Attributes:
-        study: learners, user, prior, counts (see :class:`~corrections_sim.study.StudySettings`).
+        study: learners, user, prior, counts (see :class:`~corrections_sim.study.loop.StudySettings`).
         planner: planner settings as (name, value) pairs, passed to ``PlannerConfig``
             (``study_file.PLANNER_SETTINGS``: ``n_starts``, the multi-start count).
         features: the features θ weighs, in order (k of them).
         environments: "paper" (the 48), or paper environment names and specs of the user's own
-            (see :mod:`corrections_sim.figures.study_file`).
+            (see :mod:`corrections_sim.study.schema`).
         name: the figure or study file's name (output folder, titles); not a setting.
         description: a line for the plot's title; not a setting.
     """
@@ -578,7 +578,7 @@ def run_key(settings: FigureSettings) -> dict:
 def shown_curves(settings: FigureSettings, result: FigureResult) -> dict:
     """What the plot draws: mean and SEM over runs at every iteration, per learner and metric
     (NEES/NIS are summarized under "calibration")."""
-    from corrections_sim.plotting import mean_sem
+    from corrections_sim.figures.plotting import mean_sem
 
     shown = {}
     for learner, data in curves(settings, result.records).items():
@@ -592,7 +592,7 @@ def shown_curves(settings: FigureSettings, result: FigureResult) -> dict:
 def write(settings: FigureSettings, result: FigureResult, folder: Path, name: str) -> dict:
     """curves.csv, mean_estimate.csv and the plot (PNG, PDF) in ``folder``; returns the
     summary's fields (statistics, provenance of the numbers, the curves drawn)."""
-    from corrections_sim.plotting import plot_learning_curves
+    from corrections_sim.figures.plotting import plot_learning_curves
 
     write_records(folder / "curves.csv", result.records)
     write_records(folder / "mean_estimate.csv", result.mean_estimate)

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from corrections_sim.robot import cup_pose
+from corrections_sim.scene.robot import cup_pose
 
 
 def write_csv(path: Path, rows: Sequence[dict]) -> Path:

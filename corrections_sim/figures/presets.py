@@ -19,14 +19,14 @@ from typing import Any
 
 import numpy as np
 
-from corrections_sim.environments import (
+from corrections_sim.learning import Belief
+from corrections_sim.planning.features import check_feature_names
+from corrections_sim.scene.environments import (
     CUP_WORKSPACE,
     Environment,
     configuration_at,
     table_holding,
 )
-from corrections_sim.features import check_feature_names
-from corrections_sim.learners import Belief
 
 
 def _experiments_dir():
@@ -201,7 +201,7 @@ class Scene:
         """The scene's environment, optionally with another cup start or laptop position.
 
         A moved laptop takes the table along only as far as it must to stay on it
-        (:func:`corrections_sim.environments.table_holding`).
+        (:func:`corrections_sim.scene.environments.table_holding`).
 
         Raises:
             ValueError: an unreachable start (no IK) or a laptop no table can hold.

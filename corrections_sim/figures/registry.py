@@ -84,7 +84,7 @@ class Figure(Protocol):
 
     def recorded(self, settings: Any, *, quick: bool) -> dict:
         """The settings as plain data, for ``summary.json`` and to compare an output folder's
-        earlier settings with (see :mod:`corrections_sim.output_folder`)."""
+        earlier settings with (see :mod:`corrections_sim.cli.output_folder`)."""
         ...
 
     def run(

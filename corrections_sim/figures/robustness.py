@@ -9,7 +9,7 @@ SEM) and the calibration (mean NEES, coverage of θ* by the 95% credible ellipse
 
 Settings are data in ``experiments/fig6.toml``: the study settings of every column (fig. 4's
 by default) and a list of ``[[<preset>.users]]`` tables, each a column with its ``label`` and
-the user keys of :class:`~corrections_sim.study.StudySettings` (``user``, ``user_step``,
+the user keys of :class:`~corrections_sim.study.loop.StudySettings` (``user``, ``user_step``,
 ``user_waypoints``). Each column is a learning study run by :func:`learning.run`.
 """
 
@@ -141,7 +141,7 @@ def matrix(settings: RobustnessSettings, results: Sequence[FigureResult]) -> lis
 def write(settings: RobustnessSettings, results: Sequence[FigureResult], folder: Path) -> dict:
     """matrix.csv, curves.csv (every column's records, labelled by user) and the plot in
     ``folder``; returns the summary's fields."""
-    from corrections_sim.plotting import plot_robustness_matrix
+    from corrections_sim.figures.plotting import plot_robustness_matrix
 
     rows = matrix(settings, results)
     write_records(folder / "matrix.csv", rows)

@@ -2,7 +2,7 @@ r"""Figs. 1 and 2: where the robot learns most — heat maps of the predicted �
 
 For a grid of environments E (the laptop moved, or the cup's start moved, in the figure's
 fixed scene) the UKF predicts the covariance after one correction in E, before the human
-acts (:func:`corrections_sim.learners.ukf_predicted_covariance`): h(θ) = Φ(ξ*(θ, E), E) is
+acts (:func:`corrections_sim.learning.ukf_predicted_covariance`): h(θ) = Φ(ξ*(θ, E), E) is
 evaluated at the 2k + 1 sigma points of N(θ̂, P + M), and
 
     Pᵗ⁺¹(E) = P⁻ − K S Kᵀ,   ‖Pᵗ⁺¹(E)‖_F ≤ ‖P + M‖_F   ("no information" when h is flat).
@@ -32,20 +32,20 @@ from pathlib import Path
 
 import numpy as np
 
-from corrections_sim.environments import CUP_WORKSPACE, Environment, laptop_range
 from corrections_sim.figures import presets
 from corrections_sim.figures.presets import PresetFigure, Scene
 from corrections_sim.figures.registry import register
-from corrections_sim.learners import (
+from corrections_sim.learning import (
     Belief,
     KalmanNoise,
     SigmaPoints,
     frobenius,
     ukf_predicted_covariance,
 )
-from corrections_sim.planner import PlannerConfig, PlanningError, shared_planner
-from corrections_sim.scene import check_configuration
-from corrections_sim.study import PlanBook
+from corrections_sim.planning.planner import PlannerConfig, PlanningError, shared_planner
+from corrections_sim.scene.environments import CUP_WORKSPACE, Environment, laptop_range
+from corrections_sim.scene.world import check_configuration
+from corrections_sim.study.loop import PlanBook
 
 FIGURES = ("fig1", "fig2")
 VARY = ("laptop", "start")
@@ -455,9 +455,9 @@ def write(settings: SelectionSettings, result: SelectionResult, folder: Path) ->
     Returns:
         The paths written, in that order.
     """
-    from corrections_sim import render
     from corrections_sim.figures.output import path_rows, write_csv
-    from corrections_sim.plotting import plot_selection_figure
+    from corrections_sim.figures.plotting import plot_selection_figure
+    from corrections_sim.scene import render
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -531,7 +531,7 @@ def _values(grid: Grid, cells: list[dict], key: str) -> np.ndarray:
 
 
 def _xy(trajectory: np.ndarray) -> np.ndarray:
-    from corrections_sim.render import cup_path
+    from corrections_sim.scene.render import cup_path
 
     return cup_path(trajectory)[:, :2]
 

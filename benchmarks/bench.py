@@ -1,0 +1,477 @@
+"""Benchmarks: ``python -m benchmarks.bench planner`` (the trajectory optimizer, here) and
+``python -m benchmarks.bench fig4`` (a whole figure, :mod:`benchmarks.bench_batch`).
+
+Solves a fixed, seeded set of (θ, E) problems in the ways the rest of the program does
+(cold, default multi-start, warm from a nearby θ), compares the default solve with the best of
+many random restarts, and a subset with SciPy's SLSQP on numeric features and finite
+differences. It prints a table with targets beside the measured values; it never asserts.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from functools import partial
+
+import numpy as np
+
+from corrections_sim.planning.features import feature_counts
+from corrections_sim.planning.planner import (
+    SOLVERS,
+    Plan,
+    Planner,
+    PlannerConfig,
+    PlanningError,
+    clearance,
+    smoothness_cost,
+)
+from corrections_sim.scene.environments import Environment, paper_environments
+from corrections_sim.scene.robot import N_ARM_JOINTS, joint_limits
+
+THETA_RANGE = (-1.5, 1.5)
+WARM_THETA_STEP = 0.05  # std of the θ perturbation a warm start comes from
+RESTART_BUMP_STD = 0.4  # rad, std of each sine coefficient of a random restart
+RESTART_MODES = 3  # sine modes per joint in a random restart's perturbation
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One benchmark problem: weights θ (k,) and the index of a paper environment."""
+
+    theta: np.ndarray
+    env_index: int
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """One solve: wall time (s), IPOPT iterations of the kept start, reward; ``error`` is
+    ``"planning"`` for a PlanningError, the exception's repr for anything else, else None."""
+
+    time: float
+    iterations: int = 0
+    reward: float = float("nan")
+    error: str | None = None
+
+
+def make_problems(n: int, k: int, n_envs: int, rng: np.random.Generator) -> list[Problem]:
+    """``n`` problems: θ uniform in ``THETA_RANGE``^k, environment index uniform."""
+    thetas = rng.uniform(*THETA_RANGE, size=(n, k))
+    indices = rng.integers(0, n_envs, size=n)
+    return [Problem(t, int(i)) for t, i in zip(thetas, indices, strict=True)]
+
+
+def random_restarts(
+    env: Environment, n_waypoints: int, count: int, rng: np.random.Generator
+) -> list[np.ndarray]:
+    """The straight joint-space line, then ``count - 1`` smooth random bends of it.
+
+    A bend adds Σ_m a_m sin(mπs) per joint (s ∈ [0, 1] along the path, m = 1..RESTART_MODES,
+    a_m ~ N(0, (RESTART_BUMP_STD/m)²)), so start and goal stay fixed; clipped to the limits.
+    """
+    s = np.linspace(0.0, 1.0, n_waypoints)[:, None]  # (T, 1)
+    line = (1 - s) * env.q_start + s * env.q_goal  # (T, 7)
+    lo, hi = joint_limits()
+    modes = np.arange(1, RESTART_MODES + 1)
+    out = [line]
+    for _ in range(count - 1):
+        coeffs = rng.normal(0.0, RESTART_BUMP_STD / modes[:, None], (RESTART_MODES, N_ARM_JOINTS))
+        bend = np.sin(np.pi * s * modes) @ coeffs  # (T, 7)
+        out.append(np.clip(line + bend, lo, hi))
+    return out
+
+
+def timed(solve: Callable[[], Plan]) -> tuple[Outcome, Plan | None]:
+    """Run one solve, timing it and classifying its failure instead of raising."""
+    t0 = time.perf_counter()
+    try:
+        plan = solve()
+    except PlanningError:
+        return Outcome(time.perf_counter() - t0, error="planning"), None
+    except Exception as exc:  # noqa: BLE001 - the benchmark counts, it does not crash
+        return Outcome(time.perf_counter() - t0, error=repr(exc)), None
+    return Outcome(time.perf_counter() - t0, plan.iterations, plan.reward), plan
+
+
+def percentiles(values: Sequence[float]) -> tuple[float, float]:
+    """(median, 95th percentile) of the finite values; NaN when there are none."""
+    v = np.asarray(values, float)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return float("nan"), float("nan")
+    return float(np.median(v)), float(np.percentile(v, 95))
+
+
+def relative_gap(best: float, value: float) -> float:
+    """(best − value)/|best|: how much worse ``value`` is than ``best`` (< 0 if better)."""
+    return (best - value) / abs(best)
+
+
+@dataclass(frozen=True)
+class SlsqpResult:
+    """SLSQP's solve: wall time (s), iterations, reward, smallest constraint value, success."""
+
+    time: float
+    iterations: int
+    reward: float
+    min_clearance: float
+    success: bool
+
+
+def solve_slsqp(
+    theta: np.ndarray, env: Environment, config: PlannerConfig, init: np.ndarray
+) -> SlsqpResult:
+    """The same problem with SciPy SLSQP: numeric features, finite-difference gradients.
+
+    Objective −(θ·Φ − λS) over the T − 2 free waypoints, joint-limit bounds, and the planner's
+    hard constraints (smallest table gap and laptop keep-out level per waypoint, via
+    ``planner.clearance``) as inequalities ≥ 0.
+    """
+    from scipy.optimize import minimize
+
+    T = config.n_waypoints
+    params = env.params()
+
+    def path(x: np.ndarray) -> np.ndarray:
+        return np.vstack([env.q_start, x.reshape(T - 2, N_ARM_JOINTS), env.q_goal])
+
+    def cost(x: np.ndarray) -> float:
+        xi = path(x)
+        phi = feature_counts(xi, params, config.features)
+        return -(theta @ phi - config.smoothness * smoothness_cost(xi))
+
+    def constraints(x: np.ndarray) -> np.ndarray:
+        return np.concatenate([clearance(q, env) for q in x.reshape(T - 2, N_ARM_JOINTS)])
+
+    lo, hi = joint_limits()
+    bounds = list(zip(np.tile(lo, T - 2), np.tile(hi, T - 2), strict=True))
+    t0 = time.perf_counter()
+    res = minimize(
+        cost,
+        init[1:-1].ravel(),
+        method="SLSQP",
+        bounds=bounds,
+        constraints=[{"type": "ineq", "fun": constraints}],
+        options={"maxiter": 500, "ftol": 1e-9},
+    )
+    elapsed = time.perf_counter() - t0
+    return SlsqpResult(
+        elapsed, int(res.nit), float(-res.fun), float(constraints(res.x).min()), bool(res.success)
+    )
+
+
+# --- the planner benchmark -------------------------------------------------------------------
+
+MODES = ("cold", "default", "warm")
+MODE_TITLES = {
+    "cold": "cold (straight line, 1 start)",
+    "default": "default (config n_starts)",
+    "warm": "warm (from nearby theta)",
+}
+
+
+@dataclass(frozen=True)
+class PlannerBench:
+    """Raw measurements over the problem set (one entry per problem, same order).
+
+    ``runs[solver][mode]`` holds each solver's outcomes in each of :data:`MODES`, measured
+    side by side (every problem is solved by every solver before the next problem).
+    """
+
+    runs: dict[str, dict[str, list[Outcome]]]
+    best_restart: list[float]  # best reward over the random restarts, NaN if none converged
+    restart_errors: int  # problems where no random restart converged
+    slsqp: list[SlsqpResult]
+    slsqp_default: list[Outcome]  # the first solver's default solves of the SLSQP subset
+
+
+def run_planner_bench(
+    planners: dict[str, Planner],
+    envs: Sequence[Environment],
+    problems: Sequence[Problem],
+    *,
+    n_restarts: int,
+    n_slsqp: int,
+    rng: np.random.Generator,
+    progress: Callable[[str], None] = lambda _: None,
+) -> PlannerBench:
+    """Measure every solver in every mode on every problem (SLSQP on the first ``n_slsqp``).
+
+    The warm start of a problem comes from the same solver's solve of a nearby θ (one draw
+    per problem, shared by the solvers). The random restarts run on the first planner.
+    """
+    first = next(iter(planners.values()))
+    T = first.config.n_waypoints
+    runs = {name: {mode: [] for mode in MODES} for name in planners}
+    best_restart = []
+    restart_errors = 0
+    for n, prob in enumerate(problems):
+        env, theta = envs[prob.env_index], prob.theta
+        line = random_restarts(env, T, 1, rng)  # the straight joint-space line
+        nearby = theta + rng.normal(0.0, WARM_THETA_STEP, theta.shape)
+        for name, planner in planners.items():
+            out = runs[name]
+            out["cold"].append(timed(partial(planner.solve, theta, env, inits=line))[0])
+            out["default"].append(timed(partial(planner.solve, theta, env))[0])
+            _, previous = timed(partial(planner.solve, nearby, env))
+            inits = [previous.trajectory] if previous is not None else line
+            out["warm"].append(timed(partial(planner.solve, theta, env, inits=inits))[0])
+        restarts = random_restarts(env, T, n_restarts, rng)
+        outcome, _ = timed(partial(first.solve, theta, env, inits=restarts))
+        restart_errors += outcome.error is not None
+        best_restart.append(outcome.reward)
+        if (n + 1) % 10 == 0:
+            progress(f"  {n + 1}/{len(problems)} problems")
+    slsqp, slsqp_default = [], []
+    for n, prob in enumerate(problems[:n_slsqp]):
+        env = envs[prob.env_index]
+        # the planner timed again right beside SLSQP, so load from other processes hits both
+        slsqp_default.append(timed(partial(first.solve, prob.theta, env))[0])
+        slsqp.append(solve_slsqp(prob.theta, env, first.config, random_restarts(env, T, 1, rng)[0]))
+        progress(f"  SLSQP {n + 1}/{n_slsqp}: {slsqp[-1].time:.2f} s")
+    return PlannerBench(runs, best_restart, restart_errors, slsqp, slsqp_default)
+
+
+def _failures(outcomes: Sequence[Outcome]) -> tuple[int, int]:
+    planning = sum(o.error == "planning" for o in outcomes)
+    other = sum(o.error is not None and o.error != "planning" for o in outcomes)
+    return planning, other
+
+
+def _verdict(ok: bool) -> str:
+    return "PASS" if ok else "MISS"
+
+
+def optimality(bench: PlannerBench, outcomes: Sequence[Outcome]) -> tuple[np.ndarray, float]:
+    """Relative gaps of ``outcomes`` to the best known reward of each problem (the best of the
+    random restarts and of every solver's default and cold solves), and the fraction of
+    problems within 1% (a failed solve counts as outside)."""
+    best = np.array(bench.best_restart, float)
+    for modes in bench.runs.values():
+        for mode in ("cold", "default"):
+            best = np.fmax(best, [o.reward for o in modes[mode]])
+    gaps = np.array([relative_gap(b, o.reward) for b, o in zip(best, outcomes, strict=True)])
+    known = np.isfinite(best)
+    within = float(np.mean(np.nan_to_num(gaps[known], nan=np.inf) <= 0.01))
+    return gaps[known & np.isfinite(gaps)], within
+
+
+def report_planner_bench(bench: PlannerBench) -> list[str]:
+    """The printed table, as lines."""
+    names = list(bench.runs)
+    lines = [
+        f"{'solver':<8}{'mode':<32}{'median':>10}{'p95':>10}{'ratio*':>8}{'iters med':>10}"
+        f"{'iters p95':>10}{'within 1%':>11}{'worst gap':>10}{'PlanningErr':>12}{'other':>7}"
+    ]
+    medians = {
+        (name, mode): percentiles([1e3 * o.time for o in out if o.error is None])[0]
+        for name, modes in bench.runs.items()
+        for mode, out in modes.items()
+    }
+    within: dict[tuple[str, str], float] = {}
+    for mode in MODES:
+        for name in names:
+            outcomes = bench.runs[name][mode]
+            ok = [o for o in outcomes if o.error is None]
+            t_p95 = percentiles([1e3 * o.time for o in ok])[1]
+            i_med, i_p95 = percentiles([o.iterations for o in ok])
+            planning, other = _failures(outcomes)
+            gaps, within[name, mode] = optimality(bench, outcomes)
+            ratio = medians.get(("ipopt", mode), float("nan")) / medians[name, mode]
+            lines.append(
+                f"{name:<8}{MODE_TITLES[mode]:<32}{medians[name, mode]:>8.2f}ms{t_p95:>8.2f}ms"
+                f"{ratio:>7.2f}x{i_med:>10.0f}{i_p95:>10.0f}{100 * within[name, mode]:>10.1f}%"
+                f"{100 * max(gaps, default=np.nan):>9.2f}%{planning:>12d}{other:>7d}"
+            )
+    lines += [
+        "  times: wall time of planner.solve (solver + MuJoCo check of the result + features)",
+        "  * ratio: IPOPT's median time / this solver's, same mode, timed side by side",
+        "  iterations of the kept start (fatrop's, or IPOPT's where it was the fallback)",
+        f"  within 1%: of the best known reward per problem (best of "
+        f"{len(bench.best_restart)} problems' random restarts and every solver's own solves; "
+        f"{bench.restart_errors} problems with no converged restart); failures count as outside",
+        "",
+    ]
+
+    default = names[0]
+    if bench.slsqp:
+        slsqp_t = [r.time for r in bench.slsqp]
+        planner_t = [o.time for o in bench.slsqp_default if o.error is None]
+        s_med = percentiles(slsqp_t)[0]
+        ratio = s_med / percentiles(planner_t)[0]
+        rel = [
+            relative_gap(o.reward, r.reward)
+            for r, o in zip(bench.slsqp, bench.slsqp_default, strict=True)
+            if o.error is None
+        ]
+        lines += [
+            f"SciPy SLSQP (numeric FK/features, finite differences) on {len(bench.slsqp)} "
+            "problems:",
+            f"  median time {s_med:.2f} s (p95 {percentiles(slsqp_t)[1]:.2f} s), median "
+            f"iterations {percentiles([r.iterations for r in bench.slsqp])[0]:.0f}, "
+            f"converged {sum(r.success for r in bench.slsqp)}/{len(bench.slsqp)}, "
+            f"min constraint {min((r.min_clearance for r in bench.slsqp), default=np.nan):+.4f}",
+            f"  speed ratio SLSQP / {default} default (medians over the same problems, timed "
+            f"side by side): {ratio:.0f}x",
+            f"  SLSQP reward relative to {default} default, ({default} − slsqp)/|{default}| "
+            "(> 0: SLSQP worse): " + ", ".join(f"{100 * v:+.2f}%" for v in rel),
+            "",
+        ]
+
+    everything = [o for modes in bench.runs.values() for out in modes.values() for o in out]
+    unhandled = sum(o.error is not None and o.error != "planning" for o in everything)
+    targets = [
+        (
+            f"{default} warm median <= 4 ms",
+            f"{medians[default, 'warm']:.2f} ms",
+            medians[default, "warm"] <= 4.0,
+        ),
+        (
+            f"{default} cold median <= 10 ms",
+            f"{medians[default, 'cold']:.2f} ms",
+            medians[default, "cold"] <= 10.0,
+        ),
+        (
+            f"{default} default within 1% on >= 98%",
+            f"{100 * within[default, 'default']:.1f}%",
+            within[default, "default"] >= 0.98,
+        ),
+        ("0 unhandled failures", f"{unhandled}", unhandled == 0),
+    ]
+    if "ipopt" in names and default != "ipopt":
+        for mode in ("warm", "default"):
+            r = medians["ipopt", mode] / medians[default, mode]
+            targets.append((f"{default} {mode} faster than ipopt", f"{r:.2f}x", r > 1.0))
+    if bench.slsqp:
+        targets.append((">= 100x faster than SLSQP", f"{ratio:.0f}x", ratio >= 100))
+    lines.append(f"{'target':<40}{'measured':>12}  verdict")
+    lines += [f"{name:<40}{value:>12}  {_verdict(ok)}" for name, value, ok in targets]
+    lines += [
+        f"  unhandled: {e}" for e in sorted({o.error for o in everything} - {None, "planning"})
+    ]
+    return lines
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(
+        prog="python -m benchmarks.bench",
+        description="Benchmarks of corrections_sim. 'planner': solve times, iterations, "
+        "failures and optimality of the trajectory optimizer over seeded (theta, E) problems. "
+        "'fig4': wall time of paper-scale fig. 4, solves per second, 1 -> 2 worker speed-up, "
+        "Dask against the process pool, peak memory per worker.",
+    )
+    parser.add_argument("what", choices=["planner", "fig4"], help="which benchmark to run")
+    parser.add_argument(
+        "--slice-runs",
+        type=int,
+        default=8,
+        help="fig4: runs of PP and KF in the slice for the speed-up and Dask (default 8)",
+    )
+    parser.add_argument(
+        "--iterations", type=int, help="fig4: corrections per run (default: the paper's 12)"
+    )
+    parser.add_argument(
+        "--skip-full", action="store_true", help="fig4: only the slice, not the paper-scale run"
+    )
+    parser.add_argument(
+        "--problems", type=int, default=60, help="number of (theta, E) problems (default 60)"
+    )
+    parser.add_argument("--seed", type=int, default=0, help="seed of the problem set (default 0)")
+    parser.add_argument(
+        "--restarts",
+        type=int,
+        default=30,
+        help="random restarts per problem for the optimality gap (default 30)",
+    )
+    parser.add_argument(
+        "--slsqp",
+        type=int,
+        default=0,
+        help="problems also solved with SciPy SLSQP, the first N of the set (default 0)",
+    )
+    parser.add_argument(
+        "--solvers",
+        default=",".join(SOLVERS),
+        help=f"planner: the solvers compared, the first one the default (default "
+        f"{','.join(SOLVERS)})",
+    )
+    parser.add_argument(
+        "--features",
+        default="laptop,table",
+        help="planner: the features θ weighs (default laptop,table, as figs. 4-5)",
+    )
+    parser.add_argument(
+        "--n-starts",
+        type=int,
+        default=4,
+        help="planner: initial guesses of a default solve (default 4, as figs. 4-5)",
+    )
+    parser.add_argument(
+        "--solver",
+        help="fig4: the solver of the paper-scale run (default: the planner's default)",
+    )
+    args = parser.parse_args(argv)
+    if args.what == "fig4":
+        from benchmarks.bench_batch import run_bench
+
+        if args.slice_runs < 1 or (args.iterations is not None and args.iterations < 1):
+            parser.error("--slice-runs and --iterations must be >= 1")
+        t0 = time.perf_counter()
+        lines = run_bench(
+            full=not args.skip_full,
+            slice_runs=args.slice_runs,
+            iterations=args.iterations,
+            solver=args.solver or PlannerConfig().solver,
+        )
+        print()
+        print("\n".join(lines))
+        print(f"\ntotal {time.perf_counter() - t0:.0f} s")
+        return
+    if args.problems < 1 or args.restarts < 1 or args.slsqp < 0:
+        parser.error("--problems and --restarts must be >= 1, --slsqp >= 0")
+
+    t0 = time.perf_counter()
+    try:
+        configs = {
+            name: PlannerConfig(
+                features=tuple(f.strip() for f in args.features.split(",")),
+                n_starts=args.n_starts,
+                solver=name,
+            )
+            for name in (s.strip() for s in args.solvers.split(","))
+        }
+    except ValueError as exc:
+        parser.error(str(exc))
+    planners = {name: Planner(cfg) for name, cfg in configs.items()}
+    envs = paper_environments()
+    rng = np.random.default_rng(args.seed)
+    cfg = next(iter(configs.values()))
+    problems = make_problems(args.problems, cfg.k, len(envs), rng)
+    print(
+        f"planner benchmark: {args.problems} problems (seed {args.seed}), theta uniform in "
+        f"{list(THETA_RANGE)}^{cfg.k}, {len(envs)} environments; features {cfg.features}, "
+        f"T={cfg.n_waypoints}, lambda={cfg.smoothness}, n_starts={cfg.n_starts}, jit={cfg.jit}"
+        f", solvers {list(planners)}, {args.restarts} random restarts; planners ready in "
+        f"{time.perf_counter() - t0:.2f} s",
+        flush=True,
+    )
+    for planner in planners.values():  # first-call overheads
+        planner.solve(problems[0].theta, envs[problems[0].env_index])
+        planner._ipopt_solver()  # the fallback's library, so no build lands in a timing
+    bench = run_planner_bench(
+        planners,
+        envs,
+        problems,
+        n_restarts=args.restarts,
+        n_slsqp=min(args.slsqp, args.problems),
+        rng=rng,
+        progress=lambda line: print(line, flush=True),
+    )
+    print()
+    print("\n".join(report_planner_bench(bench)))
+    print(f"\ntotal {time.perf_counter() - t0:.0f} s")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,1 @@
+"""The command line: parse, pick executors and output folders, call, print."""

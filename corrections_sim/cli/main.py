@@ -1,0 +1,630 @@
+"""Command line: reproduce a figure of the paper headless.
+
+    python -m corrections_sim.run fig4             # results/fig4/ (CSV, summary, PNG, PDF)
+    python -m corrections_sim.run fig5 --quick     # results/quick/fig5/ (what CI runs)
+    python -m corrections_sim.run study my.toml    # results/my/ (a study file, see README)
+    python -m corrections_sim.run scene            # results/scene.png
+
+Bad input ends with a one-line message on stderr and exit status 2; nothing already in the
+output folder is overwritten by a run that failed, and a figure folder made with other
+settings only with --force (:mod:`corrections_sim.cli.output_folder`). SIGINT and SIGTERM end
+the command within seconds at any moment with one line and exit status 130, keeping the
+finished runs (:mod:`corrections_sim.cli.executors`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import re
+import shutil
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import Executor
+from pathlib import Path
+
+import numpy as np
+
+from corrections_sim import provenance
+from corrections_sim.cli import output_folder
+from corrections_sim.cli.executors import (
+    Interrupted,
+    check_scheduler_address,
+    dask_executor,
+    interruption,
+    interrupts,
+    process_pool,
+    uninterrupted,
+)
+
+#: Seconds to wait for a Dask scheduler before giving up (--scheduler).
+SCHEDULER_TIMEOUT_S = 5
+#: New process pools to try when a worker process dies mid-run (finished runs are kept).
+WORKER_DEATH_RETRIES = 2
+
+
+class UsageError(Exception):
+    """Bad input from the command line: printed as one line, exit status 2."""
+
+
+def _out(args: argparse.Namespace) -> Path:
+    """The output folder: --out, or the preset's default (see :mod:`output_folder`)."""
+    if args.out is None:
+        return output_folder.default_out(args.quick)
+    if not args.out.strip():
+        raise UsageError("--out '': give a folder name (default: results, or results/quick)")
+    return Path(args.out)
+
+
+def _check_replace(args: argparse.Namespace, final: Path, figure: str, settings: dict) -> str:
+    """Refuse (exit 2) to replace a figure folder made by other settings without --force;
+    otherwise the line to print, once the command is sure to start, saying what it replaces."""
+    preset = "quick" if args.quick else "paper"
+    try:
+        return output_folder.check_replace(final, figure, preset, settings, args.force)
+    except output_folder.FolderTaken as exc:
+        raise UsageError(f"--out {final.parent}: {exc}") from None
+
+
+def _say(notice: str) -> None:
+    if notice:
+        print(notice, file=sys.stderr)
+
+
+def _writable_dir(path: Path) -> Path:
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UsageError(f"--out {path}: cannot create the folder ({exc.strerror})") from None
+    if not os.access(path, os.W_OK):
+        raise UsageError(f"--out {path}: the folder is not writable")
+    return path
+
+
+def run_scene(args: argparse.Namespace) -> list[Path]:
+    """The scene with the optimal cup paths for θ = (0, 0) and θ = (+1, −1)."""
+    from corrections_sim.planning.planner import Planner, PlannerConfig
+    from corrections_sim.scene.environments import paper_environments
+
+    envs = {e.name: e for e in paper_environments()}
+    args.env = args.env or "s0-t0-l1"
+    if args.env not in envs:
+        raise UsageError(f"--env {args.env!r}: unknown; choose one of {', '.join(envs)}")
+    env = envs[args.env]
+    out = _writable_dir(_out(args))
+    planner = Planner(PlannerConfig(features=("laptop", "table")))
+    cases = (
+        ((0.0, 0.0), (0.15, 0.45, 0.95, 1.0), "θ = (0, 0): smoothness only"),
+        ((1.0, -1.0), (0.85, 0.25, 0.55, 1.0), "θ = (+1, −1): seek the laptop, avoid the table"),
+    )
+    plans = [(planner.solve(np.array(theta), env), rgba, label) for theta, rgba, label in cases]
+    from corrections_sim.figures.plotting import save_scene_figure
+    from corrections_sim.scene import render
+
+    image = render.render_scene(
+        env, [(render.cup_path(p.trajectory), rgba) for p, rgba, _ in plans], q=env.q_start
+    )
+    legend = [
+        (rgba, f"{label}   Φ = (laptop {p.features[0]:.2f}, table {p.features[1]:.2f})")
+        for p, rgba, label in plans
+    ]
+    title = f"Panda carrying coffee, environment {env.name}: optimal cup paths ξ*(θ, E)"
+    return [save_scene_figure(out / "scene.png", image, title, legend)]
+
+
+def run_video(args: argparse.Namespace) -> list[Path]:
+    """An MP4/GIF of a recorded fig. 4/5 run: plan, correction, learned plan (see video.py)."""
+    from corrections_sim.figures import video
+    from corrections_sim.scene.models import ModelFileError
+
+    try:
+        result = video.make_video(
+            _out(args),
+            args.source or "fig4",
+            learner=args.learner or "KF",
+            run=0 if args.run is None else args.run,
+            corrections=args.corrections,
+            model_path=None if args.model is None else Path(args.model),
+            video_file=None if args.video_file is None else Path(args.video_file),
+        )
+    except ModelFileError as exc:
+        raise UsageError(f"--model {exc}") from None
+    except video.VideoInputError as exc:
+        raise UsageError(str(exc)) from None
+    print(f"{result.frames} frames, {result.seconds:.1f} s", file=sys.stderr)
+    return [result.path]
+
+
+class Progress:
+    """Progress of a batch: a tqdm bar with rate and ETA on a terminal, otherwise a plain
+    line at most every ``every`` seconds (and at the end), for CI logs."""
+
+    def __init__(self, label: str, *, unit: str = "run", every: float = 15.0, stream=None) -> None:
+        self.label = label
+        self.unit = unit
+        self.every = every
+        self.stream = stream or sys.stderr
+        self._bar = None
+        self._start = time.perf_counter()
+        self._last = -np.inf
+
+    def __call__(self, done: int, total: int) -> None:
+        if self.stream.isatty():
+            if self._bar is None:
+                from tqdm import tqdm
+
+                self._bar = tqdm(
+                    total=total, initial=done, desc=self.label, unit=self.unit, file=self.stream
+                )
+            self._bar.update(done - self._bar.n)
+            if done == total:
+                self._bar.close()
+            return
+        now = time.perf_counter()
+        if done < total and now - self._last < self.every:
+            return
+        self._last = now
+        elapsed = now - self._start
+        rate = done / elapsed if elapsed > 0 else 0.0
+        eta = f"{(total - done) / rate:.0f} s" if 0 < rate and done < total else "-"
+        print(
+            f"{self.label}: {done}/{total} {self.unit}s, {elapsed:.0f} s elapsed, ETA {eta}",
+            file=self.stream,
+            flush=True,
+        )
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected an integer") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{value}: must be a positive integer")
+    return value
+
+
+def _positive_float(option: str) -> Callable[[str], float]:
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r}: expected a number") from None
+        if not (np.isfinite(value) and value > 0):
+            raise argparse.ArgumentTypeError(f"{option} must be a finite number > 0, got {text}")
+        return value
+
+    return parse
+
+
+def _floats(text: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected comma-separated numbers") from None
+    if not all(np.isfinite(values)):
+        raise argparse.ArgumentTypeError(f"{text!r}: every value must be finite")
+    return values
+
+
+def _matrix(text: str) -> tuple[tuple[float, ...], ...]:
+    """'a,b' is diag(a, b); 'a,b;c,d' is a full matrix, rows separated by ';'."""
+    rows = [_floats(row) for row in text.split(";")]
+    if len(rows) == 1:
+        return tuple(
+            tuple(v if i == j else 0.0 for j in range(len(rows[0]))) for i, v in enumerate(rows[0])
+        )
+    if any(len(r) != len(rows) for r in rows):
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: expected a square matrix, rows separated by ';'"
+        )
+    return tuple(rows)
+
+
+def _names(text: str) -> tuple[str, ...]:
+    return tuple(n.strip() for n in text.split(","))
+
+
+def _check_executor_options(args: argparse.Namespace) -> None:
+    """--workers and --scheduler, checked before anything is created."""
+    if args.workers is not None and args.workers < 1:
+        raise UsageError(f"--workers {args.workers}: must be a positive integer")
+    if args.scheduler is not None:
+        if args.workers is not None:
+            raise UsageError("--workers: not with --scheduler (the cluster has its own workers)")
+        try:
+            check_scheduler_address(args.scheduler)
+        except ValueError as exc:
+            raise UsageError(f"--scheduler {args.scheduler}: {exc}") from None
+
+
+@contextlib.contextmanager
+def _executor(args: argparse.Namespace) -> Iterator[tuple[Executor, str]]:
+    """The executor the runs go to: a Dask cluster's (--scheduler) or a local process pool
+    whose workers die with the command (see :mod:`corrections_sim.cli.executors`)."""
+    if args.scheduler is None:
+        workers = args.workers or os.cpu_count() or 1
+        with process_pool(workers) as pool:
+            yield pool, f"process pool, {workers} worker{'s' if workers != 1 else ''}"
+        return
+    with contextlib.ExitStack() as stack:
+        try:
+            executor, n = stack.enter_context(dask_executor(args.scheduler, SCHEDULER_TIMEOUT_S))
+        except (ConnectionError, ValueError) as exc:
+            raise UsageError(f"--scheduler {args.scheduler}: cannot connect ({exc})") from None
+        yield executor, f"dask {args.scheduler}, {n} workers"
+
+
+@contextlib.contextmanager
+def _staging(final: Path) -> Iterator[Path]:
+    """A scratch folder beside ``final``; its files replace ``final``'s only if the body
+    succeeds, so a failed command leaves earlier results as they were."""
+    staging = Path(tempfile.mkdtemp(prefix=f".{final.name}-", dir=final.parent))
+    try:
+        yield staging
+        final.mkdir(parents=True, exist_ok=True)
+        with uninterrupted():
+            for item in sorted(staging.iterdir()):
+                os.replace(item, final / item.name)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+
+
+def _open_caches(out: Path, name: str, keys: dict, stack: contextlib.ExitStack) -> dict:
+    """A :class:`~corrections_sim.study.store.RunStore` per part under ``OUT/.runs/<name>/``, keyed
+    by the settings and the code's fingerprint, each locked for the whole command."""
+    from corrections_sim.study.store import RunStore, StoreLocked
+
+    root = out / ".runs" / name
+    code = provenance.code_fingerprint()
+    stores = {}
+    for part, key in keys.items():
+        store = RunStore(
+            root / part if part else root, {"figure": name, "settings": key, "code": code}
+        )
+        try:
+            stack.enter_context(store.lock())
+        except StoreLocked as exc:
+            raise UsageError(f"--out {out}: {exc}") from None
+        stores[part] = store
+    return stores
+
+
+def _cache_folder(stores: dict, out: Path, name: str) -> Path:
+    return next(iter(stores.values())).folder if len(stores) == 1 else out / ".runs" / name
+
+
+def _kept(stores: dict, out: Path, name: str) -> str:
+    kept = sum(len(store.load_all()) for store in stores.values())
+    return (
+        f"{kept} finished run{'s' if kept != 1 else ''} kept in {_cache_folder(stores, out, name)}"
+    )
+
+
+def _overrides(args: argparse.Namespace, figure) -> dict:
+    """The options given that ``figure`` takes, as parsed values, by destination."""
+    return {n: getattr(args, n) for n in figure.options if getattr(args, n) is not None}
+
+
+def run_figure(args: argparse.Namespace, figure) -> list[Path]:
+    """Any registered figure: its settings, the executor, the output folder, the run (resumed
+    from its caches, on a new pool if a worker dies), its files and summary.json, written
+    only if everything succeeded."""
+    from concurrent.futures.process import BrokenProcessPool
+
+    from corrections_sim.study.store import CorruptRun
+
+    try:
+        settings = figure.load(quick=args.quick, overrides=_overrides(args, figure))
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    _check_executor_options(args)
+    out = _out(args)
+    name = figure.folder(settings)
+    final = out / name
+    recorded = figure.recorded(settings, quick=args.quick)
+    notice = _check_replace(args, final, name, recorded)
+    t0 = time.perf_counter()
+    with contextlib.ExitStack() as stack:
+        # The cluster is reached (or the pool started) before anything is written.
+        first = stack.enter_context(_executor(args))
+        _writable_dir(out)
+        caches = _open_caches(out, name, figure.cache_keys(settings), stack)
+        _say(notice)
+        try:
+            for attempt in range(1, WORKER_DEATH_RETRIES + 2):
+                try:
+                    context = contextlib.nullcontext(first) if attempt == 1 else _executor(args)
+                    with context as (executor, where):
+                        progress = Progress(name, unit=figure.unit)
+                        result = figure.run(settings, executor, progress, caches or None)
+                    break
+                except BrokenProcessPool:
+                    # A worker process died (killed, out of memory): its run was lost, the
+                    # finished ones are in the caches; a fresh pool resumes from them.
+                    if not caches:
+                        raise RuntimeError(f"{name}: a worker process died") from None
+                    if attempt > WORKER_DEATH_RETRIES:
+                        raise RuntimeError(
+                            f"{name}: worker processes died {attempt} times; "
+                            f"{_kept(caches, out, name)}, run the command again to resume"
+                        ) from None
+                    print(f"{name}: a worker died; resuming on a new pool", file=sys.stderr)
+        except Interrupted as exc:
+            if caches:
+                exc.kept = _kept(caches, out, name)
+            raise
+        except CorruptRun as exc:
+            raise RuntimeError(str(exc)) from None
+        except (ValueError, TypeError) as exc:
+            # A value the checks could not see until it ran (a user's or learner's code that
+            # raises): one line naming it; the runs that finished stay in the caches.
+            kept = f"; {_kept(caches, out, name)}" if caches else ""
+            first_line = str(exc).splitlines()[0] if str(exc) else ""
+            raise UsageError(
+                f"{name}: a run failed: {type(exc).__name__}: {first_line}{kept}"
+            ) from None
+    wall = time.perf_counter() - t0
+    with _staging(final) as staging:
+        fields = figure.write(settings, result, staging)
+        summary = {
+            "figure": name,
+            "preset": "quick" if args.quick else "paper",
+            "settings": recorded,
+            "executor": where,
+            "versions": provenance.versions(),
+            "wall_time_s": round(wall, 1),
+        }
+        if caches:
+            summary["run_cache"] = str(_cache_folder(caches, out, name))
+        summary.update(fields)
+        summary.update(provenance.record(args.argv))
+        (staging / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+        names = sorted(p.name for p in staging.iterdir())
+    return [final / name for name in names]
+
+
+def run_all(args: argparse.Namespace) -> list[Path]:
+    """Every figure of the paper, fig1 to fig6, one after the other (the scene render is
+    ``run scene``); each takes the options that apply to it."""
+    written = []
+    for figure in _figures().values():
+        if figure.in_all:
+            written += run_figure(args, figure)
+    return written
+
+
+def _figures() -> dict:
+    from corrections_sim.figures.registry import figures
+
+    return figures()
+
+
+#: Commands that are not figures: (function, help).
+TOOLS: dict[str, tuple[Callable[[argparse.Namespace], list[Path]], str]] = {
+    "scene": (run_scene, "render the scene with optimal paths for two preferences"),
+    "all": (run_all, "fig1 to fig6, one after the other"),
+    "video": (run_video, "animate corrections of a recorded fig4/fig5 run (MP4 or GIF)"),
+}
+#: The options each tool takes; a figure takes the common ones and its own ``options``.
+TOOL_OPTIONS: dict[str, tuple[str, ...]] = {
+    "scene": ("out", "env"),
+    "video": ("out", "source", "learner", "run", "corrections", "model", "video_file"),
+}
+
+
+def applies(command: str) -> tuple[str, ...]:
+    """The options ``command`` takes; any other option given is refused, not ignored."""
+    from corrections_sim.figures.registry import COMMON_OPTIONS
+
+    figures = _figures()
+    if command in figures:
+        return (*COMMON_OPTIONS, *figures[command].options)
+    if command == "all":  # each figure takes what applies to it
+        options = [o for f in figures.values() if f.in_all for o in f.options]
+        return tuple(dict.fromkeys((*COMMON_OPTIONS, *options)))
+    return TOOL_OPTIONS[command]
+
+
+def _check_applies(args: argparse.Namespace) -> None:
+    """Refuse an option the command does not take (``scene --runs 5``, ``fig4 --env X``)."""
+    allowed = applies(args.figure)
+    for name in (a.dest for a in parser()._actions):
+        if name in ("help", "figure") or name in allowed:
+            continue
+        if getattr(args, name) not in (None, False):
+            takes = ", ".join("--" + n.replace("_", "-") for n in allowed)
+            label = "FILE" if name == "study_file" else f"--{name.replace('_', '-')}"
+            raise UsageError(f"{label}: does not apply to {args.figure} (it takes {takes})")
+
+
+#: A value that starts with a minus sign but is a number or a list of numbers ("-1,1",
+#: "-.5,1;0,2", "-1e-3"): a value, never an option.
+_NUMBERS = re.compile(r"-\.?\d[\d.eE+\-]*([,;]\s*[-+]?\.?\d[\d.eE+\-]*)*")
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, but a bad option is one line on stderr (no usage block), exit status 2."""
+
+    def error(self, message: str):
+        self.exit(2, f"error: {message} (see --help)\n")
+
+    def _parse_optional(self, arg_string: str):
+        # argparse reads any token that starts with a minus sign and is not a plain number
+        # as an option, so "--theta-star -1,1" would lack its value; a list of numbers is a
+        # value wherever it stands.
+        if _NUMBERS.fullmatch(arg_string):
+            return None
+        return super()._parse_optional(arg_string)
+
+
+def parser() -> argparse.ArgumentParser:
+    # Imported here, not at the top: they load the planner's stack (CasADi, MuJoCo, pinocchio),
+    # and main() has its interrupt handlers in place by the time this runs.
+    from corrections_sim.people.corrections import CORRECTION_KINDS
+    from corrections_sim.study.schema import learner_names, user_names
+
+    figures = _figures()
+    commands = {**{n: f.help for n, f in figures.items()}, **{n: t[1] for n, t in TOOLS.items()}}
+
+    p = _Parser(
+        prog="python -m corrections_sim.run",
+        description="Reproduce a figure of Losey & O'Malley (CoRL 2018) headless. "
+        "Figures 4-6 and study files are resumable: finished runs are kept in OUT/.runs/<figure>/ "
+        "(keyed by a hash of the settings and the code) and an interrupted command, run "
+        "again, only computes what is missing. Ctrl-C or SIGTERM stops the command within "
+        "seconds (exit status 130). A figure folder made with other settings or another "
+        "preset is replaced only with --force.",
+    )
+    p.add_argument(
+        "figure",
+        choices=sorted(commands),
+        help="what to produce: " + "; ".join(f"{k}: {v}" for k, v in commands.items()),
+    )
+    p.add_argument(
+        "study_file",
+        nargs="?",
+        metavar="FILE",
+        help="for 'study': the study file (TOML; see README, and experiments/ for examples)",
+    )
+    p.add_argument(
+        "--out",
+        help="output folder (default: results; with --quick the scratch folder results/quick)",
+    )
+    p.add_argument("--env", help="environment name for 'scene' (default: s0-t0-l1)")
+    p.add_argument("--quick", action="store_true", help="the figure's quick preset (CI size)")
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="replace a figure folder made with other settings or another preset (without "
+        "it, such a folder is left alone and the command refuses)",
+    )
+    g = p.add_argument_group(
+        "learning studies (fig4, fig5, fig6, study); defaults come from the study file"
+    )
+    g.add_argument("--runs", type=_positive_int, help="runs of PP, KF and EKF (AL runs once)")
+    g.add_argument("--iterations", type=_positive_int, help="corrections per run")
+    g.add_argument("--seed", type=int, help="root seed of every random draw")
+    g.add_argument(
+        "--theta-star", type=_floats, metavar="W,W", help="the user's true weights θ*, e.g. -1,1"
+    )
+    g.add_argument(
+        "--theta0", type=_floats, metavar="W,W", help="the robot's initial estimate θ̂⁰, e.g. 0,0"
+    )
+    g.add_argument(
+        "--cov0",
+        type=_matrix,
+        metavar="P",
+        help="initial covariance P⁰: 'a,b' for diag(a, b) or 'a,b;c,d' row by row "
+        "(symmetric positive definite)",
+    )
+    g.add_argument(
+        "--learners",
+        type=_names,
+        metavar="L,L",
+        help="which learners, from " + ", ".join(learner_names()) + " (e.g. PP,KF,AL,KF-C)",
+    )
+    g.add_argument(
+        "--user",
+        choices=user_names(),
+        help="biased: moves its worst waypoint(s) (paper); deform: pushes its worst waypoint "
+        "and the path deforms smoothly; noisy: Φ(ξ*) + Gaussian noise",
+    )
+    g.add_argument(
+        "--user-step", type=float, help="how far the user moves its worst waypoint, (0, 1]"
+    )
+    g.add_argument(
+        "--user-waypoints", type=int, help="how many worst waypoints the biased user moves"
+    )
+    g.add_argument(
+        "--correction-model",
+        choices=CORRECTION_KINDS,
+        help="KF-C's model of a correction: waypoint (paper's §6), deform (minimum-jerk), "
+        "optimal (shows ξ*: the paper's KF)",
+    )
+    g.add_argument("--correction-step", type=float, help="how far KF-C's model moves, (0, 1]")
+    g.add_argument("--correction-waypoints", type=int, help="how many waypoints KF-C's model moves")
+    g.add_argument(
+        "--fixed-alpha",
+        type=_positive_float("fixed_alpha"),
+        help="a fixed learning rate for PP and PP-C (default: from KF's / KF-C's gains)",
+    )
+    g.add_argument(
+        "--solver",
+        help="the planner's solver (default fatrop; ipopt is the original path)",
+    )
+    g.add_argument(
+        "--warm-start",
+        action="store_true",
+        default=None,
+        help="start each solve from the run's nearest solved θ (faster; results move at the "
+        "solver's tolerance, see README)",
+    )
+    v = p.add_argument_group("video (reads OUT/<figure>/curves.csv of a finished fig4/fig5)")
+    v.add_argument("--from", dest="source", metavar="FIG", help="fig4 or fig5 (default fig4)")
+    v.add_argument("--learner", help="whose run to show (default KF)")
+    v.add_argument("--run", type=int, help="the run's index (default 0)")
+    v.add_argument(
+        "--corrections",
+        metavar="T,T",
+        help="iterations to show, e.g. 1,6,12 (default: first, middle, last)",
+    )
+    v.add_argument("--model", help="the MJCF to render (default models/scene.xml)")
+    v.add_argument(
+        "--video-file", help="an .mp4 or .gif (default OUT/video/<figure>-<learner>-run<N>.mp4)"
+    )
+    x = p.add_argument_group("where the runs execute")
+    x.add_argument(
+        "--workers",
+        type=_positive_int,
+        help="local worker processes (default: the number of cores)",
+    )
+    x.add_argument(
+        "--scheduler",
+        metavar="tcp://HOST:PORT",
+        help="run on an existing Dask cluster instead of local processes",
+    )
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run one command; 0 on success, 1 on a failure, 2 on bad input, 130 on SIGINT/SIGTERM."""
+    with interrupts():  # from the start: the heavy imports happen inside
+        try:
+            given = list(sys.argv[1:] if argv is None else argv)
+            args = parser().parse_args(given)
+            args.argv = given
+            _check_applies(args)
+            figures = _figures()
+            if args.figure in figures:
+                written = run_figure(args, figures[args.figure])
+            else:
+                written = TOOLS[args.figure][0](args)
+        except UsageError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        except (KeyboardInterrupt, Exception) as exc:
+            cause = interruption(exc)
+            if cause is None and isinstance(exc, RuntimeError):
+                # A missing GL backend, a planner failure: one line, no trace.
+                print(f"error: {str(exc).splitlines()[0]}", file=sys.stderr)
+                return 1
+            if cause is None:
+                raise
+            kept = getattr(cause, "kept", None)
+            message = (
+                f"{kept}; run the command again to resume"
+                if kept
+                else "no finished runs to keep (figs. 4-6 resume, figs. 1-3 start over)"
+            )
+            by = f" ({cause})" if isinstance(cause, Interrupted) else ""
+            print(f"interrupted: {message}{by}", file=sys.stderr)
+            return 130
+    for path in written:
+        print(f"wrote {path}")
+    return 0
+

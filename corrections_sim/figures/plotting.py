@@ -1,0 +1,656 @@
+"""Figures with matplotlib (headless, Agg). Only the edges of the program import this."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from matplotlib.collections import QuadMesh  # noqa: E402
+from matplotlib.lines import Line2D  # noqa: E402
+from matplotlib.patches import Rectangle  # noqa: E402
+
+from corrections_sim.metrics import mean_sem  # noqa: E402
+
+
+def save_atomically(fig: plt.Figure, path: Path, **kwargs) -> Path:
+    """Save ``fig`` to ``path`` through a temporary file, so a crash leaves no half file.
+
+    A PDF carries no creation date, so the same figure gives the same bytes."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
+    if path.suffix.lower() == ".pdf":
+        kwargs.setdefault("metadata", {"CreationDate": None})
+    fig.savefig(tmp, **kwargs)
+    os.replace(tmp, path)
+    return path
+
+
+def _save_and_close(fig: plt.Figure, paths, dpi: int) -> None:
+    """Lay out ``fig``, write it to every path (atomically) and free it, even on failure."""
+    try:
+        fig.tight_layout()
+        for path in paths:
+            save_atomically(fig, path, dpi=dpi)
+    finally:
+        plt.close(fig)
+
+
+def save_scene_figure(
+    path: Path,
+    image: np.ndarray,
+    title: str,
+    legend: Sequence[tuple[tuple[float, float, float, float], str]],
+) -> Path:
+    """A render (H, W, 3) with a title and a legend of coloured paths, as a PNG."""
+    h, w = image.shape[:2]
+    fig, ax = plt.subplots(figsize=(w / 100, h / 100 + 0.9), dpi=100)
+    ax.imshow(image)
+    ax.set_axis_off()
+    ax.set_title(title, fontsize=11)
+    handles = [Line2D([0], [0], color=rgba[:3], lw=3, label=label) for rgba, label in legend]
+    ax.legend(
+        handles=handles, loc="lower center", bbox_to_anchor=(0.5, -0.1), fontsize=9, frameon=False
+    )
+    fig.tight_layout()
+    try:
+        return save_atomically(fig, path, dpi=100)
+    finally:
+        plt.close(fig)
+
+
+#: Colours for learners that name no ``style`` (see :class:`corrections_sim.learning.base.Learner`).
+_EXTRA_COLOURS = ("#9467bd", "#8c564b", "#e377c2", "#17becf", "#bcbd22")
+
+
+def learner_style(name: str) -> tuple[str, str]:
+    """(colour, line style) of a learner: its own ``style``, or else the next free colour in
+    the registry's order of the learners without one. The correction-aware variants share
+    their paper learner's colour, dashed."""
+    from corrections_sim.learning.base import LEARNERS
+
+    cls = LEARNERS.get(name)
+    if cls is not None and cls.style is not None:
+        return cls.style
+    extra = [n for n, c in LEARNERS.items() if c.style is None]
+    i = extra.index(name) if name in extra else 0
+    return _EXTRA_COLOURS[i % len(_EXTRA_COLOURS)], "-"
+
+
+def learner_label(name: str) -> str:
+    """A learner's label in figures (its registered name if it has none)."""
+    from corrections_sim.learning.base import LEARNERS
+
+    cls = LEARNERS.get(name)
+    return cls.label if cls is not None and cls.label else name
+
+
+def plot_learning_curves(
+    curves: dict[str, dict[str, np.ndarray]],
+    title: str,
+    paths,
+    bands: dict[str, tuple[float, float]] | None = None,
+    n_environments: int = 48,
+) -> None:
+    """Estimate error, regret and calibration against iteration.
+
+    Bands are ± SEM over runs (none for a single run). The calibration panel shows the mean
+    NEES of every learner with a covariance on a log scale, with the 95% χ² band of a
+    calibrated mean for that learner's number of runs shaded (light grey: the most runs;
+    hatched: a single run).
+
+    Args:
+        curves: learner -> {"estimate_error", "regret", "regret_paper", "nees"}: each
+            (runs, T+1).
+        paths: files to write (PNG, PDF, …).
+        bands: learner -> (low, high) band of its mean NEES; learners without one have no
+            covariance and are left out of the calibration panel.
+    """
+    bands = bands or {}
+    fig, axes = plt.subplots(1, 4, figsize=(17, 4.4))
+    panels = (
+        ("estimate_error", "Estimate error ‖θ̂ − θ*‖₁", "error (L1, weight units)"),
+        (
+            "regret",
+            f"Regret (full objective), Σ over {n_environments} envs",
+            "regret (reward units)",
+        ),
+        (
+            "regret_paper",
+            f"Regret θ*·Φ only (paper's), Σ over {n_environments} envs",
+            "regret (reward units)",
+        ),
+    )
+    for ax, (key, label, ylabel) in zip(axes, panels, strict=False):
+        for learner, data in curves.items():
+            colour, style = learner_style(learner)
+            values = data[key]
+            mean, sem = mean_sem(values)
+            t = np.arange(mean.size)
+            n = values.shape[0]
+            name = f"{learner_label(learner)}, N = {n}"
+            ax.plot(t, mean, color=colour, ls=style, lw=2, label=name)
+            if n > 1:
+                ax.fill_between(t, mean - sem, mean + sem, color=colour, alpha=0.2, lw=0)
+        ax.set_title(label, fontsize=10)
+        ax.set_ylabel(ylabel)
+    ax = axes[3]
+    shown = set()
+    for learner, band in sorted(bands.items(), key=lambda kv: kv[1][1] - kv[1][0]):
+        if tuple(band) in shown:
+            continue
+        n = curves[learner]["nees"].shape[0]
+        single = n == 1
+        ax.axhspan(
+            *band,
+            facecolor="none" if single else "0.85",
+            hatch="///" if single else None,
+            edgecolor="0.7",
+            lw=0,
+            label=f"95% band, calibrated mean of {n} run{'s' if n > 1 else ''}",
+        )
+        shown.add(tuple(band))
+    for learner in bands:
+        colour, style = learner_style(learner)
+        mean = np.nanmean(curves[learner]["nees"], axis=0)
+        ax.plot(np.arange(mean.size), mean, color=colour, ls=style, lw=2)
+    if bands:
+        ax.set_yscale("log")
+        ax.legend(fontsize=7, loc="upper left")
+    ax.set_title("Calibration: mean NEES (θ̂−θ*)ᵀP⁻¹(θ̂−θ*)", fontsize=10)
+    ax.set_ylabel("mean NEES (calibrated: k)")
+    for ax in axes:
+        ax.set_xlabel("iteration (corrections)")
+        ax.xaxis.get_major_locator().set_params(integer=True)
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=7, loc="best")
+    fig.suptitle(title + "; bands: ± SEM over runs", fontsize=11)
+    _save_and_close(fig, paths, dpi=150)
+
+
+# --- figs. 1-3: heat maps of the predicted covariance, risk-sensitive deployment ---------------
+
+#: Hatching of grid cells without a value, by status (never drawn as a colour of the map).
+MISSING_STYLE = {
+    "unreachable": ("//", "start unreachable (no IK)"),
+    "start_collides": ("xx", "start in collision"),
+    "plan_failed": ("\\\\", "planner failed"),
+}
+
+
+def _edges(centres: np.ndarray) -> np.ndarray:
+    """Cell edges (n + 1,) around equally spaced centres (n,)."""
+    step = centres[1] - centres[0]
+    return np.concatenate([centres - step / 2, [centres[-1] + step / 2]])
+
+
+def _outline(corners: np.ndarray) -> np.ndarray:
+    """Close a polygon (n, 2) for plotting in (y, x) axes: returns (n + 1, 2) as (y, x)."""
+    closed = np.vstack([corners, corners[:1]])
+    return closed[:, ::-1]
+
+
+#: Fonts of figs. 1-3, sized for the README's width (a figure is shown ~1000 px wide).
+FIGURE_FONTS = {
+    "font.size": 12,
+    "axes.titlesize": 13,
+    "axes.labelsize": 12,
+    "xtick.labelsize": 11,
+    "ytick.labelsize": 11,
+    "legend.fontsize": 10.5,
+    "figure.titlesize": 14,
+}
+#: The heat maps' shared colour bar.
+RELATIVE_LABEL = (
+    "uncertainty left after one correction, ‖Pᵗ⁺¹‖_F / ‖P + M‖_F "
+    "(1 = learns nothing, lower = learns more)"
+)
+
+
+def relative_uncertainty(spec: dict) -> np.ndarray:
+    """A map's predicted ‖Pᵗ⁺¹‖_F divided by ‖P + M‖_F (its value when nothing is learned),
+    so maps with different P share one scale; NaN where the cell has no value."""
+    return np.asarray(spec["values"], float) / float(spec["no_information"])
+
+
+def plot_heat_map(ax: plt.Axes, spec: dict, vmin: float) -> QuadMesh:
+    """One map of the relative uncertainty left over a grid, seen from above and beyond the table.
+
+    Args:
+        ax: the axes.
+        spec: ``grid`` (xs, ys, vary), ``values`` (nx, ny) predicted ‖Pᵗ⁺¹‖_F with NaN where
+            missing, ``status`` (nx, ny) strings, ``no_information`` (‖P + M‖_F),
+            ``overlay`` cup path (N, 2) or None, ``laptop`` (x, y, yaw) or None, ``table``
+            (x, y), ``start`` / ``goal`` cup positions or None, ``title``.
+        vmin: bottom of the colour scale (shared by every map of the figure); the top is 1.
+    """
+    from corrections_sim.scene import geometry as g
+
+    grid = spec["grid"]
+    values = relative_uncertainty(spec)
+    status = spec["status"]
+    xe, ye = _edges(grid.xs), _edges(grid.ys)
+    finite = values[np.isfinite(values)]
+    mesh = ax.pcolormesh(ye, xe, np.ma.masked_invalid(values), cmap="magma_r", vmin=vmin, vmax=1.0)
+    dx, dy = xe[1] - xe[0], ye[1] - ye[0]
+    seen = set()
+    for (i, j), s in np.ndenumerate(status):
+        if s == "ok":
+            continue
+        hatch, label = MISSING_STYLE[s]
+        ax.add_patch(
+            Rectangle(
+                (ye[j], xe[i]),
+                dy,
+                dx,
+                facecolor="0.88",
+                edgecolor="0.55",
+                hatch=hatch,
+                lw=0.0,
+                label=None if s in seen else label,
+            )
+        )
+        seen.add(s)
+    hx, hy = g.TABLE_HALF_SIZE
+    tx, ty = spec["table"]
+    table = np.array(
+        [[tx - hx, ty - hy], [tx + hx, ty - hy], [tx + hx, ty + hy], [tx - hx, ty + hy]]
+    )
+    ax.plot(*_outline(table).T, color="#8b5a2b", lw=1.5, ls="--", label="table top")
+    if spec.get("laptop") is not None:
+        keyboard = g.laptop_base_corners_xy(*spec["laptop"])[[0, 1, 3, 2]]
+        ax.plot(*_outline(keyboard).T, color="#1f4e9a", lw=2.2, label="laptop keyboard")
+    if spec.get("overlay") is not None:
+        path = spec["overlay"]
+        ax.plot(path[:, 1], path[:, 0], color="#1fb4c9", lw=2.0, label=spec["overlay_label"])
+    if spec.get("start") is not None:
+        ax.plot(
+            spec["start"][1], spec["start"][0], "^", color="#1fb4c9", ms=9, mec="k", label="start"
+        )
+    ax.plot(spec["goal"][1], spec["goal"][0], "o", color="#2ca02c", ms=9, mec="k", label="goal")
+    if finite.size:
+        i, j = np.unravel_index(np.nanargmin(values), values.shape)
+        ax.plot(
+            grid.ys[j],
+            grid.xs[i],
+            "*",
+            color="#00e5ff",
+            ms=17,
+            mec="k",
+            mew=1.2,
+            label="most informative cell",
+        )
+    # Seen from above and beyond the table, like the renders: the robot at the top.
+    ax.set_xlim(min(ye[0], spec["goal"][1] - 0.05), max(ye[-1], spec["goal"][1] + 0.05))
+    ax.set_ylim(max(xe[-1], spec["goal"][0] + 0.05), min(xe[0], spec["goal"][0] - 0.05))
+    ax.set_aspect("equal")
+    ax.set_xlabel("world y (m), robot's left →")
+    ax.set_ylabel("world x (m), robot ↑")
+    best = f"\nmost informative: {np.nanmin(values):.2f}" if finite.size else ""
+    ax.set_title(spec["title"] + best)
+    ax.legend()
+    return mesh
+
+
+def plot_selection_figure(
+    image: np.ndarray,
+    legend: Sequence[tuple[tuple[float, float, float, float], str]],
+    maps: Sequence[dict],
+    title: str,
+    paths: Sequence[Path],
+    legend_title: str | None = None,
+) -> None:
+    """Figs. 1–2: the scene render with its paths, then one heat map per ``maps`` entry, all
+    on one colour scale (the relative uncertainty left, :func:`relative_uncertainty`) with
+    one colour bar and one legend."""
+    n = len(maps)
+    lows = [np.nanmin(v) for v in map(relative_uncertainty, maps) if np.isfinite(v).any()]
+    vmin = float(np.floor(min(lows, default=0.0) * 20) / 20)
+    with plt.rc_context(FIGURE_FONTS):
+        fig = plt.figure(figsize=(4.9 * n + 5.6, 6.6))
+        grid = fig.add_gridspec(
+            3,
+            n + 1,
+            width_ratios=[1.3] + [1.0] * n,
+            height_ratios=[1.0, 0.045, 0.3],
+            left=0.03,
+            right=0.99,
+            top=0.87,
+            bottom=0.01,
+            wspace=0.2,
+            hspace=0.35,
+        )
+        ax = fig.add_subplot(grid[0:2, 0])
+        ax.imshow(image)
+        ax.set_axis_off()
+        ax.set_title("the scene: the robot's optimal cup paths")
+        handles = [Line2D([0], [0], color=rgba[:3], lw=3, label=text) for rgba, text in legend]
+        box = fig.add_subplot(grid[2, 0])
+        box.set_axis_off()
+        box.legend(handles=handles, title=legend_title, loc="upper center", frameon=False)
+        heat = [fig.add_subplot(grid[0, m + 1]) for m in range(n)]
+        for ax, spec in zip(heat, maps, strict=True):
+            mesh = plot_heat_map(ax, spec, vmin)
+        labelled = {}
+        for ax in heat:
+            for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+                labelled.setdefault(label, handle)
+            ax.get_legend().remove()
+        cax = fig.add_subplot(grid[1, 1:])
+        bar = fig.colorbar(mesh, cax=cax, orientation="horizontal")
+        bar.set_label(RELATIVE_LABEL)
+        box = fig.add_subplot(grid[2, 1:])
+        box.set_axis_off()
+        box.legend(
+            list(labelled.values()),
+            list(labelled),
+            loc="upper center",
+            bbox_to_anchor=(0.5, 0.8),
+            ncol=3,
+            frameon=False,
+        )
+        fig.suptitle(title)
+        try:
+            for path in paths:
+                save_atomically(fig, path, dpi=100)
+        finally:
+            plt.close(fig)
+
+
+#: Line styles of fig. 3's insets, so that coinciding paths stay distinguishable.
+PATH_LINES = {
+    "averse": {"ls": "-", "lw": 2.4},
+    "neutral": {"ls": "--", "lw": 2.0},
+    "seeking": {"ls": "-.", "lw": 2.0},
+    "A3": {"ls": ":", "lw": 3.2},
+}
+_SAME_PATH_M = 0.005
+
+
+def _deployment_table(ax: plt.Axes, rows: Sequence[dict], features, styles: dict) -> None:
+    """Feature counts and rewards of a panel's trajectories as a table with colour keys."""
+    header = ["", "γ", *[f"Φ {n}" for n in features], "θ̂·Φ − λS", "worst over Γ"]
+    cells, colours = [], []
+    for r in rows:
+        gamma = (
+            "—"
+            if r["rule"] == "A3"
+            else "(" + ", ".join(f"{r[f'gamma_{n}']:+.3g}" for n in features) + ")"
+        )
+        cells.append(
+            [
+                "max-min" if r["style"] == "A3" else r["style"],
+                gamma,
+                *[f"{r[f'phi_{n}']:.2f}" for n in features],
+                f"{r['reward_theta_hat']:.2f}",
+                f"{r['worst_case']:.3f}",
+            ]
+        )
+        rgba = styles[r["style"]][0]
+        colours.append([(*rgba[:3], 0.35)] + ["white"] * (len(header) - 1))
+    ax.set_axis_off()
+    table = ax.table(
+        cellText=cells, colLabels=header, cellColours=colours, loc="upper center", cellLoc="center"
+    )
+    table.auto_set_font_size(False)
+    table.set_fontsize(10)
+    table.auto_set_column_width(list(range(len(header))))
+    table.scale(1.0, 1.5)
+
+
+def _plot_cup_paths(
+    top: plt.Axes, side: plt.Axes, paths: dict[str, np.ndarray], styles: dict, scene: dict
+) -> None:
+    """A panel's cup paths seen from above (world x over y, robot at the top) and as height
+    above the table top over y, one line style per trajectory."""
+    from corrections_sim.scene import geometry as g
+
+    hx, hy = g.TABLE_HALF_SIZE
+    tx, ty = scene["table"]
+    table = np.array(
+        [[tx - hx, ty - hy], [tx + hx, ty - hy], [tx + hx, ty + hy], [tx - hx, ty + hy]]
+    )
+    top.plot(*_outline(table).T, color="#8b5a2b", lw=1.2, ls="--")
+    keyboard = g.laptop_base_corners_xy(*scene["laptop"])[[0, 1, 3, 2]]
+    top.fill(*_outline(keyboard).T, color="#1f4e9a", alpha=0.25, lw=1.5, ec="#1f4e9a")
+    laptop_corners = g.laptop_base_corners_xy(*scene["laptop"])
+    side.axvspan(
+        laptop_corners[:, 1].min(), laptop_corners[:, 1].max(), color="#1f4e9a", alpha=0.15, lw=0
+    )
+    side.axhline(0.0, color="#8b5a2b", lw=1.2, ls="--")
+    for label, points in paths.items():
+        rgba = styles[label][0]
+        color = "#c89b00" if label == "A3" else rgba[:3]
+        kw = {**PATH_LINES[label], "color": color}
+        top.plot(points[:, 1], points[:, 0], **kw)
+        side.plot(points[:, 1], points[:, 2] - g.TABLE_TOP_Z, **kw)
+    points = np.vstack([table, *(p[:, :2] for p in paths.values())])
+    (x0, y0), (x1, y1) = points.min(axis=0) - 0.03, points.max(axis=0) + 0.03
+    top.set_xlim(y0, y1)
+    # The robot at the top, as in the renders and figs. 1-2. No equal aspect, so that the
+    # x axis stays aligned with the height plot below; the box is close to 1:1 anyway.
+    top.set_ylim(x1, x0)
+    top.set_ylabel("world x (m)")
+    top.set_title("seen from above", fontsize=11)
+    side.set_ylabel("height over\ntable top (m)")
+    side.set_xlabel("world y (m), robot's left →")
+    top.tick_params(labelbottom=False)
+    for ax in (top, side):
+        ax.grid(alpha=0.3)
+    same = _same_as_averse(paths)
+    if same:
+        side.annotate(
+            "exact max-min = averse (within 5 mm)",
+            (0.02, 0.05),
+            xycoords="axes fraction",
+            va="bottom",
+            fontsize=10,
+        )
+
+
+def _same_as_averse(paths: dict[str, np.ndarray]) -> bool:
+    a, b = paths.get("A3"), paths.get("averse")
+    if a is None or b is None or a.shape != b.shape:
+        return False
+    return bool(np.max(np.linalg.norm(a - b, axis=1)) < _SAME_PATH_M)
+
+
+def _plot_comparison(ax: plt.Axes, comparison: Sequence[dict], labels: dict[str, str]) -> None:
+    """Worst-case gain of the exact max-min over the paper's averse plan, per panel: against
+    the paper's rule (grey) and against it with refined plans (black), one dot per study
+    environment."""
+    panels = list(dict.fromkeys(r["panel"] for r in comparison))
+    for i, panel in enumerate(panels):
+        rows = [r for r in comparison if r["panel"] == panel]
+        lines = []
+        for key, offset, color, label in (
+            ("gain", -0.18, "#9a9a9a", "vs the paper's rule (the planner's usual starts)"),
+            ("gain_refined", 0.18, "#111111", "vs the paper's rule, every plan re-solved from all"),
+        ):
+            gains = np.array([r[key] for r in rows], float)
+            ok = np.isfinite(gains)
+            jitter = (np.arange(gains.size) % 5 - 2) * 0.035
+            ax.scatter(
+                i + offset + jitter[ok],
+                gains[ok],
+                s=14,
+                color=color,
+                alpha=0.8,
+                label=label if i == 0 else None,
+            )
+            lines.append(f"{int(np.sum(gains[ok] > 1e-4))}/{int(ok.sum())}")
+        ax.annotate(
+            " | ".join(lines),
+            (i, 1.0),
+            xycoords=("data", "axes fraction"),
+            ha="center",
+            va="bottom",
+            fontsize=10,
+        )
+    ax.axhline(0.0, color="k", lw=0.8)
+    ax.set_xticks(range(len(panels)), [labels.get(p, p) for p in panels], fontsize=10)
+    ax.set_xlim(-0.6, len(panels) - 0.4)
+    ax.set_ylabel("gain in the worst case over Γ (reward units)")
+    n_env = len(comparison) // max(len(panels), 1)
+    ax.set_title(
+        f"exact max-min vs the paper's averse rule\nin {n_env} environments; on top: how many\n"
+        "gain more than 1e-4 (grey | black)",
+        pad=22,
+    )
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.08), frameon=False, fontsize=10)
+    ax.grid(alpha=0.3, axis="y")
+
+
+def plot_deployment_figure(
+    images: Sequence[np.ndarray],
+    titles: Sequence[str],
+    tables: Sequence[Sequence[dict]],
+    features: Sequence[str],
+    styles: dict,
+    comparison: Sequence[dict],
+    title: str,
+    paths: Sequence[Path],
+    *,
+    cup_paths: Sequence[dict[str, np.ndarray]],
+    scene: dict,
+    panel_labels: dict[str, str],
+) -> None:
+    """Fig. 3: per panel a render with the deployed paths, the same paths seen from above and
+    as heights (one line style each), and a table of their features; on the right, the
+    worst-case gain of the exact max-min over the paper's averse plan.
+
+    Args:
+        cup_paths: per panel, the cup's points (N, 3) of each drawn trajectory by label.
+        scene: ``table`` (x, y) and ``laptop`` (x, y, yaw) for the outlines.
+        panel_labels: a short label of each panel by name, for the comparison's axis.
+    """
+    n = len(images)
+    extra = 1 if comparison else 0
+    with plt.rc_context(FIGURE_FONTS):
+        fig = plt.figure(figsize=(5.6 * n + 5.0 * extra, 13.0))
+        grid = fig.add_gridspec(
+            4,
+            n + extra,
+            height_ratios=[3.0, 1.5, 1.3, 1.25],
+            width_ratios=[1.0] * n + [0.85] * extra,
+            left=0.04,
+            right=0.99,
+            top=0.85,
+            bottom=0.02,
+            wspace=0.3,
+            hspace=0.25,
+        )
+        for i, (image, panel_title, rows) in enumerate(zip(images, titles, tables, strict=True)):
+            ax = fig.add_subplot(grid[0, i])
+            ax.imshow(image)
+            ax.set_axis_off()
+            ax.set_title(panel_title)
+            top = fig.add_subplot(grid[1, i])
+            side = fig.add_subplot(grid[2, i], sharex=top)
+            _plot_cup_paths(top, side, cup_paths[i], styles, scene)
+            _deployment_table(fig.add_subplot(grid[3, i]), rows, features, styles)
+        handles = [
+            Line2D(
+                [0],
+                [0],
+                color="#c89b00" if label == "A3" else rgba[:3],
+                label=text,
+                **PATH_LINES[label],
+            )
+            for label, (rgba, text) in styles.items()
+        ]
+        handles += [
+            Line2D([0], [0], color="#8b5a2b", lw=1.2, ls="--", label="table top"),
+            Rectangle((0, 0), 1, 1, color="#1f4e9a", alpha=0.25, label="laptop"),
+        ]
+        left, right = grid[0, 0].get_position(fig).x0, grid[0, n - 1].get_position(fig).x1
+        fig.legend(
+            handles=handles,
+            loc="upper center",
+            bbox_to_anchor=((left + right) / 2, 0.93),
+            ncol=3,
+            frameon=False,
+            handlelength=3.5,
+        )
+        if comparison:
+            _plot_comparison(fig.add_subplot(grid[:3, n]), comparison, panel_labels)
+        fig.suptitle(title)
+        try:
+            for path in paths:
+                save_atomically(fig, path, dpi=100)
+        finally:
+            plt.close(fig)
+
+
+def plot_robustness_matrix(rows: Sequence[dict], title: str, paths) -> None:
+    """Fig. 6: learners (rows) × users (columns); final estimate error, final regret and
+    final mean NEES as coloured tables with mean ± SEM in each cell.
+
+    Args:
+        rows: ``robustness.matrix`` rows (learner, user, *_mean, *_sem, nees_final, band).
+        paths: files to write.
+    """
+    learners = list(dict.fromkeys(r["learner"] for r in rows))
+    users = list(dict.fromkeys(r["user"] for r in rows))
+    cell = {(r["learner"], r["user"]): r for r in rows}
+    panels = (
+        ("estimate_error", "Final estimate error ‖θ̂ − θ*‖₁ (lower is better)", "viridis_r"),
+        ("regret", "Final regret, Σ over 48 envs (lower is better)", "viridis_r"),
+        ("nees", "Final mean NEES (calibrated: k = 2; log colour)", "coolwarm"),
+    )
+    fig, axes = plt.subplots(1, 3, figsize=(6.2 * 3, 0.55 * len(learners) + 2.6))
+    for ax, (key, label, cmap) in zip(axes, panels, strict=True):
+        values = np.full((len(learners), len(users)), np.nan)
+        for i, learner in enumerate(learners):
+            for j, user in enumerate(users):
+                r = cell[(learner, user)]
+                value = r["nees_final"] if key == "nees" else r[f"{key}_mean"]
+                values[i, j] = np.nan if value is None else value
+        if key == "nees":
+            # Diverging around k = 2 on a log scale: blue under-, red over-confident.
+            shown = np.log10(values / 2.0)
+            limit = max(1.0, float(np.nanmax(np.abs(shown))))
+            image = ax.imshow(shown, cmap=cmap, vmin=-limit, vmax=limit, aspect="auto")
+        else:
+            image = ax.imshow(values, cmap=cmap, aspect="auto")
+        colours = image.cmap(image.norm(shown if key == "nees" else values))
+        for i, learner in enumerate(learners):
+            for j, user in enumerate(users):
+                r = cell[(learner, user)]
+                if key == "nees":
+                    v = r["nees_final"]
+                    if v is None:
+                        text = "—"
+                    else:
+                        inside = r["nees_band_low"] <= v <= r["nees_band_high"]
+                        text = f"{v:.3g}" + (" ✓" if inside else "")
+                else:
+                    sem = r[f"{key}_sem"]
+                    text = f"{r[f'{key}_mean']:.3g}" + (f"\n± {sem:.2g}" if sem else "\n(N = 1)")
+                luminance = np.dot(colours[i, j, :3], (0.299, 0.587, 0.114))
+                ax.text(
+                    j,
+                    i,
+                    text,
+                    ha="center",
+                    va="center",
+                    fontsize=8,
+                    color="black" if luminance > 0.5 or not np.isfinite(values[i, j]) else "white",
+                )
+        ax.set_xticks(range(len(users)), users, rotation=20, ha="right", fontsize=9)
+        ax.set_yticks(range(len(learners)), learners, fontsize=9)
+        ax.set_title(label, fontsize=10)
+    fig.text(
+        0.99,
+        0.01,
+        "NEES: ✓ inside the 95% χ² band of a calibrated mean for its N; — no covariance (PP)",
+        ha="right",
+        fontsize=8,
+    )
+    fig.suptitle(title, fontsize=11)
+    _save_and_close(fig, paths, dpi=150)

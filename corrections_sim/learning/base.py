@@ -1,0 +1,187 @@
+"""What a learner is to the study loop, and the registry of learners by name.
+
+A learner, at every iteration t of a run (:func:`corrections_sim.study.loop.run_learner`):
+
+1. chooses the environment Eᵗ (:meth:`Learner.choose`; by default the run's random draw, which
+   every learner on the same ``stream`` shares run by run);
+2. after the robot planned ξᵗ = ξ*(θ̂ᵗ, Eᵗ) and the user corrected it, turns its belief
+   N(θ̂ᵗ, Pᵗ) and the correction's features Φ_h into the next belief (:meth:`Learner.update`),
+   reporting what calibration needs (:class:`Step`).
+
+It reaches the planner only through :class:`LearnerContext` (memoized solves of this run).
+Class attributes describe it to the figures (label, style, stream, whether its P means
+something, whose Kalman gains give its learning rate). A learner is a :class:`Learner`
+subclass registered by name::
+
+    @register_learner("MINE")
+    class Mine(Learner):
+        label = "My learner"
+
+        def update(self, ctx, belief, env, plan, phi_h):
+            ...
+            return Step(new_belief, gain=None, innovation=phi_h - plan.features)
+
+Its parameters are its constructor's keyword arguments: :meth:`Learner.from_settings`
+receives the study's settings and the ``learner_params`` given for it by name. The paper's
+learners are registered in :mod:`corrections_sim.learning.paper` (imported below, so they
+come first in the registry's order).
+"""
+
+from __future__ import annotations
+
+import abc
+import inspect
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, ClassVar
+
+import numpy as np
+
+from corrections_sim.learning import Belief
+from corrections_sim.planning.planner import Plan
+from corrections_sim.registry import Registry
+from corrections_sim.scene.environments import Environment
+
+if TYPE_CHECKING:
+    from corrections_sim.planning.plans import PlanBook
+    from corrections_sim.study.loop import StudySettings
+
+
+@dataclass(frozen=True, eq=False)
+class LearnerContext:
+    """What one run offers its learner.
+
+    Attributes:
+        book: this run's memoized planner, ``book.plan(θ, E)`` and ``book.observe(E)``
+            (h(θ) = Φ(ξ*(θ, E), E) as a batch callable (n, k) -> (n, k)).
+        envs: the study's environments; :meth:`Learner.choose` returns an index into them.
+        features: the feature names θ weighs, in order.
+        n_waypoints: T of every trajectory.
+        alphas: learning rate per iteration (iterations,) for a learner with ``rate_from``
+            (see :attr:`Learner.needs_rates`), else None.
+        rng: the run's generator (shared with the user's noise: drawing from it changes the
+            user's draws too).
+        iteration: t, the correction being processed (0-based).
+    """
+
+    book: PlanBook
+    envs: Sequence[Environment]
+    features: tuple[str, ...]
+    n_waypoints: int
+    alphas: np.ndarray | None
+    rng: np.random.Generator
+    iteration: int = 0
+
+
+@dataclass(frozen=True, eq=False)
+class Step:
+    """One update: the new belief and what calibration needs of it.
+
+    Attributes:
+        belief: the belief after the correction.
+        gain: Kalman gain K (k, k), or None (a learner without one). The gains of
+            ``rate_from`` learners' runs give PP-type learners their rate.
+        innovation: Φ_h minus what the learner predicted (k,).
+        innovation_cov: its predicted covariance S (k, k), or None (then no NIS).
+    """
+
+    belief: Belief
+    gain: np.ndarray | None
+    innovation: np.ndarray
+    innovation_cov: np.ndarray | None = None
+
+
+class Learner(abc.ABC):
+    """A learner of θ from corrections; subclass, implement :meth:`update`, register.
+
+    Class attributes (read by the study loop and the figures without building one):
+        label: its name in figures ("" means the registered name).
+        style: (colour, line style) in figures, or None for the next free colour.
+        stream: random stream of its runs: learners on one stream see the same environment
+            draws run by run (common random numbers), so they are compared paired.
+        active: chooses Eᵗ itself (:meth:`choose`); if the user is deterministic, such a
+            learner's run is deterministic and runs once.
+        has_covariance: whether its P means something (NEES, the calibration panel).
+        rate_from: the learner whose Kalman gains give this learner's rate αᵗ (PP-type);
+            its runs go after that learner's, and ``ctx.alphas`` holds the rate.
+    """
+
+    label: ClassVar[str] = ""
+    style: ClassVar[tuple[str, str] | None] = None
+    stream: ClassVar[int] = 0
+    active: ClassVar[bool] = False
+    has_covariance: ClassVar[bool] = True
+    rate_from: ClassVar[str | None] = None
+
+    @classmethod
+    def needs_rates(cls) -> bool:
+        """Whether its runs need ``ctx.alphas`` (fixed, or from ``rate_from``'s gains)."""
+        return cls.rate_from is not None
+
+    @classmethod
+    def from_settings(cls, settings: StudySettings, **params: Any) -> Learner:
+        """Build one for ``settings``; ``params`` are its constructor's keyword arguments.
+
+        The default passes ``params`` to the constructor; override to read study settings.
+        """
+        return cls(**params)
+
+    def choose(self, ctx: LearnerContext, belief: Belief, draw: int) -> int:
+        """Index of Eᵗ in ``ctx.envs``; ``draw`` is the run's random choice."""
+        return draw
+
+    @abc.abstractmethod
+    def update(
+        self, ctx: LearnerContext, belief: Belief, env: Environment, plan: Plan, phi_h: np.ndarray
+    ) -> Step:
+        """The belief after a correction with features ``phi_h`` (k,) of the robot's ``plan``
+        ξᵗ in ``env``. May raise ``PlanningError`` (the update is then skipped)."""
+
+
+LEARNERS: Registry[type[Learner]] = Registry("learner", check=Registry.subclass_of(Learner))
+"""Every learner by name, in the order figures and tables list them."""
+
+
+def register_learner(name: str, *, replace: bool = False):
+    """Class decorator: register a :class:`Learner` subclass under ``name``."""
+    return LEARNERS.decorator(name, replace=replace)
+
+
+def make_learner(
+    name: str, settings: StudySettings, params: Mapping[str, Any] | None = None
+) -> Learner:
+    """The registered learner ``name`` built for ``settings`` with its ``params``.
+
+    Raises:
+        ValueError: an unknown name, an unknown parameter or a bad value, in one line
+            naming the learner and the parameter.
+    """
+    cls = LEARNERS[name]
+    params = dict(params or {})
+    known, takes_any = _parameters(cls)
+    unknown = sorted(set(params) - set(known))
+    if unknown and not takes_any:
+        allowed = ", ".join(known) or "none"
+        raise ValueError(f"learner {name}: unknown parameter {unknown[0]!r} (known: {allowed})")
+    try:
+        return cls.from_settings(settings, **params)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"learner {name}: {exc}") from None
+
+
+def _parameters(cls: type[Learner]) -> tuple[list[str], bool]:
+    """(names of the keyword parameters a learner takes, whether it takes any): those of its
+    ``from_settings`` if that names them, else its constructor's."""
+    for function in (cls.from_settings, cls.__init__):
+        params = [
+            p
+            for p in inspect.signature(function).parameters.values()
+            if p.name not in ("self", "settings")
+        ]
+        if not any(p.kind is p.VAR_KEYWORD for p in params):
+            return [p.name for p in params], False
+    return [], True
+
+
+# Registers the paper's learners; at the bottom because they subclass Learner.
+from corrections_sim.learning import paper as paper_learners  # noqa: E402,F401

@@ -1,0 +1,1 @@
+"""How people correct a plan: correction models (registered by name) and simulated users."""

@@ -1,0 +1,161 @@
+"""Memoized plans ξ*(θ, E) for one run, the user's side of every environment, and regret.
+
+:class:`PlanBook` solves each (θ, E) once per run (failures included); :class:`Target` holds
+θ* and its plans ξ*(θ*, E); :func:`evaluate` sums the regret of θ̂ over environments;
+:func:`correction_observer` is the correction-aware observation model hₜ(θ) = Φ(C(ξᵗ,
+ξ*(θ, E)), E). Learners reach the planner only through a :class:`PlanBook`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from corrections_sim.learning import Observe
+from corrections_sim.metrics import regret_terms
+from corrections_sim.people.corrections import CorrectionModel
+from corrections_sim.planning.features import feature_counts
+from corrections_sim.planning.planner import Plan, Planner, PlanningError, smoothness_cost
+from corrections_sim.scene.environments import Environment
+
+PlanEntries = dict[tuple[bytes, bytes], "Plan | PlanningError"]
+"""Memoized solves: (θ bytes, environment key) -> the plan or the failure."""
+
+
+class PlanBook:
+    """Memoized ξ*(θ, E) for one run: identical problems are solved once.
+
+    Failures are memoized too (as the exception), so a failing problem costs one solve.
+    ``known`` seeds the book with plans solved elsewhere (e.g. the shared prior's, see
+    :meth:`entries`); they count as neither solves nor failures here.
+
+    With ``warm_start``, a new problem starts from the book's plan in the same environment
+    whose θ is nearest (Euclidean; the first solved wins a tie), and falls back to the
+    planner's cold starts if that fails. Along a run θ̂ moves in small steps, so this saves
+    IPOPT iterations; the answer can then depend on what was solved before (the same local
+    optimum up to the solver's tolerance when the landscape has one basin nearby, see README).
+    """
+
+    def __init__(
+        self, planner: Planner, known: PlanEntries | None = None, *, warm_start: bool = False
+    ) -> None:
+        self.planner = planner
+        self.warm_start = warm_start
+        self._plans: dict[tuple[bytes, bytes], Plan | PlanningError] = dict(known or {})
+        # Per environment, the converged plans in the order they were solved: (θ (k,), plan).
+        self._by_env: dict[bytes, list[tuple[np.ndarray, Plan]]] = {}
+        for (theta, env_key), plan in self._plans.items():
+            if isinstance(plan, Plan):
+                self._by_env.setdefault(env_key, []).append((np.frombuffer(theta), plan))
+        self.solves = 0
+        self.failures = 0
+
+    @staticmethod
+    def _key(theta: np.ndarray, env: Environment) -> tuple[bytes, bytes]:
+        return (np.asarray(theta, float).tobytes(), env.key())
+
+    def entries(self) -> PlanEntries:
+        """Everything solved so far (plans and failures), to seed other books with."""
+        return dict(self._plans)
+
+    def _solve(self, theta: np.ndarray, env: Environment) -> Plan:
+        near = self._by_env.get(env.key()) if self.warm_start else None
+        if near:
+            distances = [float(np.sum((t - theta) ** 2)) for t, _ in near]
+            start = near[int(np.argmin(distances))][1].trajectory
+            try:
+                return self.planner.solve(theta, env, inits=[start])
+            except PlanningError:
+                self.solves += 1  # the warm start failed; the cold starts get their chance
+        return self.planner.solve(theta, env)
+
+    def plan(self, theta: np.ndarray, env: Environment) -> Plan:
+        theta = np.asarray(theta, float)
+        key = self._key(theta, env)
+        hit = self._plans.get(key)
+        if hit is None:
+            self.solves += 1
+            try:
+                hit = self._solve(theta, env)
+                self._by_env.setdefault(key[1], []).append((theta.copy(), hit))
+            except PlanningError as exc:
+                self.failures += 1
+                hit = exc
+            self._plans[key] = hit
+        if isinstance(hit, PlanningError):
+            raise hit
+        return hit
+
+    def observe(self, env: Environment) -> Callable[[np.ndarray], np.ndarray]:
+        """h(θ) = Φ(ξ*(θ, E), E) as the learners' batch callable (n, k) -> (n, k)."""
+
+        def h(thetas: np.ndarray) -> np.ndarray:
+            return np.array([self.plan(t, env).features for t in np.atleast_2d(thetas)])
+
+        return h
+
+
+@dataclass(frozen=True)
+class Target:
+    """The user's side of every environment: θ* and its optimal plans ξ*(θ*, E)."""
+
+    theta_star: np.ndarray
+    plans: tuple[Plan, ...]
+
+    @classmethod
+    def solve(cls, planner: Planner, theta_star, envs: Sequence[Environment]) -> Target:
+        theta = np.asarray(theta_star, float)
+        return cls(theta_star=theta, plans=tuple(planner.solve(theta, e) for e in envs))
+
+
+def evaluate(
+    book: PlanBook, target: Target, envs: Sequence[Environment], theta_hat: np.ndarray
+) -> tuple[float, float, int]:
+    """(regret, paper regret, failed environments) of θ̂ summed over ``envs``.
+
+    An environment whose plan fails is left out of both sums and counted instead.
+    """
+    lam = book.planner.config.smoothness
+    full = paper = 0.0
+    failed = 0
+    for env, star in zip(envs, target.plans, strict=True):
+        try:
+            plan = book.plan(theta_hat, env)
+        except PlanningError:
+            failed += 1
+            continue
+        f, p = regret_terms(
+            target.theta_star,
+            star.features,
+            smoothness_cost(star.trajectory),
+            plan.features,
+            smoothness_cost(plan.trajectory),
+            lam,
+        )
+        full += f
+        paper += p
+    return full, paper, failed
+
+
+def correction_observer(
+    book: PlanBook, env: Environment, robot: np.ndarray, model: CorrectionModel, names
+) -> Observe:
+    """hₜ(θ) = Φ(C(ξᵗ, ξ*(θ, E)), E) as a batch callable (n, k) -> (n, k).
+
+    The correction a person with preference θ would make to the robot's trajectory ``robot``
+    (T, 7) under the correction model ``model``; ξ*(θ, E) comes from ``book`` (memoized, so
+    the plans the paper's filter would solve are the only ones solved).
+    """
+    params = env.params()
+
+    def h(thetas: np.ndarray) -> np.ndarray:
+        return np.array(
+            [
+                feature_counts(model.apply(robot, book.plan(t, env).trajectory), params, names)
+                for t in np.atleast_2d(thetas)
+            ]
+        )
+
+    return h
