@@ -41,11 +41,19 @@ class Registry(Mapping[str, T], Generic[T]):
         kind: what it holds, singular ("learner"), for messages.
         check: what a registered item must be: returns None for a good item, else what is
             wrong with it ("is not a User subclass"), refused with a ``TypeError``.
+        base: the class every item subclasses (checked, when ``check`` is not given).
     """
 
-    def __init__(self, kind: str, check: Callable[[object], str | None] | None = None) -> None:
+    def __init__(
+        self,
+        kind: str,
+        check: Callable[[object], str | None] | None = None,
+        *,
+        base: type | None = None,
+    ) -> None:
         self.kind = kind
-        self._check = check
+        self.base = base
+        self._check = check if check is not None or base is None else self.subclass_of(base)
         self._items: dict[str, T] = {}
 
     def register(self, name: str, item: T, *, replace: bool = False) -> T:

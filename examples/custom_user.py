@@ -5,9 +5,10 @@ With probability ``skip`` it leaves the robot's trajectory as it is (a correctio
 nothing); otherwise it corrects like the paper's user, moving its worst waypoint ``step`` of
 the way toward its own plan ξ*(θ*, E). It draws from the run's generator, so it says
 ``stochastic = True`` (active learners then run as often as the others). Its parameters are
-its dataclass fields, checked where they enter. Registering it is the one line
-``@register_user("lazy")``; a study then says ``user = "lazy"`` and
-``user_params = {"skip": 0.5}``.
+its dataclass fields, checked where they enter (and named in the error:
+``user.skip: must lie in [0, 1]``). Registering it is the one line ``@register_user("lazy")``;
+a study then says ``user = { name = "lazy", skip = 0.5 }`` (or ``--user lazy --set
+user.skip=0.5``). Its own default step, 0.6, is what a study gets unless it sets ``step``.
 
 Run: ``python examples/custom_user.py`` (a tiny study; prints JSON).
 """
@@ -20,8 +21,9 @@ from typing import ClassVar
 
 import numpy as np
 
+from corrections_sim.components import ParameterError
 from corrections_sim.people.corrections import waypoint_correction
-from corrections_sim.people.users import Situation, User, register_user
+from corrections_sim.people.users import Situation, User, make_user, register_user
 
 
 @register_user("lazy")
@@ -30,14 +32,14 @@ class LazyUser(User):
     """Corrects with probability 1 − ``skip``; moves its worst waypoint ``step`` of the way."""
 
     skip: float = 0.5
-    step: float = 1.0
+    step: float = 0.6
     stochastic: ClassVar[bool] = True
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.skip <= 1.0:
-            raise ValueError(f"skip = {self.skip!r} must lie in [0, 1]")
+            raise ParameterError("skip", f"must lie in [0, 1], got {self.skip!r}")
         if not 0.0 < self.step <= 1.0:
-            raise ValueError(f"step = {self.step!r} must lie in (0, 1]")
+            raise ParameterError("step", f"must lie in (0, 1], got {self.step!r}")
 
     def correct(self, situation: Situation, rng: np.random.Generator) -> np.ndarray:
         if rng.random() < self.skip:
@@ -47,9 +49,12 @@ class LazyUser(User):
 
 def main(iterations: int = 4, skip: float = 0.5) -> dict:
     """KF learning from the lazy user on four of the paper's environments."""
+    from corrections_sim.learning.base import make_learner
     from corrections_sim.planning.planner import Planner, PlannerConfig
+    from corrections_sim.planning.plans import Target
     from corrections_sim.scene.environments import paper_environments
-    from corrections_sim.study.loop import StudySettings, Target, run_learner
+    from corrections_sim.study.loop import run_learner
+    from corrections_sim.study.settings import StudySettings
 
     settings = StudySettings(
         theta_star=(1.0, -1.0),
@@ -57,18 +62,18 @@ def main(iterations: int = 4, skip: float = 0.5) -> dict:
         cov0=((1.0, 0.0), (0.0, 1.0)),
         iterations=iterations,
         runs=1,
-        learners=("KF",),
-        user="lazy",
-        user_params={"skip": skip},
+        learners={"KF": make_learner("KF")},
+        user=make_user("lazy", {"skip": skip}),
+        user_name="lazy",
     )
     planner = Planner(PlannerConfig(features=("laptop", "table"), n_starts=1))
     envs = paper_environments()[::12]
     target = Target.solve(planner, settings.theta_star, envs)
     rng = np.random.default_rng(settings.seed)
-    result = run_learner("KF", 0, settings, planner, envs, target, settings.make_user(), rng)
+    result = run_learner("KF", 0, settings, planner, envs, target, settings.user, rng)
     thetas = [[r["theta_0"], r["theta_1"]] for r in result.records]
     return {
-        "user": repr(settings.make_user()),
+        "user": repr(settings.user),
         "theta": thetas,
         "estimate_error": [r["estimate_error"] for r in result.records],
     }

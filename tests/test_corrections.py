@@ -5,8 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from corrections_sim.components import build
 from corrections_sim.people.corrections import (
-    CorrectionModel,
+    CORRECTIONS,
+    OptimalCorrection,
+    WaypointCorrection,
     deformation_correction,
     deformation_shapes,
     waypoint_correction,
@@ -75,29 +78,35 @@ def test_deformation_moves_the_worst_waypoint_exactly_and_its_neighbours_along()
 
 def test_model_values_and_the_optimal_model():
     robot, intended = _pair()
-    assert np.array_equal(
-        CorrectionModel("optimal", n_waypoints=6).apply(robot, intended), intended
-    )
-    model = CorrectionModel("waypoint", step=0.5, waypoints=2, n_waypoints=6)
+    assert np.array_equal(OptimalCorrection().apply(robot, intended), intended)
+    model = WaypointCorrection(step=0.5, waypoints=2)
+    model.check(6)
     np.testing.assert_array_equal(
         model.apply(robot, intended), waypoint_correction(robot, intended, 0.5, 2)
     )
+    assert list(CORRECTIONS)[:3] == ["waypoint", "deform", "optimal"]
 
 
 @pytest.mark.parametrize(
-    ("kwargs", "match"),
+    ("name", "params", "match"),
     [
-        ({"kind": "magic"}, "kind"),
-        ({"step": 0.0}, "step"),
-        ({"step": 1.5}, "step"),
-        ({"waypoints": 11}, "waypoints"),  # 12 waypoints: 10 free
-        ({"waypoints": 0}, "waypoints"),
-        ({"kind": "deform", "waypoints": 2}, "waypoints"),
+        ("magic", {}, "model: unknown correction model 'magic'"),
+        ("waypoint", {"step": 0.0}, r"model.step: must lie in \(0, 1\], got 0.0"),
+        ("deform", {"step": 1.5}, r"model.step: must lie in \(0, 1\], got 1.5"),
+        ("waypoint", {"waypoints": 0}, "model.waypoints: must be >= 1"),
+        ("deform", {"waypoints": 2}, "model.waypoints: the deform correction model has no such"),
+        ("optimal", {"step": 0.5}, "model.step: the optimal correction model has no such"),
     ],
 )
-def test_bad_model_parameters_are_refused_by_name(kwargs, match):
+def test_bad_model_parameters_are_refused_by_name(name, params, match):
     with pytest.raises(ValueError, match=match):
-        CorrectionModel(**kwargs)
+        build(CORRECTIONS, name, params, where="model")
+
+
+def test_a_model_that_moves_more_waypoints_than_are_free_is_refused_once_t_is_known():
+    WaypointCorrection(waypoints=10).check(12)
+    with pytest.raises(ValueError, match="waypoints: 11 must lie in \\[1, 10\\]"):
+        WaypointCorrection(waypoints=11).check(12)  # 12 waypoints: 10 free
 
 
 def test_users_use_the_same_corrections():
@@ -111,7 +120,7 @@ def test_users_use_the_same_corrections():
         deformation_correction(robot, intended, 1.0),
     )
     assert not BiasedUser().stochastic and not DeformingUser().stochastic
-    with pytest.raises(ValueError, match="waypoints = 5"):
+    with pytest.raises(ValueError, match="waypoints: 5 must lie in"):
         BiasedUser(waypoints=5).corrected_trajectory(robot, intended)  # 4 free waypoints
-    with pytest.raises(ValueError, match="step = 2.0"):
+    with pytest.raises(ValueError, match="step: must lie in"):
         DeformingUser(step=2.0)

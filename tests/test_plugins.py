@@ -1,8 +1,9 @@
-"""Plug-ins: learners, users, features and environment parameters by name.
+"""Plug-ins: learners, users, correction models, features and environment parameters by name.
 
 Every registered learner and user is checked through the same tests (a new one never edits
-them); unknown names and parameters are refused in one line naming them; the examples in
-``examples/`` run end to end in a fresh interpreter (their registrations stay out of this one).
+them); unknown names and parameters are refused in one line naming their key path; a plug-in's
+own defaults are never overridden; the examples in ``examples/`` run end to end in a fresh
+interpreter (their registrations stay out of this one).
 """
 
 from __future__ import annotations
@@ -16,8 +17,23 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from corrections_sim import components
+from corrections_sim.components import ParameterError
 from corrections_sim.learning.base import LEARNERS, Learner, Step, make_learner, register_learner
-from corrections_sim.people.users import USERS, Situation, User, make_user, user_parameters
+from corrections_sim.people.corrections import (
+    CORRECTIONS,
+    CorrectionModel,
+    register_correction,
+    waypoint_correction,
+)
+from corrections_sim.people.users import (
+    USERS,
+    Situation,
+    User,
+    make_user,
+    register_user,
+    user_parameters,
+)
 from corrections_sim.planning.features import FEATURES, feature_counts, register_feature
 from corrections_sim.registry import Registry, UnknownName
 from corrections_sim.scene.environments import (
@@ -26,22 +42,25 @@ from corrections_sim.scene.environments import (
     paper_environments,
     register_env_parameter,
 )
-from corrections_sim.study.loop import StudySettings
+from corrections_sim.study import schema
+from corrections_sim.study.settings import StudySettings
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+BUILT_IN = ("PP", "KF", "EKF", "AL", "PP-C", "KF-C", "AL-C", "KF-A", "BP")
 
 
 def settings(**overrides) -> StudySettings:
+    """Study settings as a study file gives them (through the one schema)."""
     values = dict(
-        theta_star=(1.0, -1.0),
-        theta0=(0.0, 0.0),
-        cov0=((1.0, 0.0), (0.0, 1.0)),
+        theta_star=[1.0, -1.0],
+        theta0=[0.0, 0.0],
+        cov0=[[1.0, 0.0], [0.0, 1.0]],
         iterations=2,
         runs=2,
-        learners=tuple(LEARNERS),
+        learners=list(BUILT_IN),
     )
     values.update(overrides)
-    return StudySettings(**values)
+    return schema.parse_study(values).study
 
 
 # --------------------------------------------------------------------------- the registry
@@ -84,44 +103,52 @@ def test_the_papers_learners_are_registered_in_the_figures_order():
 
 
 @pytest.mark.parametrize("name", list(LEARNERS))
-def test_every_learner_describes_itself_and_builds_from_settings(name):
+def test_every_learner_describes_itself_and_owns_its_parameters(name):
     cls = LEARNERS[name]
-    assert issubclass(cls, Learner)
+    assert issubclass(cls, Learner) and dataclasses.is_dataclass(cls)
     assert cls.label and cls.style is not None
     assert cls.rate_from is None or cls.rate_from in LEARNERS
-    assert isinstance(settings().make_learner(name), cls)
+    learner = make_learner(name)
+    assert isinstance(learner, cls)
+    # Its parameters as data build the same learner again (what summary.json records).
+    params = components.params(learner)
+    assert set(params) == set(components.defaults(cls))
+    assert make_learner(name, params) == learner
 
 
-def test_unknown_learners_and_parameters_are_refused_by_name():
-    with pytest.raises(ValueError, match="unknown learner 'UKF': known are PP, KF"):
-        settings(learners=("KF", "UKF"))
-    with pytest.raises(ValueError, match="learner KF: unknown parameter 'gain'"):
-        settings(learner_params={"KF": {"gain": 1.0}})
+def test_unknown_learners_and_parameters_are_refused_by_their_key_path():
+    with pytest.raises(ValueError, match=r"learners\[1\] = 'UKF': unknown learner"):
+        settings(learners=["KF", "UKF"])
+    with pytest.raises(ValueError, match="learners.KF.gain: the KF learner has no such param"):
+        settings(learners={"KF": {"gain": 1.0}})
+    with pytest.raises(ValueError, match="learners.KF-A.attenuation_min: must be > 0, got -1"):
+        settings(learners={"KF-A": {"attenuation_min": -1.0}})
     with pytest.raises(ValueError, match="learner_params: 'BP' is not one of the learners"):
-        settings(learners=("KF",), learner_params={"BP": {}})
+        settings(learners=["KF"], learner_params={"BP": {}})
 
 
 def test_a_registered_learner_takes_its_parameters_by_name():
     @register_learner("TEST-FIXED")
+    @dataclasses.dataclass(frozen=True)
     class Fixed(Learner):
         has_covariance = False
+        shift: float = 0.0
 
-        def __init__(self, shift: float = 0.0) -> None:
-            if not np.isfinite(shift):
-                raise ValueError(f"shift = {shift} must be finite")
-            self.shift = shift
+        def __post_init__(self) -> None:
+            if not np.isfinite(self.shift):
+                raise ParameterError("shift", f"must be finite, got {self.shift}")
 
         def update(self, ctx, belief, env, plan, phi_h):
             return Step(belief, None, phi_h - plan.features)
 
     try:
-        s = settings(learners=("TEST-FIXED",), learner_params={"TEST-FIXED": {"shift": 2.0}})
-        assert s.make_learner("TEST-FIXED").shift == 2.0
-        assert make_learner("TEST-FIXED", s).shift == 0.0
-        with pytest.raises(ValueError, match="learner TEST-FIXED: shift = inf must be finite"):
-            settings(learners=("TEST-FIXED",), learner_params={"TEST-FIXED": {"shift": np.inf}})
-        with pytest.raises(ValueError, match=r"unknown parameter 'scale' \(known: shift\)"):
-            make_learner("TEST-FIXED", s, {"scale": 1.0})
+        s = settings(learners={"TEST-FIXED": {"shift": 2.0}})
+        assert s.learners["TEST-FIXED"].shift == 2.0
+        assert make_learner("TEST-FIXED").shift == 0.0
+        with pytest.raises(ValueError, match="learners.TEST-FIXED.shift: must be finite, got inf"):
+            settings(learners={"TEST-FIXED": {"shift": np.inf}})
+        with pytest.raises(ValueError, match=r"learners.TEST-FIXED.scale: .* \(it takes: shift\)"):
+            make_learner("TEST-FIXED", {"scale": 1.0})
         with pytest.raises(TypeError, match="not a Learner subclass"):
             register_learner("TEST-BAD")(object)
     finally:
@@ -140,20 +167,25 @@ def test_plot_styles_and_labels_come_from_the_learners():
 
 
 def test_the_papers_users_are_registered_with_their_parameters():
-    assert list(USERS)[:3] == ["biased", "deform", "noisy"]
+    assert list(USERS)[:4] == ["biased", "deform", "noisy", "model"]
     assert user_parameters("biased") == {"step": 1.0, "waypoints": 1}
     assert user_parameters("deform") == {"step": 1.0}
-    assert user_parameters("noisy") == {"noise": 0.1}
+    assert user_parameters("noisy") == {"noise": 0.5}
 
 
 @pytest.mark.parametrize(
     ("name", "params", "message"),
     [
-        ("psychic", {}, "unknown user 'psychic': known are biased, deform, noisy"),
-        ("biased", {"stp": 0.5}, r"user biased: unknown parameter 'stp' \(known: step, waypoints"),
-        ("biased", {"step": 0.0}, r"user biased: step = 0.0 must lie in \(0, 1\]"),
-        ("biased", {"waypoints": 1.5}, "user biased: waypoints = 1.5 must be an integer"),
-        ("noisy", {"noise": -1.0}, "user noisy: noise = -1.0 must be finite and >= 0"),
+        ("psychic", {}, "user: unknown user 'psychic': known are biased, deform, noisy, model"),
+        (
+            "biased",
+            {"stp": 0.5},
+            r"user.stp: the biased user has no such parameter \(it takes: step, waypoints",
+        ),
+        ("biased", {"step": 0.0}, r"user.step: must lie in \(0, 1\], got 0.0"),
+        ("biased", {"waypoints": 1.5}, "user.waypoints: must be an integer, got 1.5"),
+        ("noisy", {"noise": -1.0}, "user.noise: must be finite and >= 0, got -1.0"),
+        ("model", {"correction": "psychic"}, "user.correction: unknown correction model"),
     ],
 )
 def test_bad_users_and_parameters_are_refused_in_one_line(name, params, message):
@@ -162,14 +194,79 @@ def test_bad_users_and_parameters_are_refused_in_one_line(name, params, message)
     assert "\n" not in str(info.value)
 
 
-def test_settings_pass_user_params_and_keep_the_old_keys():
-    assert settings(user_step=0.5).make_user() == make_user("biased", {"step": 0.5})
-    assert settings(user_params={"step": 0.25}, user_step=0.5).make_user().step == 0.25
-    assert settings(user="noisy", observation_noise=0.04).make_user().noise == pytest.approx(0.2)
-    with pytest.raises(ValueError, match="user biased: user_step = 2.0"):
+def test_a_user_table_sets_its_parameters_and_the_old_keys_still_work():
+    assert settings(user={"name": "biased", "step": 0.5}).user == make_user("biased", {"step": 0.5})
+    assert settings(user_step=0.5).user == make_user("biased", {"step": 0.5})
+    assert settings(user_params={"step": 0.25}, user_step=0.5).user.step == 0.25
+    assert settings(user="noisy", observation_noise=0.04).user.noise == pytest.approx(0.2)
+    assert settings(user="noisy").user.noise == 0.5  # its own default, √ of the default N
+    with pytest.raises(ValueError, match=r"user.step: must lie in \(0, 1\], got 2.0"):
         settings(user_step=2.0)
-    with pytest.raises(ValueError, match="user deform: unknown parameter 'waypoints'"):
+    with pytest.raises(ValueError, match="user.waypoints: the deform user has no such"):
         settings(user="deform", user_params={"waypoints": 2})
+
+
+@pytest.fixture()
+def slow_user():
+    """A plug-in user whose own default step (0.6) is no built-in default."""
+
+    @register_user("TEST-SLOW")
+    @dataclasses.dataclass(frozen=True)
+    class Slow(User):
+        step: float = 0.6
+        waypoints: int = 2
+        noise: float = 0.05
+
+        def correct(self, situation, rng):
+            return waypoint_correction(situation.robot, situation.intended, self.step)
+
+    yield Slow
+    USERS.unregister("TEST-SLOW")
+
+
+def test_nothing_overrides_a_plugin_users_own_defaults(slow_user):
+    base = {"theta_star": [1.0, -1.0]}
+    user = schema.parse_study({**base, "user": "TEST-SLOW"}).study.user
+    assert (user.step, user.waypoints, user.noise) == (0.6, 2, 0.05)
+    # Through the command line's options too: --user takes a plug-in's name, and the filters'
+    # N (once √N became the noisy user's σ) reaches no user.
+    values = schema.apply_overrides(
+        base, {"user": "TEST-SLOW", "set": ["filter.observation_noise=0.04"]}
+    )
+    user = schema.parse_study(values).study.user
+    assert (user.step, user.waypoints, user.noise) == (0.6, 2, 0.05)
+    # An option that sets a parameter is never ignored, even over the file's table.
+    values = schema.apply_overrides(
+        {**base, "user": {"name": "TEST-SLOW", "step": 0.3}}, {"user_step": 0.5}
+    )
+    assert schema.parse_study(values).study.user.step == 0.5
+
+
+def test_a_plugin_correction_model_serves_kf_c_and_a_user():
+    @register_correction("TEST-HALF")
+    @dataclasses.dataclass(frozen=True)
+    class Half(CorrectionModel):
+        share: float = 0.5
+
+        def apply(self, robot, intended):
+            return robot + self.share * (np.asarray(intended) - robot)
+
+    try:
+        s = settings(
+            learners={"KF-C": {"model": {"name": "TEST-HALF", "share": 0.25}}},
+            user={"name": "model", "correction": "TEST-HALF"},
+        )
+        assert s.learners["KF-C"].model == Half(0.25) and s.user.correction == Half(0.5)
+        assert s.as_dict()["learners"]["KF-C"]["model"] == {"name": "TEST-HALF", "share": 0.25}
+        values = schema.apply_overrides(
+            {"theta_star": [1, -1], "learners": ["KF-C"]},
+            {"set": ["learners.KF-C.model=TEST-HALF"]},
+        )
+        assert schema.parse_study(values).study.learners["KF-C"].model == Half()
+        with pytest.raises(ValueError, match="learners.KF-C.model.shares: the TEST-HALF"):
+            settings(learners={"KF-C": {"model": {"name": "TEST-HALF", "shares": 1}}})
+    finally:
+        CORRECTIONS.unregister("TEST-HALF")
 
 
 @pytest.mark.parametrize("name", list(USERS))
@@ -280,9 +377,10 @@ from concurrent.futures import ThreadPoolExecutor
 runpy.run_path({str(EXAMPLES / "custom_learner.py")!r})
 from corrections_sim.figures import learning
 from corrections_sim.figures.plotting import learner_label, learner_style
-s = learning.settings_from_values(dict(
+from corrections_sim.study import schema
+s = schema.parse_study(dict(
     theta_star=[1.0, -1.0], theta0=[0.0, 0.0], cov0=[[1.0, 0.0], [0.0, 1.0]], runs=1,
-    iterations=1, seed=3, learners=["KF", "PP", "NPP"], learner_params={{"NPP": {{"step": 0.5}}}}))
+    iterations=1, seed=3, learners={{"KF": {{}}, "PP": {{}}, "NPP": {{"step": 0.5}}}}))
 with ThreadPoolExecutor(1) as pool:
     result = learning.run(s, pool, mean_estimate=False)
 rows = [r for r in result.records if r["learner"] == "NPP"]
@@ -305,7 +403,7 @@ print(json.dumps({{"order": [r["learner"] for r in result.records][::2],
 @pytest.fixture(scope="module")
 def small_study():
     from corrections_sim.planning.planner import Planner, PlannerConfig
-    from corrections_sim.study.loop import Target
+    from corrections_sim.planning.plans import Target
 
     planner = Planner(PlannerConfig(features=("laptop", "table"), n_starts=1))
     envs = paper_environments()[::16]  # 3 environments
@@ -319,12 +417,12 @@ def test_every_learner_runs_reproducibly_and_moves_toward_theta_star(name, small
     from corrections_sim.study.loop import run_learner
 
     planner, envs, target = small_study
-    s = settings(iterations=3, learners=(name, *filter(None, [LEARNERS[name].rate_from])))
+    s = settings(iterations=3, learners=[name, *filter(None, [LEARNERS[name].rate_from])])
     alphas = np.full(3, 0.2) if LEARNERS[name].needs_rates() else None
 
     def once():
         rng = np.random.default_rng(7)
-        return run_learner(name, 0, s, planner, envs, target, s.make_user(), rng, alphas)
+        return run_learner(name, 0, s, planner, envs, target, s.user, rng, alphas)
 
     a, b = once(), once()
     assert a.records == b.records

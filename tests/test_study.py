@@ -7,10 +7,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from corrections_sim.learning.paper import correction_observer
 from corrections_sim.people.users import BiasedUser, NoisyOptimalUser
 from corrections_sim.planning.planner import Planner, PlannerConfig, PlanningError
+from corrections_sim.planning.plans import PlanBook, Target, evaluate
 from corrections_sim.scene.environments import Environment, paper_environments
-from corrections_sim.study.loop import PlanBook, StudySettings, Target, evaluate, run_learner
+from corrections_sim.study import schema
+from corrections_sim.study.loop import run_learner
+from corrections_sim.study.settings import StudySettings
 
 THETA_STAR = (1.0, -1.0)
 THETA0 = (0.0, 0.0)
@@ -39,7 +43,13 @@ COLUMNS = {
 }
 
 
+#: The built-in learners: every test's settings hold them all, so any can run.
+BUILT_IN = ["PP", "KF", "EKF", "AL", "PP-C", "KF-C", "AL-C", "KF-A", "BP"]
+
+
 def settings(**overrides) -> StudySettings:
+    """Study settings through the schema, as a study file gives them; flat keys such as
+    ``correction_model`` are the older files' keys (translated by the schema)."""
     values = dict(
         theta_star=THETA_STAR,
         theta0=THETA0,
@@ -47,10 +57,11 @@ def settings(**overrides) -> StudySettings:
         iterations=ITERATIONS,
         runs=1,
         seed=0,
+        learners=BUILT_IN,
         fixed_alpha=ALPHA,
     )
     values.update(overrides)
-    return StudySettings(**values)
+    return schema.parse_study(values).study
 
 
 @pytest.fixture(scope="module")
@@ -139,7 +150,8 @@ def test_settings_build_the_filters_values():
     np.testing.assert_array_equal(s.prior().cov, np.eye(2))
     np.testing.assert_array_equal(s.noise().process, 1e-3 * np.eye(2))
     np.testing.assert_array_equal(s.noise().observation, 0.5 * np.eye(2))
-    assert s.learners == ("PP", "KF", "AL")
+    assert tuple(s.learners) == tuple(BUILT_IN)
+    assert tuple(schema.parse_study({"theta_star": [1, -1]}).study.learners) == ("PP", "KF", "AL")
     settings(process_noise=0.0)  # preferences exactly constant is allowed
 
 
@@ -261,7 +273,7 @@ def test_records_have_the_documented_columns_and_start_at_the_prior(
 
 def test_kf_cov_shrinks_and_gains_are_recorded(kf_run):
     records = kf_run.records
-    q = settings().process_noise
+    q = settings().filter.process_noise
     for i in range(2):
         cov = [r[f"cov_{i}{i}"] for r in records]
         # Each update can add at most M before it shrinks P.
@@ -344,14 +356,14 @@ def test_kf_c_with_the_optimal_correction_model_is_the_papers_kf(kf_run, planner
 def test_kf_c_observes_the_modelled_correction(planner, envs, target):
     # Its h at θ* in an environment is exactly the features of the user's correction there.
     from corrections_sim.planning.features import feature_counts
-    from corrections_sim.study.loop import correction_observer
 
     env = envs[1]
     book = PlanBook(planner)
     robot = book.plan(np.array(THETA0), env).trajectory
-    h = correction_observer(book, env, robot, settings().correction(), planner.config.features)
+    model = settings().learners["KF-C"].model
+    h = correction_observer(book, env, robot, model, planner.config.features)
     phi = h(np.array([THETA_STAR]))[0]
-    user = BiasedUser().corrected_trajectory(robot, target.plans[1].trajectory)
+    user = BiasedUser().model().apply(robot, target.plans[1].trajectory)
     np.testing.assert_allclose(phi, feature_counts(user, env.params(), planner.config.features))
     # And at θ̂ itself the modelled correction changes nothing: hₜ(θ̂) = Φ(ξᵗ).
     np.testing.assert_allclose(h(np.array([THETA0]))[0], book.plan(np.array(THETA0), env).features)
@@ -375,12 +387,14 @@ def test_an_active_learner_runs_as_often_as_the_others_when_the_user_is_random()
 @pytest.mark.parametrize(
     ("overrides", "match"),
     [
-        ({"correction_model": "psychic"}, "correction_model"),
-        ({"correction_step": 0.0}, "correction_step"),
-        ({"correction_waypoints": 11}, "correction_waypoints"),
+        ({"correction_model": "psychic"}, "learners.KF-C.model: unknown correction model"),
+        ({"correction_step": 0.0}, r"learners.KF-C.model.step: must lie in \(0, 1\]"),
+        ({"correction_waypoints": 11}, "learners.KF-C.model.waypoints: 11 must lie in"),
         ({"correction_model": "deform", "correction_waypoints": 2}, "correction_waypoints"),
         ({"user": "deform", "user_waypoints": 2}, "user_waypoints"),
-        ({"user_waypoints": 0}, "user_waypoints"),
+        ({"user_waypoints": 0}, "user.waypoints: must be >= 1"),
+        ({"user": {"name": "biased", "waypoints": 11}}, "user.waypoints: 11 must lie in"),
+        ({"learners": {"PP": {}, "KF-C": {"model": {"name": "waypoint", "steps": 1}}}}, "steps"),
         ({"learners": ("PP-C", "KF"), "fixed_alpha": None}, "KF-C"),
     ],
 )

@@ -155,7 +155,8 @@ def test_own_environments_are_the_ones_the_study_runs_in(tmp_path):
 def test_figs_4_and_5_are_study_files_with_the_same_settings():
     for figure in learning.FIGURES:
         via_figure = learning.load_settings(figure, quick=True)
-        via_file = learning.load_file(EXPERIMENTS / f"{figure}.toml", name=figure, quick=True)
+        path = EXPERIMENTS / f"{figure}.toml"
+        via_file = study_file.load_study(path, name=figure, quick=True)
         assert via_figure == via_file
         assert via_file.environments == study_file.PAPER and len(via_file.envs()) == 48
 
@@ -199,7 +200,14 @@ def _replace(text: str, old: str, new: str) -> str:
             ["environments[0].like", "s7-t0-l0"],
         ),
         (_replace(GOOD, '["KF"]', '["KF", "XX"]'), ["learners[1]", "XX", "unknown learner"]),
-        (GOOD + "user_step = 1.5\n", ["user_step"]),
+        (GOOD + "user_step = 1.5\n", ["user.step", "(0, 1]"]),
+        (GOOD + "[user]\nname = 'biased'\nstep = 1.5\n", ["user.step", "(0, 1]"]),
+        (
+            _replace(GOOD, 'learners = ["KF"]\n', "") + "[learners.KF]\ngain = 2\n",
+            ["learners.KF.gain", "no such parameter"],
+        ),
+        (GOOD + "[filter]\nobservation_noise = -1\n", ["filter.observation_noise"]),
+        (GOOD + "lapse = 0.5\n", ["lapse", "BP", "does not run"]),
         (GOOD + 'environments = ["s9-t9-l9"]\n', ["environments[0]", "s9-t9-l9"]),
         (
             GOOD + "environments = [" + MINE.replace("0.45, 0.50, 0.28", "1.5, 0.5, 0.3") + "]\n",
@@ -311,4 +319,4 @@ def test_sizes_are_refused_before_anything_is_built(monkeypatch):
     monkeypatch.setattr(study_file, "parse_environments", no_environments)
     values = {"theta_star": [1.0, -1.0], "runs": 10**40, "iterations": 12}
     with pytest.raises(ValueError, match="runs"):
-        learning.settings_from_values(values)
+        study_file.parse_study(values)

@@ -56,7 +56,11 @@ def test_coffee_features_follow_the_coffee_weight_only_when_the_cup_starts_tilte
 def test_kf_c_learns_all_three_weights_where_the_cup_starts_tilted(planner):
     """README's three-feature study in small: 8 environments (4 upright, 4 tilted), the
     deforming user, KF-C with the deformation model; each weight's error falls, coffee's too."""
-    from corrections_sim.study.loop import StudySettings, Target, run_learner
+    from corrections_sim.learning.base import make_learner
+    from corrections_sim.people.users import DeformingUser
+    from corrections_sim.planning.plans import Target
+    from corrections_sim.study.loop import run_learner
+    from corrections_sim.study.settings import StudySettings
 
     upright = list(paper_environments()[::12])
     tilt = [
@@ -70,16 +74,16 @@ def test_kf_c_learns_all_three_weights_where_the_cup_starts_tilted(planner):
         cov0=tuple(tuple(float(i == j) for j in range(3)) for i in range(3)),
         iterations=6,
         runs=1,
-        user="deform",
-        correction_model="deform",
-        learners=("KF-C",),
+        user=DeformingUser(),
+        user_name="deform",
+        learners={"KF-C": make_learner("KF-C", {"model": "deform"})},
         warm_start=True,
     )
     target = Target.solve(planner, s.theta_star, envs)
     errors = []
     for run in range(2):
         rng = np.random.default_rng([2018, run])
-        result = run_learner("KF-C", run, s, planner, envs, target, s.make_user(), rng)
+        result = run_learner("KF-C", run, s, planner, envs, target, s.user, rng)
         theta = np.array([[r[f"theta_{i}"] for i in range(3)] for r in result.records])
         errors.append(np.abs(theta - s.theta_star))
     first, last = np.mean(errors, axis=0)[[0, -1]]

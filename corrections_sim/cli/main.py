@@ -60,12 +60,14 @@ def _out(args: argparse.Namespace) -> Path:
     return Path(args.out)
 
 
-def _check_replace(args: argparse.Namespace, final: Path, figure: str, settings: dict) -> str:
+def _check_replace(
+    args: argparse.Namespace, final: Path, figure: str, settings: dict, upgrade=None
+) -> str:
     """Refuse (exit 2) to replace a figure folder made by other settings without --force;
     otherwise the line to print, once the command is sure to start, saying what it replaces."""
     preset = "quick" if args.quick else "paper"
     try:
-        return output_folder.check_replace(final, figure, preset, settings, args.force)
+        return output_folder.check_replace(final, figure, preset, settings, args.force, upgrade)
     except output_folder.FolderTaken as exc:
         raise UsageError(f"--out {final.parent}: {exc}") from None
 
@@ -327,7 +329,7 @@ def run_figure(args: argparse.Namespace, figure) -> list[Path]:
     name = figure.folder(settings)
     final = out / name
     recorded = figure.recorded(settings, quick=args.quick)
-    notice = _check_replace(args, final, name, recorded)
+    notice = _check_replace(args, final, name, recorded, getattr(figure, "upgrade_recorded", None))
     t0 = time.perf_counter()
     with contextlib.ExitStack() as stack:
         # The cluster is reached (or the pool started) before anything is written.
@@ -465,8 +467,9 @@ class _Parser(argparse.ArgumentParser):
 def parser() -> argparse.ArgumentParser:
     # Imported here, not at the top: they load the planner's stack (CasADi, MuJoCo, pinocchio),
     # and main() has its interrupt handlers in place by the time this runs.
-    from corrections_sim.people.corrections import CORRECTION_KINDS
-    from corrections_sim.study.schema import learner_names, user_names
+    from corrections_sim.learning.base import LEARNERS
+    from corrections_sim.people.corrections import CORRECTIONS
+    from corrections_sim.people.users import USERS
 
     figures = _figures()
     commands = {**{n: f.help for n, f in figures.items()}, **{n: t[1] for n, t in TOOLS.items()}}
@@ -526,25 +529,30 @@ def parser() -> argparse.ArgumentParser:
         "--learners",
         type=_names,
         metavar="L,L",
-        help="which learners, from " + ", ".join(learner_names()) + " (e.g. PP,KF,AL,KF-C)",
+        help="which learners, from "
+        + ", ".join(LEARNERS)
+        + " or a plug-in's (e.g. PP,KF,AL,KF-C); "
+        "their parameters stay as the study file gives them",
     )
     g.add_argument(
         "--user",
-        choices=user_names(),
-        help="biased: moves its worst waypoint(s) (paper); deform: pushes its worst waypoint "
-        "and the path deforms smoothly; noisy: Φ(ξ*) + Gaussian noise",
+        help="the simulated user, from " + ", ".join(USERS) + " or a plug-in's (biased: "
+        "moves its worst waypoint(s), the paper's; deform: the path deforms smoothly; noisy: "
+        "Φ(ξ*) + Gaussian noise; model: any correction model); replaces the file's user",
     )
     g.add_argument(
-        "--user-step", type=float, help="how far the user moves its worst waypoint, (0, 1]"
+        "--set",
+        action="append",
+        metavar="KEY.PATH=VALUE",
+        help="set any key of the study, e.g. user.step=0.5, learners.KF-C.model=deform, "
+        "filter.observation_noise=0.1 (repeatable; a value is read as TOML, else as text)",
     )
-    g.add_argument(
-        "--user-waypoints", type=int, help="how many worst waypoints the biased user moves"
-    )
+    g.add_argument("--user-step", type=float, help="= --set user.step=S")
+    g.add_argument("--user-waypoints", type=int, help="= --set user.waypoints=N")
     g.add_argument(
         "--correction-model",
-        choices=CORRECTION_KINDS,
-        help="KF-C's model of a correction: waypoint (paper's §6), deform (minimum-jerk), "
-        "optimal (shows ξ*: the paper's KF)",
+        help="KF-C's and AL-C's model of a correction, from " + ", ".join(CORRECTIONS) + " or a "
+        "plug-in's (= --set learners.KF-C.model=NAME)",
     )
     g.add_argument("--correction-step", type=float, help="how far KF-C's model moves, (0, 1]")
     g.add_argument("--correction-waypoints", type=int, help="how many waypoints KF-C's model moves")
@@ -627,4 +635,3 @@ def main(argv: Sequence[str] | None = None) -> int:
     for path in written:
         print(f"wrote {path}")
     return 0
-

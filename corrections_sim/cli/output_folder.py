@@ -12,6 +12,7 @@ the settings it already records, or with ``--force``.
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
 
 #: Default output folders of the paper-scale and the quick presets.
@@ -43,9 +44,17 @@ def differences(old: dict, new: dict) -> dict[str, tuple]:
     return {k: (old[k], new[k]) for k in old if k in new and old[k] != new[k]}
 
 
-def check_replace(folder: Path, figure: str, preset: str, settings: dict, force: bool) -> str:
+def check_replace(
+    folder: Path,
+    figure: str,
+    preset: str,
+    settings: dict,
+    force: bool,
+    upgrade: Callable[[dict], dict] | None = None,
+) -> str:
     """Whether ``folder`` may receive ``figure`` made with ``settings``; checked before anything
-    is computed or written.
+    is computed or written. ``upgrade`` turns settings recorded by an older version into
+    today's form (so the same study compares equal whichever version recorded it).
 
     Returns:
         "" if the folder holds nothing, else one line saying what will be replaced.
@@ -67,7 +76,8 @@ def check_replace(folder: Path, figure: str, preset: str, settings: dict, force:
         if old.get("figure") != figure:
             what = f"{old.get('figure')!r}, not {figure}{made}"
         elif isinstance(old.get("settings"), dict):
-            diff = differences(old["settings"], settings)
+            earlier = upgrade(old["settings"]) if upgrade is not None else old["settings"]
+            diff = differences(earlier, settings)
             if not diff:
                 return f"replacing {folder}: {figure} with the same settings{made}"
             shown = [f"{k} {_short(a)} (now {_short(b)})" for k, (a, b) in diff.items()]

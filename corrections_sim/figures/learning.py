@@ -1,4 +1,5 @@
-"""Figs. 4 and 5: the learners of :data:`corrections_sim.study.loop.LEARNERS` (the paper's PP, KF and
+"""Figs. 4 and 5: the learners of :data:`corrections_sim.learning.base.LEARNERS` (the paper's PP,
+KF and
 AL, and EKF, KF-C, AL-C, PP-C) learning from a simulated user's corrections.
 
 Settings live as data: a study file each (``experiments/fig4.toml``, ``fig5.toml``; any other
@@ -21,37 +22,29 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from concurrent.futures import Executor, Future, as_completed
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from corrections_sim import calibration, provenance
+from corrections_sim import calibration, components, provenance
 from corrections_sim.figures.output import write_records
 from corrections_sim.figures.presets import EXPERIMENTS_DIR
 from corrections_sim.figures.registry import Caches, RunCache, register
 from corrections_sim.learning import learning_rate_schedule
+from corrections_sim.learning.base import LEARNERS, make_learner
 from corrections_sim.metrics import mean_sem
-from corrections_sim.planning.planner import PlannerConfig, shared_planner
+from corrections_sim.planning.planner import shared_planner
+from corrections_sim.planning.plans import PlanBook, PlanEntries, Target, evaluate
 from corrections_sim.scene.environments import (
     LAPTOP_OFFSETS,
     START_POSITIONS,
     TABLE_POSITIONS,
-    Environment,
 )
-from corrections_sim.study import schema as study_file
-from corrections_sim.study.loop import (
-    DEFAULT_LEARNERS,
-    LEARNERS,
-    PlanBook,
-    PlanEntries,
-    RunResult,
-    StudySettings,
-    Target,
-    evaluate,
-    run_learner,
-)
+from corrections_sim.study import schema
+from corrections_sim.study.loop import RunResult, run_learner
+from corrections_sim.study.settings import FigureSettings
 
 FIGURES = ("fig4", "fig5")
 #: Features of figs. 4–5 and the default of a study file.
@@ -70,158 +63,18 @@ N_PAPER_ENVIRONMENTS = len(START_POSITIONS) * len(TABLE_POSITIONS) * len(LAPTOP_
 METRICS = ("estimate_error", "regret", "regret_paper")
 
 
-@dataclass(frozen=True)
-class FigureSettings:
-    """A learning study: its study settings, features, environments and planner settings.
-
-    Attributes:
-        study: learners, user, prior, counts (see :class:`~corrections_sim.study.loop.StudySettings`).
-        planner: planner settings as (name, value) pairs, passed to ``PlannerConfig``
-            (``study_file.PLANNER_SETTINGS``: ``n_starts``, the multi-start count).
-        features: the features θ weighs, in order (k of them).
-        environments: "paper" (the 48), or paper environment names and specs of the user's own
-            (see :mod:`corrections_sim.study.schema`).
-        name: the figure or study file's name (output folder, titles); not a setting.
-        description: a line for the plot's title; not a setting.
-    """
-
-    study: StudySettings
-    planner: tuple[tuple[str, Any], ...] = tuple(study_file.PLANNER_SETTINGS.items())
-    features: tuple[str, ...] = FEATURES
-    environments: study_file.Environments = study_file.PAPER
-    plugins: tuple[study_file.PluginFile, ...] = ()
-    name: str = field(default="", compare=False)
-    description: str = field(default="", compare=False)
-
-    def planner_config(self) -> PlannerConfig:
-        return PlannerConfig(features=self.features, **dict(self.planner))
-
-    def envs(self) -> tuple[Environment, ...]:
-        """The study's environments (memoized per process)."""
-        return study_file.resolve(self.environments)
-
-    def as_dict(self) -> dict:
-        d = {f.name: getattr(self.study, f.name) for f in fields(self.study)}
-        d.update(self.planner)
-        d["features"] = list(self.features)
-        d["environments"] = study_file.as_data(self.environments)
-        if self.plugins:
-            d["plugins"] = [p.as_dict() for p in self.plugins]
-        return d
-
-
 def load_settings(figure: str, *, quick: bool, overrides: dict | None = None) -> FigureSettings:
     """Settings of ``figure`` from its study file ``experiments/<figure>.toml`` with
     command-line overrides.
 
     Raises:
-        ValueError: unknown figure or a bad value (the message names the field).
+        ValueError: unknown figure or a bad value (the message names the key path).
     """
     if figure not in FIGURES:
         raise ValueError(f"figure {figure!r}: choose one of {', '.join(FIGURES)}")
-    return load_file(
+    return schema.load_study(
         EXPERIMENTS_DIR / f"{figure}.toml", name=figure, quick=quick, overrides=overrides
     )
-
-
-def load_file(source, *, name: str, quick: bool, overrides: dict | None = None) -> FigureSettings:
-    """Settings from a study file (a path, or a resource of the installed package), with
-    command-line overrides.
-
-    Raises:
-        ValueError: a bad file or value (the message names the key; see ``study_file``).
-    """
-    values = study_file.read(source, quick=quick)
-    values.update({k: v for k, v in (overrides or {}).items() if v is not None})
-    base = Path(source).resolve().parent if isinstance(source, str | Path) else None
-    return settings_from_values(values, name=name, base=base)
-
-
-def settings_from_values(
-    values: dict, *, name: str = "", base: Path | None = None
-) -> FigureSettings:
-    """A study's settings from a flat mapping of study-file keys (``study_file.settings_keys``).
-
-    Sizes are checked first (:func:`study_file.check_sizes`), so nothing is built for a
-    study that cannot fit.
-
-    Raises:
-        ValueError: an unknown key or a bad value (the message names the field).
-    """
-    values = dict(values)
-    study_file.check_keys(values)
-    # Plug-ins first: they register the users, learners and features named below.
-    plugins = study_file.parse_plugins(values.pop("plugins", ()), base)
-    description = values.pop("description", "")
-    if not isinstance(description, str):
-        raise ValueError(f"description = {description!r}: expected a string")
-    features = study_file.check_features(values.pop("features", FEATURES))
-    k = len(features)
-    learners = values.get("learners", DEFAULT_LEARNERS)
-    if isinstance(learners, list | tuple):
-        for i, learner in enumerate(learners):
-            if learner not in study_file.learner_names():
-                raise ValueError(
-                    f"learners[{i}] = {learner!r}: unknown learner (choose from "
-                    f"{', '.join(study_file.learner_names())})"
-                )
-    user = values.get("user", "biased")
-    if user not in study_file.user_names():
-        raise ValueError(
-            f"user = {user!r}: unknown user (choose from {', '.join(study_file.user_names())})"
-        )
-    raw_envs = values.pop("environments", study_file.PAPER)
-    n_envs = len(raw_envs) if isinstance(raw_envs, list | tuple) else N_PAPER_ENVIRONMENTS
-    values.setdefault("runs", 10)
-    values.setdefault("iterations", 12)
-    study_file.check_sizes(
-        values, n_envs, len(learners) if isinstance(learners, list | tuple) else 1
-    )
-    planner = tuple((k, values.pop(k, v)) for k, v in study_file.PLANNER_SETTINGS.items())
-    if "theta_star" not in values:
-        raise ValueError("theta_star: missing (the simulated user's true weights)")
-    theta_star = values["theta_star"]
-    if not isinstance(theta_star, list | tuple) or len(theta_star) != k:
-        raise ValueError(
-            f"theta_star: expected {k} weights for the features {features}, got "
-            f"{len(theta_star) if isinstance(theta_star, list | tuple) else repr(theta_star)}"
-        )
-    values.setdefault("theta0", [0.0] * k)
-    values.setdefault("cov0", [[float(i == j) for j in range(k)] for i in range(k)])
-    for key in ("theta_star", "theta0"):
-        if not isinstance(values[key], list | tuple) or not all(
-            not isinstance(v, bool) and isinstance(v, int | float) for v in values[key]
-        ):
-            raise ValueError(f"{key} = {values[key]!r}: expected a list of numbers")
-    cov0 = values["cov0"]
-    if not isinstance(cov0, list | tuple) or not all(
-        isinstance(row, list | tuple)
-        and all(not isinstance(v, bool) and isinstance(v, int | float) for v in row)
-        for row in cov0
-    ):
-        raise ValueError(f"cov0 = {cov0!r}: expected a {k} x {k} matrix (a list of rows)")
-    if len(cov0) != k or any(len(row) != k for row in cov0):
-        raise ValueError(f"cov0: expected a {k} x {k} matrix for the features {features}")
-    values["theta_star"] = tuple(float(v) for v in values["theta_star"])
-    values["theta0"] = tuple(float(v) for v in values["theta0"])
-    values["cov0"] = tuple(tuple(float(v) for v in row) for row in cov0)
-    if "learners" in values:
-        values["learners"] = tuple(values["learners"])
-    try:
-        study = StudySettings(**values)
-    except TypeError as exc:  # a value of the wrong type that the checks above let through
-        raise ValueError(f"settings: {exc}") from None
-    settings = FigureSettings(
-        study=study,
-        planner=planner,
-        features=features,
-        environments=study_file.parse_environments(raw_envs),
-        plugins=plugins,
-        name=name,
-        description=description,
-    )
-    settings.planner_config()  # validates the planner settings
-    return settings
 
 
 @dataclass(frozen=True)
@@ -241,7 +94,7 @@ class Shared:
 
 def prepare(settings: FigureSettings) -> Shared:
     """Solve the shared plans; a task for a worker (the caller needs no planner)."""
-    study_file.load_plugins(settings.plugins)
+    schema.load_plugins(settings.plugins)
     s = settings.study
     planner = shared_planner(settings.planner_config())
     envs = settings.envs()
@@ -255,7 +108,7 @@ def run_one(
     settings: FigureSettings, shared: Shared, learner: str, run: int, alphas=None
 ) -> RunResult:
     """One (learner, run); safe to call in a worker process."""
-    study_file.load_plugins(settings.plugins)
+    schema.load_plugins(settings.plugins)
     s = settings.study
     seq = np.random.SeedSequence([s.seed, LEARNERS[learner].stream, run])
     return run_learner(
@@ -265,7 +118,7 @@ def run_one(
         shared_planner(settings.planner_config()),
         settings.envs(),
         shared.target,
-        s.make_user(),
+        s.user,
         np.random.default_rng(seq),
         alphas=alphas,
         known=shared.prior,
@@ -276,7 +129,7 @@ def mean_estimate_point(
     settings: FigureSettings, shared: Shared, theta: tuple[float, ...]
 ) -> tuple[float, float, int, int]:
     """(regret, paper regret, failed environments, solves) of one θ; a worker task."""
-    study_file.load_plugins(settings.plugins)
+    schema.load_plugins(settings.plugins)
     book = PlanBook(shared_planner(settings.planner_config()), shared.prior)
     regret, paper, failed = evaluate(book, shared.target, settings.envs(), np.array(theta))
     return regret, paper, failed, book.solves
@@ -329,13 +182,13 @@ def learning_rates(settings: FigureSettings, results: Mapping) -> dict[str, np.n
     the filter it follows (a step that failed counts as a zero gain)."""
     s = settings.study
     rates = {}
-    for name in s.learners:
-        source = LEARNERS[name].rate_from
+    for name, learner in s.learners.items():
         if not LEARNERS[name].needs_rates():
             continue
-        if s.fixed_alpha is not None:
-            rates[name] = np.full(s.iterations, s.fixed_alpha)
+        if learner.fixed_rate() is not None:
+            rates[name] = np.full(s.iterations, learner.fixed_rate())
             continue
+        source = learner.rate_source()
         gains = [results[(source, r)].gains for r in range(s.runs_of(source))]
         rates[name] = learning_rate_schedule(np.nan_to_num(np.array(gains), nan=0.0))
     return rates
@@ -537,18 +390,22 @@ def describe(settings: FigureSettings) -> str:
         prior = f"diag{_vector(np.diag(cov))}"
     else:
         prior = "[" + "; ".join(", ".join(f"{v:g}" for v in row) for row in cov) + "]"
-    user = s.user
-    if s.user in ("biased", "deform"):
-        user += f", step {s.user_step:g}"
-    if s.user_waypoints != 1:
-        user += f", {s.user_waypoints} waypoints"
+    params = components.params(s.user)
+    shown = ", ".join(
+        f"{k} {v:g}" if isinstance(v, float) else f"{k} {v}"
+        for k, v in params.items()
+        if not isinstance(v, dict)
+    )
+    user = s.user_name + (f", {shown}" if shown else "")
     return f"θ* = {_vector(s.theta_star)}, θ̂⁰ = {_vector(s.theta0)}, P⁰ = {prior}; {user} user"
 
 
 # --- files, and the figures registered by name -------------------------------------------------
 
-#: Command-line options of a learning study (their argparse destinations), beyond the common ones.
+#: Command-line options of a learning study (their argparse destinations), beyond the common ones:
+#: each sets a key of the study (``schema.OPTION_PATHS``); ``set`` is ``--set PATH=VALUE``.
 OPTIONS = (
+    "set",
     "runs",
     "iterations",
     "seed",
@@ -571,8 +428,15 @@ OPTIONS = (
 def run_key(settings: FigureSettings) -> dict:
     """The settings a run's numbers depend on: all but which learners run (a run of one
     learner is the same whichever others run beside it), so adding a learner to a study
-    reuses the runs already made."""
-    return {k: v for k, v in settings.as_dict().items() if k != "learners"}
+    reuses the runs already made; a learner's parameters count where they differ from its
+    defaults (changing one gives new runs)."""
+    key = {k: v for k, v in settings.as_dict().items() if k != "learners"}
+    key["learner_params"] = {
+        name: params
+        for name, params in settings.study.learner_params().items()
+        if params != components.params(make_learner(name))
+    }
+    return key
 
 
 def shown_curves(settings: FigureSettings, result: FigureResult) -> dict:
@@ -649,7 +513,7 @@ class LearningStudy:
     def load(self, *, quick: bool, overrides: Mapping[str, Any]) -> FigureSettings:
         overrides = dict(overrides)
         if self.path is not None:
-            return load_file(self.path, name=self.name, quick=quick, overrides=overrides)
+            return schema.load_study(self.path, name=self.name, quick=quick, overrides=overrides)
         given = overrides.pop("study_file", None)
         if not given:
             raise ValueError(
@@ -657,7 +521,7 @@ class LearningStudy:
             )
         path = Path(given)
         try:
-            return load_file(path, name=path.stem, quick=quick, overrides=overrides)
+            return schema.load_study(path, name=path.stem, quick=quick, overrides=overrides)
         except ValueError as exc:
             raise ValueError(f"{path}: {exc}") from None
 
@@ -669,6 +533,10 @@ class LearningStudy:
 
     def recorded(self, settings: FigureSettings, *, quick: bool) -> dict:
         return settings.as_dict()
+
+    def upgrade_recorded(self, old: dict) -> dict:
+        """Settings an older ``summary.json`` recorded (flat keys), in today's form."""
+        return schema.normalize_recorded(old)
 
     def run(
         self,

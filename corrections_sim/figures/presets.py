@@ -9,8 +9,6 @@ from __future__ import annotations
 
 import functools
 import importlib
-import math
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass
 from importlib import resources
@@ -19,14 +17,12 @@ from typing import Any
 
 import numpy as np
 
-from corrections_sim.learning import Belief
-from corrections_sim.planning.features import check_feature_names
 from corrections_sim.scene.environments import (
-    CUP_WORKSPACE,
     Environment,
     configuration_at,
     table_holding,
 )
+from corrections_sim.study import schema
 
 
 def _experiments_dir():
@@ -41,126 +37,6 @@ def _experiments_dir():
 
 #: Where the presets are read from: the same files from a clone and from a wheel.
 EXPERIMENTS_DIR = _experiments_dir()
-
-
-def read_preset(figure: str, quick: bool) -> dict:
-    """The ``[paper]`` or ``[quick]`` table of ``experiments/<figure>.toml``."""
-    with (EXPERIMENTS_DIR / f"{figure}.toml").open("rb") as fh:
-        presets = tomllib.load(fh)
-    return dict(presets["quick" if quick else "paper"])
-
-
-def load_values(
-    figure: str, figures: tuple[str, ...], quick: bool, overrides: dict | None, table: str
-) -> tuple[dict, tuple[str, ...], tuple[float, ...]]:
-    """A figure's preset with overrides applied, and its checked features and θ̂.
-
-    Args:
-        figure: the figure asked for, one of ``figures``.
-        quick: the quick preset instead of the paper-scale one.
-        overrides: top-level fields to replace (None values are ignored); ``table`` (the
-            list of maps or panels) and ``seed`` (these figures draw no random numbers)
-            cannot be overridden.
-
-    Returns:
-        (the remaining fields, the feature names, θ̂ of their length).
-    """
-    if figure not in figures:
-        raise ValueError(f"figure {figure!r}: choose one of {', '.join(figures)}")
-    values = read_preset(figure, quick)
-    for key, value in (overrides or {}).items():
-        if value is None:
-            continue
-        if key == "seed":
-            raise ValueError(f"seed: {figure} draws no random numbers, it takes no seed")
-        if key not in values or key == table:
-            raise ValueError(f"{key}: not a setting of {figure} that can be overridden")
-        values[key] = value
-    features = take(values, "features")
-    if not isinstance(features, list | tuple):
-        raise ValueError(f"features = {features!r}: expected a list of feature names")
-    features = check_feature_names(tuple(features))
-    theta = vector("theta", take(values, "theta"), len(features))
-    return values, features, theta
-
-
-def take(values: dict, name: str, prefix: str = ""):
-    """Pop a required field; a missing one is refused by name."""
-    if name not in values:
-        raise ValueError(f"{prefix}{name}: missing")
-    return values.pop(name)
-
-
-def reject_unknown(values: dict, prefix: str = "") -> None:
-    """Refuse fields nobody reads (a misspelt key would otherwise be ignored)."""
-    if values:
-        raise ValueError(f"{prefix or 'settings'}: unknown keys {sorted(values)}")
-
-
-def number(name: str, value, *, low: float = -math.inf, high: float = math.inf) -> float:
-    """A finite float in [low, high]."""
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ValueError(f"{name} = {value!r}: expected a number")
-    if not (math.isfinite(value) and low <= value <= high):
-        raise ValueError(f"{name} = {value!r}: expected a finite number in [{low}, {high}]")
-    return float(value)
-
-
-def integer(name: str, value, *, low: int, high: int) -> int:
-    """An int in [low, high]."""
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise ValueError(f"{name} = {value!r}: expected an integer")
-    if not low <= value <= high:
-        raise ValueError(f"{name} = {value}: expected an integer in [{low}, {high}]")
-    return int(value)
-
-
-def vector(name: str, value, length: int | None = None) -> tuple[float, ...]:
-    """A tuple of finite floats, of ``length`` if given."""
-    if not isinstance(value, list | tuple) or not value:
-        raise ValueError(f"{name} = {value!r}: expected a list of numbers")
-    if length is not None and len(value) != length:
-        raise ValueError(f"{name}: expected {length} values, got {len(value)}")
-    return tuple(number(f"{name}[{i}]", v) for i, v in enumerate(value))
-
-
-def bounds(name: str, value, low: float, high: float) -> tuple[float, float]:
-    """(lo, hi) with low <= lo < hi <= high."""
-    lo, hi = vector(name, value, 2)
-    if not lo < hi:
-        raise ValueError(f"{name} = [{lo}, {hi}]: the lower bound must be below the upper")
-    if lo < low or hi > high:
-        raise ValueError(
-            f"{name} = [{lo}, {hi}] m leaves the allowed range [{low:.6g}, {high:.6g}] m"
-        )
-    return lo, hi
-
-
-def covariance(name: str, value, k: int) -> tuple[tuple[float, ...], ...]:
-    """A k × k symmetric positive definite matrix, as nested tuples."""
-    if not isinstance(value, list | tuple) or len(value) != k:
-        raise ValueError(f"{name}: expected a {k} x {k} matrix (a list of {k} rows)")
-    rows = tuple(vector(f"{name}[{i}]", row, k) for i, row in enumerate(value))
-    try:
-        Belief(theta=np.zeros(k), cov=np.array(rows))
-    except ValueError as exc:
-        raise ValueError(str(exc).replace("Belief.cov", name)) from None
-    return rows
-
-
-def cup_position(name: str, value) -> tuple[float, float, float]:
-    """A cup position (x, y, z) inside :data:`CUP_WORKSPACE` that the arm reaches."""
-    point = vector(name, value, 3)
-    for axis, v, (lo, hi) in zip("xyz", point, CUP_WORKSPACE, strict=True):
-        if not lo <= v <= hi:
-            raise ValueError(f"{name}.{axis} = {v} m leaves the arm's workspace [{lo}, {hi}] m")
-    try:
-        configuration_at(point)
-    except ValueError:
-        raise ValueError(
-            f"{name} = {list(point)}: unreachable with the hand down (no IK)"
-        ) from None
-    return point  # type: ignore[return-value]
 
 
 @dataclass(frozen=True)
@@ -183,10 +59,10 @@ class Scene:
     def parse(cls, values: dict) -> Scene:
         """Take ``start``, ``goal``, ``laptop`` and ``table`` from ``values`` and check them."""
         scene = cls(
-            start=cup_position("start", take(values, "start")),
-            goal=cup_position("goal", take(values, "goal")),
-            laptop=vector("laptop", take(values, "laptop"), 3),  # type: ignore[arg-type]
-            table=vector("table", take(values, "table"), 2),  # type: ignore[arg-type]
+            start=schema.cup_position("start", schema.take(values, "start")),
+            goal=schema.cup_position("goal", schema.take(values, "goal")),
+            laptop=schema.vector("laptop", schema.take(values, "laptop"), 3),  # type: ignore[arg-type]
+            table=schema.vector("table", schema.take(values, "table"), 2),  # type: ignore[arg-type]
         )
         scene.environment()  # the laptop on the table, the table in its range
         return scene
@@ -261,7 +137,7 @@ class PresetFigure:
     def recorded(self, settings, *, quick: bool) -> dict:
         from corrections_sim import provenance
 
-        return provenance.plain(read_preset(self.name, quick))
+        return provenance.plain(schema.read(EXPERIMENTS_DIR / f"{self.name}.toml", quick=quick))
 
     def run(self, settings, executor, progress, cache):
         return self._module().run(settings, executor, progress)

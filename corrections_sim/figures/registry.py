@@ -87,6 +87,9 @@ class Figure(Protocol):
         earlier settings with (see :mod:`corrections_sim.cli.output_folder`)."""
         ...
 
+    # Optional: ``upgrade_recorded(old) -> dict``, settings recorded by an older version in
+    # today's form (the command line compares them with :meth:`recorded`'s).
+
     def run(
         self, settings: Any, executor: Executor, progress: Progress, cache: Caches | None
     ) -> Any: ...

@@ -1,6 +1,6 @@
 """Markdown tables from a figure's ``summary.json``: what the README quotes, computed, not typed.
 
-    python -m corrections_sim.figures.report results/fig4            # learning figure: final, paired, NEES
+    python -m corrections_sim.figures.report results/fig4   # learning figure: final, paired, NEES
     python -m corrections_sim.figures.report results/fig6            # robustness matrix
 
 Reads only the summary a figure wrote; prints to stdout. Bad input (no such folder, not a
@@ -133,7 +133,9 @@ def report(folder: Path) -> str:
 def main(argv: Sequence[str] | None = None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     if len(args) != 1:
-        print("error: usage: python -m corrections_sim.figures.report RESULTS/FIGURE", file=sys.stderr)
+        print(
+            "error: usage: python -m corrections_sim.figures.report RESULTS/FIGURE", file=sys.stderr
+        )
         return 2
     folder = Path(args[0])
     try:

@@ -7,10 +7,11 @@ three worst waypoints, one who pushes the arm into a smooth deformation, and the
 user (the paper KF's own model). A cell holds the final estimate error and regret (mean ±
 SEM) and the calibration (mean NEES, coverage of θ* by the 95% credible ellipse).
 
-Settings are data in ``experiments/fig6.toml``: the study settings of every column (fig. 4's
-by default) and a list of ``[[<preset>.users]]`` tables, each a column with its ``label`` and
-the user keys of :class:`~corrections_sim.study.loop.StudySettings` (``user``, ``user_step``,
-``user_waypoints``). Each column is a learning study run by :func:`learning.run`.
+Settings are data in ``experiments/fig6.toml`` (the one dialect of
+:mod:`corrections_sim.study.schema`): the study settings every column shares (fig. 4's by
+default) and a list of ``[[columns]]`` tables, each a column with its ``label`` and its
+``user``, a name or a table with the user's parameters (``{ name = "biased", step = 0.5 }``;
+plug-in users included). Each column is a learning study run by :func:`learning.run`.
 """
 
 from __future__ import annotations
@@ -27,12 +28,15 @@ from corrections_sim import provenance
 from corrections_sim.figures import learning
 from corrections_sim.figures.learning import FigureResult, FigureSettings
 from corrections_sim.figures.output import write_records
-from corrections_sim.figures.presets import read_preset
+from corrections_sim.figures.presets import EXPERIMENTS_DIR
 from corrections_sim.figures.registry import Caches, RunCache, register
+from corrections_sim.study import schema
 
 FIGURE = "fig6"
 #: Keys a column may set; everything else is shared by all columns.
-USER_KEYS = ("user", "user_step", "user_waypoints")
+COLUMN_KEYS = ("label", "user")
+#: Options that set the user: refused, the columns are the users.
+USER_OPTIONS = ("user", "user_step", "user_waypoints")
 
 
 @dataclass(frozen=True)
@@ -59,35 +63,44 @@ class RobustnessSettings:
 
 def load_settings(*, quick: bool, overrides: dict | None = None) -> RobustnessSettings:
     """Settings of fig. 6 from ``experiments/fig6.toml``; ``overrides`` apply to every column
-    (user keys cannot be overridden: the columns are the users).
+    (the user cannot be overridden: the columns are the users).
 
     Raises:
-        ValueError: a bad value, named as ``users[i].key`` or by its key.
+        ValueError: a bad value, named as ``columns[i].key`` or by its key path.
     """
-    preset = read_preset(FIGURE, quick)
-    users = preset.pop("users", None)
-    if not isinstance(users, list) or not users:
-        raise ValueError("users: expected a non-empty list of [[users]] tables")
+    keys = (*schema.STUDY_KEYS, *schema.LEGACY_KEYS, "columns")
+    values = schema.read(EXPERIMENTS_DIR / f"{FIGURE}.toml", quick=quick, keys=keys)
+    columns = values.pop("columns", None)
+    if not isinstance(columns, list) or not columns:
+        raise ValueError("columns: expected a non-empty list of [[columns]] tables")
     given = {k: v for k, v in (overrides or {}).items() if v is not None}
-    for key in USER_KEYS:
+    for key in USER_OPTIONS:
         if key in given:
             raise ValueError(f"{key}: fig6's columns are its users; set them in fig6.toml")
-    columns, labels = [], set()
-    for i, user in enumerate(users):
-        user = dict(user)
-        label = user.pop("label", None)
-        if not isinstance(label, str) or not label or label in labels:
-            raise ValueError(f"users[{i}].label: expected a distinct non-empty name")
-        unknown = sorted(set(user) - set(USER_KEYS))
+    if any(item.partition("=")[0].strip().startswith("user") for item in given.get("set", ())):
+        raise ValueError("--set user…: fig6's columns are its users; set them in fig6.toml")
+    if "user" in values:
+        raise ValueError("user: fig6's columns are its users; give each [[columns]] its user")
+    values = schema.apply_overrides(values, given)
+    out, labels = [], set()
+    for i, column in enumerate(columns):
+        if not isinstance(column, dict):
+            raise ValueError(f"columns[{i}]: expected a table with label and user")
+        unknown = sorted(set(column) - set(COLUMN_KEYS))
         if unknown:
-            raise ValueError(f"users[{i}]: unknown keys {unknown} (allowed: {USER_KEYS})")
+            raise ValueError(f"columns[{i}].{unknown[0]}: unknown key (a column takes label, user)")
+        label = column.get("label")
+        if not isinstance(label, str) or not label or label in labels:
+            raise ValueError(f"columns[{i}].label: expected a distinct non-empty name")
+        if "user" not in column:
+            raise ValueError(f"columns[{i}].user: missing (a name or a table with its parameters)")
         labels.add(label)
         try:
-            settings = learning.settings_from_values({**preset, **user, **given})
+            settings = schema.parse_study({**values, "user": column["user"]})
         except ValueError as exc:
-            raise ValueError(f"users[{i}] ({label}): {exc}") from None
-        columns.append(Column(label=label, settings=settings))
-    return RobustnessSettings(columns=tuple(columns))
+            raise ValueError(f"columns[{i}] ({label}): {exc}") from None
+        out.append(Column(label=label, settings=settings))
+    return RobustnessSettings(columns=tuple(out))
 
 
 def run(
@@ -189,6 +202,13 @@ class RobustnessFigure:
 
     def recorded(self, settings: RobustnessSettings, *, quick: bool) -> dict:
         return settings.as_dict()
+
+    def upgrade_recorded(self, old: dict) -> dict:
+        """Settings an older ``summary.json`` recorded (flat keys per column), in today's form."""
+        return {
+            label: schema.normalize_recorded(v) if isinstance(v, dict) else v
+            for label, v in old.items()
+        }
 
     def run(
         self,

@@ -45,6 +45,7 @@ from corrections_sim.learning import (
 from corrections_sim.planning.planner import PlannerConfig, PlanningError, shared_planner
 from corrections_sim.scene.environments import CUP_WORKSPACE, Environment, laptop_range
 from corrections_sim.scene.world import check_configuration
+from corrections_sim.study import schema
 from corrections_sim.study.loop import PlanBook
 
 FIGURES = ("fig1", "fig2")
@@ -161,7 +162,7 @@ class SelectionSettings:
 
 
 def _grid(prefix: str, values: dict, laptop_yaw: float) -> Grid:
-    vary = presets.take(values, "vary", prefix)
+    vary = schema.take(values, "vary", prefix)
     if vary not in VARY:
         raise ValueError(f"{prefix}vary = {vary!r}: choose one of {', '.join(VARY)}")
     if vary == "laptop":
@@ -169,16 +170,16 @@ def _grid(prefix: str, values: dict, laptop_yaw: float) -> Grid:
         z = None
     else:
         (x_lo, x_hi), (y_lo, y_hi), (z_lo, z_hi) = CUP_WORKSPACE
-        z = presets.number(f"{prefix}z", presets.take(values, "z", prefix), low=z_lo, high=z_hi)
+        z = schema.number(f"{prefix}z", schema.take(values, "z", prefix), low=z_lo, high=z_hi)
     grid = Grid(
         vary=vary,
-        x=presets.bounds(f"{prefix}x", presets.take(values, "x", prefix), x_lo, x_hi),
-        y=presets.bounds(f"{prefix}y", presets.take(values, "y", prefix), y_lo, y_hi),
-        nx=presets.integer(
-            f"{prefix}nx", presets.take(values, "nx", prefix), low=2, high=_MAX_CELLS_PER_AXIS
+        x=schema.bounds(f"{prefix}x", schema.take(values, "x", prefix), x_lo, x_hi),
+        y=schema.bounds(f"{prefix}y", schema.take(values, "y", prefix), y_lo, y_hi),
+        nx=schema.integer(
+            f"{prefix}nx", schema.take(values, "nx", prefix), low=2, high=_MAX_CELLS_PER_AXIS
         ),
-        ny=presets.integer(
-            f"{prefix}ny", presets.take(values, "ny", prefix), low=2, high=_MAX_CELLS_PER_AXIS
+        ny=schema.integer(
+            f"{prefix}ny", schema.take(values, "ny", prefix), low=2, high=_MAX_CELLS_PER_AXIS
         ),
         z=z,
     )
@@ -198,44 +199,46 @@ def load_settings(figure: str, *, quick: bool, overrides: dict | None = None) ->
         ValueError: unknown figure, missing or unknown key, or a bad value; the one-line
             message names the field (e.g. ``maps[1].cov``, ``maps[0].x``).
     """
-    values, features, theta = presets.load_values(figure, FIGURES, quick, overrides, "maps")
+    values, features, theta = schema.load_values(
+        presets.EXPERIMENTS_DIR, figure, FIGURES, quick, overrides, "maps"
+    )
     k = len(features)
     scene = Scene.parse(values)
     maps = []
-    raw_maps = presets.take(values, "maps")
+    raw_maps = schema.take(values, "maps")
     if not isinstance(raw_maps, list) or not raw_maps:
         raise ValueError("maps: expected at least one [[maps]] table")
     for i, raw in enumerate(raw_maps):
         prefix = f"maps[{i}]."
         raw = dict(raw)
-        name = str(presets.take(raw, "name", prefix))
+        name = str(schema.take(raw, "name", prefix))
         if not name.isidentifier():
             raise ValueError(f"{prefix}name = {name!r}: expected a short identifier")
-        title = str(presets.take(raw, "title", prefix))
-        cov = presets.covariance(f"{prefix}cov", presets.take(raw, "cov", prefix), k)
+        title = str(schema.take(raw, "title", prefix))
+        cov = schema.covariance(f"{prefix}cov", schema.take(raw, "cov", prefix), k)
         grid = _grid(prefix, raw, scene.laptop[2])
-        presets.reject_unknown(raw, f"maps[{i}]")
+        schema.reject_unknown(raw, f"maps[{i}]")
         maps.append(HeatMap(name=name, title=title, grid=grid, cov=cov))
     if len({m.name for m in maps}) != len(maps):
         raise ValueError(f"maps: names must be distinct, got {[m.name for m in maps]}")
     candidates = tuple(
-        presets.vector(f"candidates[{i}]", c, k) for i, c in enumerate(values.pop("candidates", []))
+        schema.vector(f"candidates[{i}]", c, k) for i, c in enumerate(values.pop("candidates", []))
     )
     optional = {}
     for name, low in (("process_noise", 0.0), ("observation_noise", 1e-12)):
         if name in values:
-            optional[name] = presets.number(name, values.pop(name), low=low)
+            optional[name] = schema.number(name, values.pop(name), low=low)
     for name in ("sigma_alpha", "sigma_beta", "sigma_kappa"):
         if name in values:
-            optional[name] = presets.number(name, values.pop(name))
+            optional[name] = schema.number(name, values.pop(name))
     if "n_starts" in values:
-        optional["n_starts"] = presets.integer("n_starts", values.pop("n_starts"), low=1, high=3)
+        optional["n_starts"] = schema.integer("n_starts", values.pop("n_starts"), low=1, high=3)
     if "camera" in values:
         camera = values.pop("camera")
         if camera not in CAMERAS:
             raise ValueError(f"camera = {camera!r}: choose one of {', '.join(CAMERAS)}")
         optional["camera"] = camera
-    presets.reject_unknown(values)
+    schema.reject_unknown(values)
     settings = SelectionSettings(
         figure=figure,
         features=features,

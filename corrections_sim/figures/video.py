@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from corrections_sim.people.users import Situation
 from corrections_sim.planning.planner import Planner, PlannerConfig
 from corrections_sim.scene.environments import Environment, paper_environments
 
@@ -171,10 +172,10 @@ def figure_settings(record: RunRecord):
     Raises:
         VideoInputError: the recorded settings are not valid settings of the figure.
     """
-    from corrections_sim.figures import learning
+    from corrections_sim.study import schema
 
     try:
-        return learning.load_settings(record.figure, quick=False, overrides=record.settings)
+        return schema.parse_study(record.settings, name=record.figure)
     except (ValueError, TypeError) as exc:
         raise VideoInputError(f"{record.figure}/summary.json: {exc}") from None
 
@@ -192,14 +193,15 @@ def plan_episodes(record: RunRecord, iterations: Sequence[int], planner: Planner
             features), or the run names an environment that is not one of the 48.
     """
     study = figure_settings(record).study
-    user = study.make_user()
-    if not hasattr(user, "corrected_trajectory"):
+    user = study.user
+    if user.stochastic:
         raise VideoInputError(
-            f"{record.figure}: the {study.user} user shows features, not a trajectory; "
-            "only runs of a user who edits the trajectory can be animated"
+            f"{record.figure}: the {study.user_name} user draws random numbers, so its "
+            "corrections cannot be replayed; only runs of a deterministic user can be animated"
         )
     envs = {e.name: e for e in paper_environments()}
     theta_star = np.array(study.theta_star, float)
+    study_features = planner.config.features
     episodes = []
     for t in iterations:
         name = record.environments[t - 1]
@@ -217,7 +219,10 @@ def plan_episodes(record: RunRecord, iterations: Sequence[int], planner: Planner
                 theta_after=after,
                 robot=robot,
                 intended=intended,
-                correction=user.corrected_trajectory(robot, intended),
+                correction=user.correct(
+                    Situation(robot, intended, env, study_features, theta_star),
+                    np.random.default_rng(0),
+                ),
                 learned=planner.solve(after, env).trajectory,
             )
         )

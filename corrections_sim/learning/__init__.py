@@ -62,3 +62,6 @@ __all__ = [
     "ukf_predicted_covariance",
     "ukf_update",
 ]
+
+# The paper's learners register themselves on import; first, so they lead the registry's order.
+from corrections_sim.learning import paper  # noqa: E402,F401

@@ -8,43 +8,46 @@ A learner, at every iteration t of a run (:func:`corrections_sim.study.loop.run_
    N(θ̂ᵗ, Pᵗ) and the correction's features Φ_h into the next belief (:meth:`Learner.update`),
    reporting what calibration needs (:class:`Step`).
 
-It reaches the planner only through :class:`LearnerContext` (memoized solves of this run).
-Class attributes describe it to the figures (label, style, stream, whether its P means
-something, whose Kalman gains give its learning rate). A learner is a :class:`Learner`
-subclass registered by name::
+It reaches the planner and the study's shared filter settings (M, N, sigma points) only
+through :class:`LearnerContext`. Class attributes describe it to the figures (label, style,
+stream, whether its P means something, whose Kalman gains give its learning rate). A learner
+is a :class:`Learner` subclass, a frozen dataclass whose fields are its own parameters
+(defaults and checks in the class), registered by name::
 
     @register_learner("MINE")
+    @dataclass(frozen=True)
     class Mine(Learner):
         label = "My learner"
+        step: float = 0.25          # a parameter: [learners.MINE] step = 0.5
 
         def update(self, ctx, belief, env, plan, phi_h):
             ...
             return Step(new_belief, gain=None, innovation=phi_h - plan.features)
 
-Its parameters are its constructor's keyword arguments: :meth:`Learner.from_settings`
-receives the study's settings and the ``learner_params`` given for it by name. The paper's
-learners are registered in :mod:`corrections_sim.learning.paper` (imported below, so they
-come first in the registry's order).
+:func:`make_learner` builds one by name from its parameters (a study file's
+``[learners.MINE]`` table). The paper's learners are registered in
+:mod:`corrections_sim.learning.paper`, which the package imports first, so they come first
+in the registry's order.
 """
 
 from __future__ import annotations
 
 import abc
-import inspect
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from corrections_sim.learning import Belief
+from corrections_sim import components
+from corrections_sim.belief import Belief, KalmanNoise
+from corrections_sim.learning.kalman import SigmaPoints
 from corrections_sim.planning.planner import Plan
 from corrections_sim.registry import Registry
 from corrections_sim.scene.environments import Environment
 
 if TYPE_CHECKING:
     from corrections_sim.planning.plans import PlanBook
-    from corrections_sim.study.loop import StudySettings
 
 
 @dataclass(frozen=True, eq=False)
@@ -61,6 +64,8 @@ class LearnerContext:
             (see :attr:`Learner.needs_rates`), else None.
         rng: the run's generator (shared with the user's noise: drawing from it changes the
             user's draws too).
+        noise: the study's filter noise, M (process) and N (observation).
+        sigma: the study's unscented-transform sigma points.
         iteration: t, the correction being processed (0-based).
     """
 
@@ -70,6 +75,8 @@ class LearnerContext:
     n_waypoints: int
     alphas: np.ndarray | None
     rng: np.random.Generator
+    noise: KalmanNoise
+    sigma: SigmaPoints
     iteration: int = 0
 
 
@@ -118,13 +125,19 @@ class Learner(abc.ABC):
         """Whether its runs need ``ctx.alphas`` (fixed, or from ``rate_from``'s gains)."""
         return cls.rate_from is not None
 
-    @classmethod
-    def from_settings(cls, settings: StudySettings, **params: Any) -> Learner:
-        """Build one for ``settings``; ``params`` are its constructor's keyword arguments.
+    def rate_source(self) -> str | None:
+        """The learner whose gains give this one's learning rate, or None when it has none or
+        it is fixed (a PP-type learner with ``fixed_alpha``)."""
+        return self.rate_from
 
-        The default passes ``params`` to the constructor; override to read study settings.
-        """
-        return cls(**params)
+    def fixed_rate(self) -> float | None:
+        """Its fixed learning rate, if it has one."""
+        return None
+
+    def check(self, n_waypoints: int) -> None:
+        """Refuse parameters that do not fit trajectories of ``n_waypoints`` waypoints
+        (called once the planner's T is known, before anything runs)."""
+        return None
 
     def choose(self, ctx: LearnerContext, belief: Belief, draw: int) -> int:
         """Index of Eᵗ in ``ctx.envs``; ``draw`` is the run's random choice."""
@@ -138,50 +151,22 @@ class Learner(abc.ABC):
         ξᵗ in ``env``. May raise ``PlanningError`` (the update is then skipped)."""
 
 
-LEARNERS: Registry[type[Learner]] = Registry("learner", check=Registry.subclass_of(Learner))
+LEARNERS: Registry[type[Learner]] = Registry("learner", base=Learner)
 """Every learner by name, in the order figures and tables list them."""
 
 
 def register_learner(name: str, *, replace: bool = False):
-    """Class decorator: register a :class:`Learner` subclass under ``name``."""
+    """Class decorator: register a :class:`Learner` subclass (a dataclass) under ``name``."""
     return LEARNERS.decorator(name, replace=replace)
 
 
 def make_learner(
-    name: str, settings: StudySettings, params: Mapping[str, Any] | None = None
+    name: str, params: Mapping[str, Any] | None = None, *, where: str | None = None
 ) -> Learner:
-    """The registered learner ``name`` built for ``settings`` with its ``params``.
+    """The registered learner ``name`` with its ``params``.
 
     Raises:
         ValueError: an unknown name, an unknown parameter or a bad value, in one line
-            naming the learner and the parameter.
+            naming its key path (``learners.KF-A.attenuation_min: must be > 0, got -1``).
     """
-    cls = LEARNERS[name]
-    params = dict(params or {})
-    known, takes_any = _parameters(cls)
-    unknown = sorted(set(params) - set(known))
-    if unknown and not takes_any:
-        allowed = ", ".join(known) or "none"
-        raise ValueError(f"learner {name}: unknown parameter {unknown[0]!r} (known: {allowed})")
-    try:
-        return cls.from_settings(settings, **params)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"learner {name}: {exc}") from None
-
-
-def _parameters(cls: type[Learner]) -> tuple[list[str], bool]:
-    """(names of the keyword parameters a learner takes, whether it takes any): those of its
-    ``from_settings`` if that names them, else its constructor's."""
-    for function in (cls.from_settings, cls.__init__):
-        params = [
-            p
-            for p in inspect.signature(function).parameters.values()
-            if p.name not in ("self", "settings")
-        ]
-        if not any(p.kind is p.VAR_KEYWORD for p in params):
-            return [p.name for p in params], False
-    return [], True
-
-
-# Registers the paper's learners; at the bottom because they subclass Learner.
-from corrections_sim.learning import paper as paper_learners  # noqa: E402,F401
+    return components.build(LEARNERS, name, params, where=where or f"learners.{name}")

@@ -6,7 +6,7 @@
   H = ∂Φ(ξ*(θ, E))/∂θ by central differences of the planner, step ``ekf_step``);
 * "KF-C", the correction-aware UKF: hₜ(θ) = Φ(C(ξᵗ, ξ*(θ, E)), E), the features of the
   correction a person with preference θ would make to the robot's current trajectory ξᵗ,
-  under the robot's correction model C (``correction_model``, see
+  under the robot's correction model C (its parameter ``model``, any registered in
   :mod:`corrections_sim.people.corrections`). It reuses the sigma points' plans; no extra solves;
 * "AL" and "AL-C": KF and KF-C with Eᵗ chosen by eq. (A1) from their predicted covariance;
 * "KF-A", a UKF for corrections that deliver an unknown fraction a ~ log-uniform[
@@ -15,53 +15,91 @@
   Boltzmann model, P(ξ_h ≻ ξᵗ | θ) = σ(β θ·(Φ_h − Φ(ξᵗ))), β integrated out over
   [``beta_min``, ``beta_max``] (:mod:`corrections_sim.learning.preference_posterior`).
 
-Their parameters are the study's settings keys named above (``from_settings`` reads them).
+Each is a frozen dataclass whose fields are its own parameters (``[learners.KF-A]
+attenuation_min = 0.1`` in a study file); the filters' shared M, N and sigma points come from
+the study through :class:`~corrections_sim.learning.base.LearnerContext`.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+import math
+from dataclasses import dataclass
 
 import numpy as np
 
-from corrections_sim.learning import (
-    Attenuation,
-    Belief,
-    BoltzmannCorrection,
-    KalmanNoise,
+from corrections_sim import components
+from corrections_sim.belief import Belief
+from corrections_sim.components import ParameterError
+from corrections_sim.learning.active import select_environment
+from corrections_sim.learning.attenuated import Attenuation
+from corrections_sim.learning.attenuated import update as attenuated_update
+from corrections_sim.learning.base import Learner, LearnerContext, Step, register_learner
+from corrections_sim.learning.kalman import (
     Observe,
-    SigmaPoints,
-    attenuated_update,
     ekf_update,
     finite_difference_jacobian,
-    perceptron_update,
-    posterior_update,
-    select_environment,
     ukf_predicted_covariance,
     ukf_update,
 )
-from corrections_sim.learning.base import Learner, LearnerContext, Step, register_learner
+from corrections_sim.learning.perceptron import perceptron_update
+from corrections_sim.learning.preference_posterior import BoltzmannCorrection
+from corrections_sim.learning.preference_posterior import update as posterior_update
+from corrections_sim.people.corrections import (
+    CORRECTIONS,
+    CorrectionModel,
+    WaypointCorrection,
+)
+from corrections_sim.planning.features import feature_counts
 from corrections_sim.planning.planner import Plan, PlanningError
-from corrections_sim.planning.plans import correction_observer
+from corrections_sim.planning.plans import PlanBook
 from corrections_sim.scene.environments import Environment
 
-if TYPE_CHECKING:
-    from corrections_sim.people.corrections import CorrectionModel
-    from corrections_sim.study.loop import StudySettings
+
+def _positive(name: str, value) -> None:
+    ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+    if not (ok and value > 0):
+        raise ParameterError(name, f"must be a finite number > 0, got {value!r}")
+
+
+def _renamed(build, names: dict[str, str]):
+    """``build()``, with a ValueError that names a field of the maths' own class (``a_min``)
+    re-raised under the learner's parameter name (``attenuation_min``)."""
+    try:
+        return build()
+    except ValueError as exc:
+        message = str(exc)
+        for old, new in names.items():
+            if message.startswith(old + ":"):
+                raise ParameterError(new, message[len(old) + 1 :].strip()) from None
+        raise
 
 
 @register_learner("PP")
+@dataclass(frozen=True)
 class Perceptron(Learner):
-    """The Preference Perceptron, eq. (B5): θ̂ += αᵗ (Φ_h − Φ(ξᵗ)); P stays P⁰."""
+    """The Preference Perceptron, eq. (B5): θ̂ += αᵗ (Φ_h − Φ(ξᵗ)); P stays P⁰.
+
+    Attributes:
+        fixed_alpha: a fixed learning rate α > 0; None (default): αᵗ is the mean diag(Kᵗ)
+            over the runs of :attr:`rate_from` (the paper's choice).
+    """
 
     label = "Preference Perceptron (PP)"
     style = ("#7f7f7f", "-")
     has_covariance = False
     rate_from = "KF"
 
-    @classmethod
-    def from_settings(cls, settings: StudySettings) -> Learner:
-        return cls()
+    fixed_alpha: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.fixed_alpha is not None:
+            _positive("fixed_alpha", self.fixed_alpha)
+
+    def rate_source(self) -> str | None:
+        return None if self.fixed_alpha is not None else self.rate_from
+
+    def fixed_rate(self) -> float | None:
+        return self.fixed_alpha
 
     def update(
         self, ctx: LearnerContext, belief: Belief, env: Environment, plan: Plan, phi_h: np.ndarray
@@ -70,21 +108,11 @@ class Perceptron(Learner):
         return Step(new, None, phi_h - plan.features, None)
 
 
-class _Filter(Learner):
-    """A Gaussian filter with the study's noise M, N and sigma points."""
-
-    def __init__(self, noise: KalmanNoise, sigma: SigmaPoints) -> None:
-        self.noise = noise
-        self.sigma = sigma
-
-    @classmethod
-    def from_settings(cls, settings: StudySettings) -> Learner:
-        return cls(settings.noise(), settings.sigma())
-
-
 @register_learner("KF")
-class UnscentedKalman(_Filter):
-    """The UKF the paper simulates, observation h(θ) = Φ(ξ*(θ, E), E)."""
+@dataclass(frozen=True)
+class UnscentedKalman(Learner):
+    """The UKF the paper simulates, observation h(θ) = Φ(ξ*(θ, E), E), with the study's
+    M, N and sigma points."""
 
     label = "Kalman filter (KF)"
     style = ("#1f77b4", "-")
@@ -101,33 +129,35 @@ class UnscentedKalman(_Filter):
             belief,
             self.observer(ctx, belief, env),
             phi_h,
-            self.noise,
-            self.sigma,
+            ctx.noise,
+            ctx.sigma,
             reference=plan.features,
         )
         return Step(step.belief, step.gain, step.innovation, step.innovation_cov)
 
 
 @register_learner("EKF")
-class ExtendedKalman(_Filter):
-    """Eqs. (K4)–(K7) with H by central differences of the planner (step ``ekf_step``)."""
+@dataclass(frozen=True)
+class ExtendedKalman(Learner):
+    """Eqs. (K4)–(K7) with H by central differences of the planner.
+
+    Attributes:
+        step: the central-difference step δ of H, in θ units (> 0).
+    """
 
     label = "Extended Kalman filter (EKF)"
     style = ("#2ca02c", "-")
 
-    def __init__(self, noise: KalmanNoise, sigma: SigmaPoints, step: float) -> None:
-        super().__init__(noise, sigma)
-        self.step = step
+    step: float = 0.05
 
-    @classmethod
-    def from_settings(cls, settings: StudySettings) -> Learner:
-        return cls(settings.noise(), settings.sigma(), settings.ekf_step)
+    def __post_init__(self) -> None:
+        _positive("step", self.step)
 
     def update(
         self, ctx: LearnerContext, belief: Belief, env: Environment, plan: Plan, phi_h: np.ndarray
     ) -> Step:
         jac = finite_difference_jacobian(ctx.book.observe(env), belief.theta, self.step)
-        step = ekf_update(belief, jac, plan.features, phi_h, self.noise)
+        step = ekf_update(belief, jac, plan.features, phi_h, ctx.noise)
         return Step(step.belief, step.gain, step.innovation, step.innovation_cov)
 
 
@@ -143,7 +173,7 @@ class _Active:
         for i, env in enumerate(ctx.envs):
             try:
                 observe = self.observer(ctx, belief, env)
-                covs.append(ukf_predicted_covariance(belief, observe, self.noise, self.sigma))
+                covs.append(ukf_predicted_covariance(belief, observe, ctx.noise, ctx.sigma))
                 candidates.append(i)
             except PlanningError:
                 continue
@@ -151,6 +181,7 @@ class _Active:
 
 
 @register_learner("AL")
+@dataclass(frozen=True)
 class ActiveLearning(_Active, UnscentedKalman):
     """KF with environments chosen by eq. (A1)."""
 
@@ -159,6 +190,7 @@ class ActiveLearning(_Active, UnscentedKalman):
 
 
 @register_learner("PP-C")
+@dataclass(frozen=True)
 class PerceptronFromCorrectionAware(Perceptron):
     """PP with αᵗ from KF-C's gains."""
 
@@ -167,30 +199,61 @@ class PerceptronFromCorrectionAware(Perceptron):
     rate_from = "KF-C"
 
 
+def correction_observer(
+    book: PlanBook, env: Environment, robot: np.ndarray, model: CorrectionModel, names
+) -> Observe:
+    """hₜ(θ) = Φ(C(ξᵗ, ξ*(θ, E)), E) as a batch callable (n, k) -> (n, k).
+
+    The correction a person with preference θ would make to the robot's trajectory ``robot``
+    (T, 7) under the correction model ``model``; ξ*(θ, E) comes from ``book`` (memoized, so
+    the plans the paper's filter would solve are the only ones solved).
+    """
+    params = env.params()
+
+    def h(thetas: np.ndarray) -> np.ndarray:
+        return np.array(
+            [
+                feature_counts(model.apply(robot, book.plan(t, env).trajectory), params, names)
+                for t in np.atleast_2d(thetas)
+            ]
+        )
+
+    return h
+
+
 @register_learner("KF-C")
+@dataclass(frozen=True)
 class CorrectionAwareKalman(UnscentedKalman):
-    """UKF with hₜ(θ) = Φ(C(ξᵗ, ξ*(θ, E)), E) under the correction model C."""
+    """UKF with hₜ(θ) = Φ(C(ξᵗ, ξ*(θ, E)), E) under the correction model C.
+
+    Attributes:
+        model: C, any registered correction model with its parameters (a name, or a table
+            ``{ name = "waypoint", step = 0.5 }``); the paper's one-waypoint correction by
+            default.
+    """
 
     label = "Correction-aware KF (KF-C)"
     style = ("#1f77b4", "--")
 
-    def __init__(self, noise: KalmanNoise, sigma: SigmaPoints, model: CorrectionModel) -> None:
-        super().__init__(noise, sigma)
-        self.model = model
+    model: CorrectionModel = components.nested(CORRECTIONS, WaypointCorrection())
 
-    @classmethod
-    def from_settings(cls, settings: StudySettings) -> Learner:
-        return cls(settings.noise(), settings.sigma(), settings.correction())
+    def __post_init__(self) -> None:
+        if not isinstance(self.model, CorrectionModel):
+            raise ParameterError("model", f"expected a correction model, got {self.model!r}")
+
+    def check(self, n_waypoints: int) -> None:
+        try:
+            self.model.check(n_waypoints)
+        except ParameterError as exc:
+            raise ParameterError(f"model.{exc.name}", exc.message) from None
 
     def observer(self, ctx: LearnerContext, belief: Belief, env: Environment) -> Observe:
         robot = ctx.book.plan(belief.theta, env).trajectory
-        model = self.model
-        if model.n_waypoints != ctx.n_waypoints:
-            model = type(model)(model.kind, model.step, model.waypoints, ctx.n_waypoints)
-        return correction_observer(ctx.book, env, robot, model, ctx.features)
+        return correction_observer(ctx.book, env, robot, self.model, ctx.features)
 
 
 @register_learner("AL-C")
+@dataclass(frozen=True)
 class CorrectionAwareActive(_Active, CorrectionAwareKalman):
     """KF-C with environments chosen by eq. (A1)."""
 
@@ -198,20 +261,51 @@ class CorrectionAwareActive(_Active, CorrectionAwareKalman):
     style = ("#d62728", "--")
 
 
+_ATTENUATION_NAMES = {
+    "Attenuation.a_min": "attenuation_min",
+    "Attenuation.a_max": "attenuation_max",
+    "Attenuation.n_a": "attenuation_points",
+}
+_BOLTZMANN_NAMES = {
+    "BoltzmannCorrection.beta_min": "beta_min",
+    "BoltzmannCorrection.beta_max": "beta_max",
+    "BoltzmannCorrection.n_beta": "beta_points",
+    "BoltzmannCorrection.lapse": "lapse",
+}
+
+
 @register_learner("KF-A")
-class AttenuatedKalman(_Filter):
-    """UKF for corrections that deliver an unknown fraction a of the intended change."""
+@dataclass(frozen=True)
+class AttenuatedKalman(Learner):
+    """UKF for corrections that deliver an unknown fraction a of the intended change.
+
+    Attributes:
+        attenuation_min, attenuation_max: the range of a, 0 < min ≤ max (log-uniform prior).
+        attenuation_points: how many log-spaced values of a (1 … 10,000).
+    """
 
     label = "Attenuated-correction KF (KF-A)"
     style = ("#9467bd", "-.")
 
-    def __init__(self, noise: KalmanNoise, sigma: SigmaPoints, attenuation: Attenuation) -> None:
-        super().__init__(noise, sigma)
-        self.attenuation = attenuation
+    attenuation_min: float = 0.05
+    attenuation_max: float = 1.0
+    attenuation_points: int = 12
 
-    @classmethod
-    def from_settings(cls, settings: StudySettings) -> Learner:
-        return cls(settings.noise(), settings.sigma(), settings.attenuation())
+    def __post_init__(self) -> None:
+        if isinstance(self.attenuation_points, int) and self.attenuation_points > 10_000:
+            raise ParameterError("attenuation_points", "at most 10,000")
+        self.attenuation()
+
+    def attenuation(self) -> Attenuation:
+        """The prior on the delivered fraction a."""
+        return _renamed(
+            lambda: Attenuation(
+                a_min=self.attenuation_min,
+                a_max=self.attenuation_max,
+                n_a=self.attenuation_points,
+            ),
+            _ATTENUATION_NAMES,
+        )
 
     def update(
         self, ctx: LearnerContext, belief: Belief, env: Environment, plan: Plan, phi_h: np.ndarray
@@ -221,29 +315,54 @@ class AttenuatedKalman(_Filter):
             ctx.book.observe(env),
             plan.features,
             phi_h,
-            self.noise,
-            self.attenuation,
-            self.sigma,
+            ctx.noise,
+            self.attenuation(),
+            ctx.sigma,
         )
         return Step(step.belief, step.gain, step.innovation, step.innovation_cov)
 
 
 @register_learner("BP")
+@dataclass(frozen=True)
 class BoltzmannPosterior(Learner):
-    """Gaussian posterior under a Boltzmann model of corrections; no planner solves."""
+    """Gaussian posterior under a Boltzmann model of corrections; no planner solves.
+
+    Attributes:
+        beta_min, beta_max: the range of the rationality β, 0 < min ≤ max (log-uniform,
+            integrated out).
+        beta_points: how many log-spaced values of β (1 … 10,000).
+        lapse: ε in [0, 1), the chance that a correction carries no information.
+    """
 
     label = "Boltzmann preference posterior (BP)"
     style = ("#8c564b", ":")
 
-    def __init__(self, model: BoltzmannCorrection) -> None:
-        self.model = model
+    beta_min: float = 0.3
+    beta_max: float = 30.0
+    beta_points: int = 15
+    lapse: float = 0.0
 
-    @classmethod
-    def from_settings(cls, settings: StudySettings) -> Learner:
-        return cls(settings.boltzmann())
+    def __post_init__(self) -> None:
+        if isinstance(self.beta_points, int) and self.beta_points > 10_000:
+            raise ParameterError("beta_points", "at most 10,000")
+        self.correction_model(0.0)
+
+    def correction_model(self, process_noise: float) -> BoltzmannCorrection:
+        """Its model of a correction, with the study's process noise M = q I."""
+        return _renamed(
+            lambda: BoltzmannCorrection(
+                beta_min=self.beta_min,
+                beta_max=self.beta_max,
+                n_beta=self.beta_points,
+                lapse=self.lapse,
+                process_noise=process_noise,
+            ),
+            _BOLTZMANN_NAMES,
+        )
 
     def update(
         self, ctx: LearnerContext, belief: Belief, env: Environment, plan: Plan, phi_h: np.ndarray
     ) -> Step:
-        post = posterior_update(belief, None, plan.features, phi_h, self.model)
+        model = self.correction_model(float(ctx.noise.process[0, 0]))
+        post = posterior_update(belief, None, plan.features, phi_h, model)
         return Step(post.belief, post.gain, post.innovation, None)

@@ -13,19 +13,23 @@ the first and last waypoints fixed, a correction returns ξ_h (T, 7):
   waypoint i along δ = ξ*ᵢ − ξᵢ, and μ is chosen so that waypoint i moves by ``step``·δ. The
   neighbours follow smoothly; the fixed start and goal do not move.
 
-:class:`CorrectionModel` names one of them with its parameters, as a value ("optimal", the
-intended trajectory itself, is the paper's Kalman filter's model of a correction).
+:class:`CorrectionModel` is one of them with its parameters, a frozen dataclass registered
+by name in :data:`CORRECTIONS` ("waypoint", "deform", "optimal" — the intended trajectory
+itself, the paper's Kalman filter's model of a correction —, and plug-ins). The same models
+serve simulated users (:mod:`corrections_sim.people.users`: a user is a correction model
+toward its own plan ξ*(θ*, E)) and the correction-aware learners' model of a person (KF-C).
 """
 
 from __future__ import annotations
 
+import abc
 import functools
 from dataclasses import dataclass
 
 import numpy as np
 
-#: Correction models by name (:class:`CorrectionModel.kind`).
-CORRECTION_KINDS = ("waypoint", "deform", "optimal")
+from corrections_sim.components import ParameterError
+from corrections_sim.registry import Registry
 
 
 def _check_pair(robot, intended) -> tuple[np.ndarray, np.ndarray]:
@@ -40,8 +44,10 @@ def _check_pair(robot, intended) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _check_step(step: float) -> float:
-    if not (isinstance(step, int | float | np.number) and 0.0 < float(step) <= 1.0):
-        raise ValueError(f"step = {step!r} must lie in (0, 1]")
+    if isinstance(step, bool) or not (
+        isinstance(step, int | float | np.number) and 0.0 < float(step) <= 1.0
+    ):
+        raise ParameterError("step", f"must lie in (0, 1], got {step!r}")
     return float(step)
 
 
@@ -117,44 +123,88 @@ def deformation_correction(
 
 def _check_count(count: int, n_waypoints: int) -> int:
     if isinstance(count, bool) or not isinstance(count, int | np.integer):
-        raise ValueError(f"waypoints = {count!r} must be an integer")
+        raise ParameterError("waypoints", f"must be an integer, got {count!r}")
     if not 1 <= count <= n_waypoints - 2:
-        raise ValueError(
-            f"waypoints = {count} must lie in [1, {n_waypoints - 2}] (the free waypoints)"
+        raise ParameterError(
+            "waypoints", f"{count} must lie in [1, {n_waypoints - 2}] (the free waypoints)"
         )
     return int(count)
 
 
+class CorrectionModel(abc.ABC):
+    """A way of correcting: C(ξ, ξ*) -> ξ_h. Subclass as a frozen dataclass whose fields are
+    its parameters (checked in ``__post_init__``, raising :class:`ParameterError`), implement
+    :meth:`apply`, and register it with ``@register_correction(name)``."""
+
+    @abc.abstractmethod
+    def apply(self, robot: np.ndarray, intended: np.ndarray) -> np.ndarray:
+        """ξ_h (T, n) for the robot's ξ (T, n) and the intended ξ* (T, n)."""
+
+    def check(self, n_waypoints: int) -> None:
+        """Refuse parameters that do not fit trajectories of ``n_waypoints`` waypoints
+        (called once the planner's T is known, before anything runs)."""
+        return None
+
+
+CORRECTIONS: Registry[type[CorrectionModel]] = Registry("correction model", base=CorrectionModel)
+"""Every correction model by name."""
+
+
+def register_correction(name: str, *, replace: bool = False):
+    """Class decorator: register a :class:`CorrectionModel` dataclass under ``name``."""
+    return CORRECTIONS.decorator(name, replace=replace)
+
+
+@register_correction("waypoint")
 @dataclass(frozen=True)
-class CorrectionModel:
-    """One way of correcting, with its parameters.
+class WaypointCorrection(CorrectionModel):
+    """The paper's §6 correction (:func:`waypoint_correction`).
 
     Attributes:
-        kind: "waypoint" (:func:`waypoint_correction`), "deform"
-            (:func:`deformation_correction`) or "optimal" (the person shows ξ* itself, the
-            paper's Kalman filter's assumption; ``step`` and ``waypoints`` are then unused).
-        step: fraction in (0, 1] of the way the corrected waypoint(s) move.
-        waypoints: how many waypoints a "waypoint" correction moves (1 for "deform").
-        n_waypoints: T of the trajectories it will see, to check ``waypoints`` against.
+        step: fraction in (0, 1] of the way the worst waypoint(s) move onto ξ*'s.
+        waypoints: how many of the worst waypoints move, ≥ 1.
     """
 
-    kind: str = "waypoint"
     step: float = 1.0
     waypoints: int = 1
-    n_waypoints: int = 12
 
     def __post_init__(self) -> None:
-        if self.kind not in CORRECTION_KINDS:
-            raise ValueError(f"kind = {self.kind!r} must be one of {CORRECTION_KINDS}")
         _check_step(self.step)
-        _check_count(self.waypoints, self.n_waypoints)
-        if self.kind != "waypoint" and self.waypoints != 1:
-            raise ValueError(f"waypoints = {self.waypoints}: only a 'waypoint' correction has it")
+        if isinstance(self.waypoints, bool) or not isinstance(self.waypoints, int | np.integer):
+            raise ParameterError("waypoints", f"must be an integer, got {self.waypoints!r}")
+        if self.waypoints < 1:
+            raise ParameterError("waypoints", f"must be >= 1, got {self.waypoints}")
+
+    def check(self, n_waypoints: int) -> None:
+        _check_count(self.waypoints, n_waypoints)
 
     def apply(self, robot: np.ndarray, intended: np.ndarray) -> np.ndarray:
-        """ξ_h (T, n) for the robot's ξ and the intended ξ*."""
-        if self.kind == "optimal":
-            return np.array(intended, dtype=float)
-        if self.kind == "deform":
-            return deformation_correction(robot, intended, self.step)
         return waypoint_correction(robot, intended, self.step, self.waypoints)
+
+
+@register_correction("deform")
+@dataclass(frozen=True)
+class DeformCorrection(CorrectionModel):
+    """The minimum-jerk deformation around the worst waypoint (:func:`deformation_correction`).
+
+    Attributes:
+        step: fraction in (0, 1] of the way the worst waypoint moves; the rest follows.
+    """
+
+    step: float = 1.0
+
+    def __post_init__(self) -> None:
+        _check_step(self.step)
+
+    def apply(self, robot: np.ndarray, intended: np.ndarray) -> np.ndarray:
+        return deformation_correction(robot, intended, self.step)
+
+
+@register_correction("optimal")
+@dataclass(frozen=True)
+class OptimalCorrection(CorrectionModel):
+    """The person shows ξ* itself (the paper's Kalman filter's model of a correction)."""
+
+    def apply(self, robot: np.ndarray, intended: np.ndarray) -> np.ndarray:
+        _check_pair(robot, intended)
+        return np.array(intended, dtype=float)

@@ -1,36 +1,47 @@
 """Simulated users who know the true preference θ* and correct the robot.
 
-* :class:`BiasedUser` — the paper's user (§6): looks at the robot's trajectory ξᵗ and its
-  own intended trajectory ξ* = ξ*(θ*, E), picks the one waypoint with the largest joint-space
-  error, and moves it a fraction ``step`` of the way toward the matching waypoint of ξ*.
-  Its feature counts are a biased, partial improvement, which violates the Kalman filter's
-  Gaussian observation model (K2) on purpose.
-  With ``waypoints`` > 1 it moves that many of its worst waypoints.
-* :class:`DeformingUser` — pushes its worst waypoint toward ξ* and the trajectory follows in
-  a smooth minimum-jerk deformation (:func:`corrections_sim.people.corrections.deformation_correction`),
-  as a person physically pushing the arm would.
-* :class:`NoisyOptimalUser` — the Kalman filter's own assumption: Φ(ξ*) + n, n ~ N(0, σ²I).
+A simulated user is a correction model (:mod:`corrections_sim.people.corrections`) applied
+toward its own plan ξ* = ξ*(θ*, E), plus, for some, noise:
+
+* :class:`BiasedUser` ("biased") — the paper's user (§6): the one waypoint of the robot's ξᵗ
+  with the largest joint-space error moves a fraction ``step`` of the way toward ξ*'s (the
+  "waypoint" model; with ``waypoints`` > 1, that many). A biased, partial improvement, which
+  violates the Kalman filter's Gaussian observation model (K2) on purpose.
+* :class:`DeformingUser` ("deform") — pushes its worst waypoint toward ξ* and the trajectory
+  follows in a smooth minimum-jerk deformation (the "deform" model), as a person physically
+  pushing the arm would.
+* :class:`NoisyOptimalUser` ("noisy") — the Kalman filter's own assumption: Φ(ξ*) + n,
+  n ~ N(0, σ²I) (the "optimal" model plus feature noise).
+* :class:`ModelUser` ("model") — any registered correction model, plug-ins included, with
+  optional feature noise: ``[user] name = "model", model = { name = "deform", step = 0.5 }``.
 
 All return Φ(ξ_h, E), the features of the correction, which is all the learners see. A user's
 ``stochastic`` says whether it draws from its generator (then every learner, active learning
 included, runs as many times as the others).
 
-A user is a :class:`User` subclass registered by name (:data:`USERS`, ``@register_user``);
-its parameters are its dataclass fields, validated in ``__post_init__`` with messages that
-name them. :func:`make_user` builds one by name, refusing unknown names and parameters.
+A user is a :class:`User` subclass, a frozen dataclass whose fields are its parameters,
+registered by name (:data:`USERS`, ``@register_user``); :func:`make_user` builds one by name
+through :func:`corrections_sim.components.build`, refusing unknown names and parameters.
 """
 
 from __future__ import annotations
 
 import abc
-import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
 
-from corrections_sim.people.corrections import deformation_correction, waypoint_correction
+from corrections_sim import components
+from corrections_sim.components import ParameterError
+from corrections_sim.people.corrections import (
+    CORRECTIONS,
+    CorrectionModel,
+    DeformCorrection,
+    OptimalCorrection,
+    WaypointCorrection,
+)
 from corrections_sim.planning.features import feature_counts
 from corrections_sim.registry import Registry
 from corrections_sim.scene.environments import Environment
@@ -75,8 +86,31 @@ class User(abc.ABC):
         """Φ(ξ_h, E), shape (k,), what the learners see."""
         return feature_counts(self.correct(situation, rng), situation.env, situation.features)
 
+    def check(self, n_waypoints: int) -> None:
+        """Refuse parameters that do not fit trajectories of ``n_waypoints`` waypoints."""
+        return None
 
-USERS: Registry[type[User]] = Registry("user", check=Registry.subclass_of(User))
+
+class CorrectingUser(User):
+    """A user who corrects with a correction model toward ξ*(θ*, E), deterministically."""
+
+    def model(self) -> CorrectionModel:
+        """The correction model this user corrects with."""
+        raise NotImplementedError
+
+    def correct(self, situation: Situation, rng: np.random.Generator) -> np.ndarray:
+        """ξ_h = C(ξᵗ, ξ*) (T, 7)."""
+        return self.corrected_trajectory(situation.robot, situation.intended)
+
+    def corrected_trajectory(self, robot: np.ndarray, intended: np.ndarray) -> np.ndarray:
+        """ξ_h (T, 7) for the robot's ξ (T, 7) and the user's own plan ξ* (T, 7)."""
+        return self.model().apply(robot, intended)
+
+    def check(self, n_waypoints: int) -> None:
+        self.model().check(n_waypoints)
+
+
+USERS: Registry[type[User]] = Registry("user", base=User)
 """Every simulated user by name."""
 
 
@@ -87,53 +121,23 @@ def register_user(name: str, *, replace: bool = False):
 
 def user_parameters(name: str) -> dict[str, Any]:
     """The parameters of user ``name`` with their defaults (``dataclasses.MISSING`` if none)."""
-    cls = USERS[name]
-    if not dataclasses.is_dataclass(cls):
-        return {}
-    return {
-        f.name: f.default
-        if f.default is not dataclasses.MISSING
-        else (f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default)
-        for f in dataclasses.fields(cls)
-        if f.init
-    }
+    return components.defaults(USERS[name])
 
 
-def make_user(name: str, params: Mapping[str, Any] | None = None) -> User:
+def make_user(name: str, params: Mapping[str, Any] | None = None, *, where: str = "user") -> User:
     """The registered user ``name`` with ``params``.
 
     Raises:
-        ValueError: an unknown user or parameter, or a bad value; one line naming it.
+        ValueError: an unknown user or parameter, or a bad value; one line naming its key
+            path (``user.step: must lie in (0, 1], got 2``).
     """
-    cls = USERS[name]
-    params = dict(params or {})
-    known = user_parameters(name)
-    unknown = sorted(set(params) - set(known))
-    if unknown:
-        raise ValueError(
-            f"user {name}: unknown parameter {unknown[0]!r} (known: {', '.join(known) or 'none'})"
-        )
-    try:
-        return cls(**params)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"user {name}: {exc}") from None
-
-
-class _EditingUser(User):
-    """A user who edits the robot's trajectory deterministically (``corrected_trajectory``)."""
-
-    def corrected_trajectory(self, robot: np.ndarray, intended: np.ndarray) -> np.ndarray:
-        raise NotImplementedError
-
-    def correct(self, situation: Situation, rng: np.random.Generator) -> np.ndarray:
-        """ξ_h (T, 7); deterministic, ``rng`` is unused."""
-        return self.corrected_trajectory(situation.robot, situation.intended)
+    return components.build(USERS, name, params, where=where)
 
 
 @register_user("biased")
 @dataclass(frozen=True)
-class BiasedUser(_EditingUser):
-    """Corrects its worst waypoint(s) toward its intended trajectory.
+class BiasedUser(CorrectingUser):
+    """Corrects its worst waypoint(s) toward its intended trajectory ("waypoint" model).
 
     Attributes:
         step: fraction in (0, 1] of the way the worst waypoint moves toward ξ*'s
@@ -145,26 +149,15 @@ class BiasedUser(_EditingUser):
     waypoints: int = 1
 
     def __post_init__(self) -> None:
-        if not (isinstance(self.step, int | float) and 0.0 < self.step <= 1.0):
-            raise ValueError(f"step = {self.step!r} must lie in (0, 1]")
-        if isinstance(self.waypoints, bool) or not isinstance(self.waypoints, int):
-            raise ValueError(f"waypoints = {self.waypoints!r} must be an integer")
-        if self.waypoints < 1:
-            raise ValueError(f"waypoints = {self.waypoints} must be >= 1")
+        self.model()
 
-    def corrected_trajectory(self, robot: np.ndarray, intended: np.ndarray) -> np.ndarray:
-        """ξ_h (T, 7): ``robot`` (T, 7) with its worst waypoint(s) moved toward ``intended``."""
-        robot = np.asarray(robot, float)
-        if self.waypoints > robot.shape[0] - 2:
-            raise ValueError(
-                f"waypoints = {self.waypoints}: more than the {robot.shape[0] - 2} free waypoints"
-            )
-        return waypoint_correction(robot, intended, self.step, self.waypoints)
+    def model(self) -> WaypointCorrection:
+        return WaypointCorrection(self.step, self.waypoints)
 
 
 @register_user("deform")
 @dataclass(frozen=True)
-class DeformingUser(_EditingUser):
+class DeformingUser(CorrectingUser):
     """Pushes its worst waypoint ``step`` of the way toward ξ*'s; the rest deforms smoothly.
 
     Attributes:
@@ -174,32 +167,73 @@ class DeformingUser(_EditingUser):
     step: float = 1.0
 
     def __post_init__(self) -> None:
-        if not (isinstance(self.step, int | float) and 0.0 < self.step <= 1.0):
-            raise ValueError(f"step = {self.step!r} must lie in (0, 1]")
+        self.model()
 
-    def corrected_trajectory(self, robot: np.ndarray, intended: np.ndarray) -> np.ndarray:
-        """ξ_h (T, 7), see :func:`corrections_sim.people.corrections.deformation_correction`."""
-        return deformation_correction(robot, intended, self.step)
+    def model(self) -> DeformCorrection:
+        return DeformCorrection(self.step)
+
+
+def _check_noise(noise) -> None:
+    number = isinstance(noise, int | float) and not isinstance(noise, bool)
+    if not (number and np.isfinite(noise) and noise >= 0):
+        raise ParameterError("noise", f"must be finite and >= 0, got {noise!r}")
 
 
 @register_user("noisy")
 @dataclass(frozen=True)
 class NoisyOptimalUser(User):
-    """Shows its optimal trajectory's features with Gaussian noise of std ``noise`` per feature."""
+    """Shows its optimal trajectory's features with Gaussian noise of std ``noise`` per feature.
 
-    noise: float = 0.1
+    Attributes:
+        noise: σ, the std of the noise per feature. Default 0.5 = √0.25: the filters' default
+            observation noise N = 0.25 I, so by default this user is the KF's own model.
+    """
+
+    noise: float = 0.5
     stochastic: ClassVar[bool] = True
 
     def __post_init__(self) -> None:
-        number = isinstance(self.noise, int | float) and not isinstance(self.noise, bool)
-        if not (number and np.isfinite(self.noise) and self.noise >= 0):
-            raise ValueError(f"noise = {self.noise!r} must be finite and >= 0")
+        _check_noise(self.noise)
 
     def correct(self, situation: Situation, rng: np.random.Generator) -> np.ndarray:
         """ξ*(θ*, E): the trajectory it shows (its features are observed with noise)."""
-        return np.array(situation.intended, dtype=float)
+        return OptimalCorrection().apply(situation.robot, situation.intended)
 
     def correction_features(self, situation: Situation, rng: np.random.Generator) -> np.ndarray:
         """Φ(ξ*, E) + n, shape (k,)."""
         phi = feature_counts(situation.intended, situation.env, situation.features)
         return phi + rng.normal(0.0, self.noise, size=phi.shape)
+
+
+@register_user("model")
+@dataclass(frozen=True)
+class ModelUser(CorrectingUser):
+    """Corrects with any registered correction model, plus Gaussian feature noise.
+
+    Attributes:
+        correction: the correction model, a name or a table (``{ name = "deform", step = 0.5 }``).
+        noise: σ ≥ 0 of Gaussian noise added to Φ(ξ_h) per feature (0: none, deterministic).
+    """
+
+    correction: CorrectionModel = components.nested(CORRECTIONS, WaypointCorrection())
+    noise: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.correction, CorrectionModel):
+            raise ParameterError(
+                "correction", f"expected a correction model, got {self.correction!r}"
+            )
+        _check_noise(self.noise)
+
+    @property
+    def stochastic(self) -> bool:  # type: ignore[override]
+        return self.noise > 0
+
+    def model(self) -> CorrectionModel:
+        return self.correction
+
+    def correction_features(self, situation: Situation, rng: np.random.Generator) -> np.ndarray:
+        phi = super().correction_features(situation, rng)
+        if self.noise > 0:
+            phi = phi + rng.normal(0.0, self.noise, size=phi.shape)
+        return phi

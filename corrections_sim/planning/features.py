@@ -2,7 +2,8 @@ r"""Features φ(x, E) of one waypoint and their sums Φ(ξ, E) over a trajectory
 
 Every feature is defined once, as a CasADi expression of the arm configuration q (7,) and the
 environment's named parameters (``laptop_x``, ``laptop_y``, ``laptop_yaw``, ``table_x``,
-``table_y``; :data:`corrections_sim.scene.environments.ENV_PARAMETERS`). The planner uses the expressions
+``table_y``; :data:`corrections_sim.scene.environments.ENV_PARAMETERS`). The planner uses the
+expressions
 symbolically; :func:`feature_counts` evaluates the same compiled function numerically. Each
 per-waypoint feature lies in [0, 1] and is smooth (C^∞), so Φ(ξ, E) ∈ [0, T]^k.
 

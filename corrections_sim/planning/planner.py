@@ -296,7 +296,8 @@ class TrajectoryTerms:
     """The symbolic pieces of a trajectory NLP over the free waypoints of one config.
 
     :class:`Planner` maximizes θ·Φ − λ·S subject to ``constraints >= 0``; other planners
-    (e.g. the risk-averse one of :mod:`corrections_sim.planning.risk`) reuse the same terms with their
+    (e.g. the risk-averse one of :mod:`corrections_sim.planning.risk`) reuse the same terms with
+    their
     own objective, so every planner keeps the arm out of the table and laptop alike.
 
     Attributes:

@@ -1,9 +1,9 @@
 """Memoized plans ξ*(θ, E) for one run, the user's side of every environment, and regret.
 
 :class:`PlanBook` solves each (θ, E) once per run (failures included); :class:`Target` holds
-θ* and its plans ξ*(θ*, E); :func:`evaluate` sums the regret of θ̂ over environments;
-:func:`correction_observer` is the correction-aware observation model hₜ(θ) = Φ(C(ξᵗ,
-ξ*(θ, E)), E). Learners reach the planner only through a :class:`PlanBook`.
+θ* and its plans ξ*(θ*, E); :func:`evaluate` sums the regret of θ̂ over environments. Learners
+reach the planner only
+through a :class:`PlanBook`.
 """
 
 from __future__ import annotations
@@ -13,10 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from corrections_sim.learning import Observe
 from corrections_sim.metrics import regret_terms
-from corrections_sim.people.corrections import CorrectionModel
-from corrections_sim.planning.features import feature_counts
 from corrections_sim.planning.planner import Plan, Planner, PlanningError, smoothness_cost
 from corrections_sim.scene.environments import Environment
 
@@ -137,25 +134,3 @@ def evaluate(
         full += f
         paper += p
     return full, paper, failed
-
-
-def correction_observer(
-    book: PlanBook, env: Environment, robot: np.ndarray, model: CorrectionModel, names
-) -> Observe:
-    """hₜ(θ) = Φ(C(ξᵗ, ξ*(θ, E)), E) as a batch callable (n, k) -> (n, k).
-
-    The correction a person with preference θ would make to the robot's trajectory ``robot``
-    (T, 7) under the correction model ``model``; ξ*(θ, E) comes from ``book`` (memoized, so
-    the plans the paper's filter would solve are the only ones solved).
-    """
-    params = env.params()
-
-    def h(thetas: np.ndarray) -> np.ndarray:
-        return np.array(
-            [
-                feature_counts(model.apply(robot, book.plan(t, env).trajectory), params, names)
-                for t in np.atleast_2d(thetas)
-            ]
-        )
-
-    return h

@@ -1,0 +1,260 @@
+"""What a study is, as values: :class:`StudySettings` (the people, the prior, the counts) and
+:class:`FigureSettings` (that, plus features, environments, planner and plug-ins).
+
+A learner, a user and a correction model own their parameters (their dataclass fields, see
+:mod:`corrections_sim.components`); these settings hold the built components, not their
+parameters. What every filter shares — M, N and the sigma points — is :class:`FilterSettings`,
+handed to each learner through its context. Settings are checked where they are built; the
+study file's schema (:mod:`corrections_sim.study.schema`) names the key path of a bad value.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from corrections_sim import components
+from corrections_sim.belief import Belief, KalmanNoise
+from corrections_sim.components import ParameterError
+from corrections_sim.learning.base import LEARNERS, Learner, make_learner
+from corrections_sim.learning.kalman import SigmaPoints
+from corrections_sim.people.users import USERS, BiasedUser, User
+from corrections_sim.planning.planner import PlannerConfig
+from corrections_sim.scene.environments import Environment
+
+#: The paper's three; the others are opt-in (``learners`` in a study file, ``--learners``).
+DEFAULT_LEARNERS = ("PP", "KF", "AL")
+#: Largest counts accepted: a run is ~50 planner solves per iteration (≈ 0.1 s), so these are
+#: far beyond a week on one machine, and refusing them up front beats running out of memory.
+MAX_COUNT = {"runs": 100_000, "iterations": 10_000}
+#: Records (learner × run × iteration) a study may hold in memory (≈ 2 kB each).
+MAX_RECORDS = 2_000_000
+
+
+def _finite(name: str, value, *, low: float, strict: bool = False) -> float:
+    number = isinstance(value, int | float | np.number) and not isinstance(value, bool)
+    ok = number and np.isfinite(value) and (value > low if strict else value >= low)
+    if not ok:
+        raise ParameterError(
+            name, f"must be finite and {'>' if strict else '>='} {low}, got {value!r}"
+        )
+    return float(value)
+
+
+@dataclass(frozen=True)
+class FilterSettings:
+    """What the study's Gaussian filters share: M = process_noise · I, N = observation_noise · I
+    and the unscented transform's sigma points (α, β, κ)."""
+
+    process_noise: float = 1e-4
+    observation_noise: float = 0.25
+    sigma_alpha: float = 1.0
+    sigma_beta: float = 2.0
+    sigma_kappa: float = 0.0
+
+    def __post_init__(self) -> None:
+        _finite("process_noise", self.process_noise, low=0.0)
+        _finite("observation_noise", self.observation_noise, low=0.0, strict=True)
+        try:
+            self.sigma()
+        except ValueError as exc:
+            message = str(exc)
+            for name in ("alpha", "beta", "kappa"):
+                if message.startswith(f"SigmaPoints.{name}"):
+                    text = message.split(":", 1)[-1].strip()
+                    raise ParameterError(f"sigma_{name}", text) from None
+            raise
+
+    def noise(self, k: int) -> KalmanNoise:
+        return KalmanNoise.isotropic(k, self.process_noise, self.observation_noise)
+
+    def sigma(self) -> SigmaPoints:
+        return SigmaPoints(alpha=self.sigma_alpha, beta=self.sigma_beta, kappa=self.sigma_kappa)
+
+
+def _default_learners() -> dict[str, Learner]:
+    return {name: make_learner(name) for name in DEFAULT_LEARNERS}
+
+
+@dataclass(frozen=True)
+class StudySettings:
+    """Resolved settings of one study (a figure's learning curves).
+
+    Attributes:
+        theta_star: the user's true preferences θ* (k,).
+        theta0: the robot's initial estimate θ̂⁰ (k,).
+        cov0: initial covariance P⁰ (k, k), symmetric positive definite.
+        iterations: corrections per run.
+        runs: runs of each learner (an active learner with a deterministic user runs once).
+        seed: root of every random draw.
+        learners: the learners the study runs, name -> the learner with its parameters, in
+            the order given.
+        user: the simulated user (with its parameters); ``user_name`` its registered name.
+        filter: M, N and sigma points, shared by the filters.
+        warm_start: start each new solve of a run from its nearest solved θ in the same
+            environment (see :class:`~corrections_sim.planning.plans.PlanBook`); faster, and
+            history-dependent at the level of the solver's tolerance.
+    """
+
+    theta_star: tuple[float, ...]
+    theta0: tuple[float, ...]
+    cov0: tuple[tuple[float, ...], ...]
+    iterations: int
+    runs: int
+    seed: int = 0
+    learners: Mapping[str, Learner] = field(default_factory=_default_learners)
+    user: User = field(default_factory=BiasedUser)
+    user_name: str = "biased"
+    filter: FilterSettings = field(default_factory=FilterSettings)
+    warm_start: bool = False
+
+    def __post_init__(self) -> None:
+        k = len(self.theta_star)
+        if len(self.theta0) != k:
+            raise ValueError(
+                f"theta0: expected {k} weights like theta_star, got {len(self.theta0)}"
+            )
+        if not np.all(np.isfinite(np.asarray(self.theta_star, float))):
+            raise ValueError(f"theta_star: all weights must be finite, got {self.theta_star}")
+        for name in ("iterations", "runs"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 1:
+                raise ValueError(f"{name} = {v!r} must be an integer >= 1")
+            if v > MAX_COUNT[name]:
+                raise ValueError(f"{name} = {v}: at most {MAX_COUNT[name]:,}")
+        if not self.learners:
+            raise ValueError("learners: name at least one")
+        records = self.runs * (self.iterations + 1) * len(self.learners)
+        if records > MAX_RECORDS:
+            raise ValueError(
+                f"runs = {self.runs}, iterations = {self.iterations}: {records:,} records for "
+                f"{len(self.learners)} learners, at most {MAX_RECORDS:,} (they are held in memory)"
+            )
+        for name, learner in self.learners.items():
+            if not isinstance(learner, LEARNERS[name]):
+                raise ValueError(f"learners.{name}: {learner!r} is not a {name} learner")
+            source = learner.rate_source()
+            if source and source not in self.learners:
+                raise ValueError(
+                    f"learners: {name} takes its learning rate from {source}'s gains; add "
+                    f"{source} or set learners.{name}.fixed_alpha (--fixed-alpha)"
+                )
+        if not isinstance(self.user, USERS[self.user_name]):
+            raise ValueError(f"user: {self.user!r} is not a {self.user_name} user")
+        # Validates P⁰ (symmetric positive definite) and θ̂⁰ where they enter, under the
+        # names the caller used rather than Belief's.
+        try:
+            self.prior()
+        except ValueError as exc:
+            message = str(exc).replace("Belief.theta", "theta0").replace("Belief.cov", "cov0")
+            raise ValueError(message) from None
+
+    @property
+    def k(self) -> int:
+        return len(self.theta_star)
+
+    def prior(self) -> Belief:
+        return Belief(theta=np.array(self.theta0, float), cov=np.array(self.cov0, float))
+
+    def noise(self) -> KalmanNoise:
+        return self.filter.noise(self.k)
+
+    def sigma(self) -> SigmaPoints:
+        return self.filter.sigma()
+
+    def runs_of(self, learner: str) -> int:
+        """How many runs ``learner`` makes: an active learner's run is deterministic unless
+        the user draws random numbers, so it runs once then, ``runs`` times otherwise."""
+        if LEARNERS[learner].active and not self.user.stochastic:
+            return 1
+        return self.runs
+
+    def check(self, n_waypoints: int) -> None:
+        """Refuse a user's or learner's parameters that do not fit T = ``n_waypoints``."""
+        for where, component in (
+            ("user", self.user),
+            *((f"learners.{n}", v) for n, v in self.learners.items()),
+        ):
+            try:
+                component.check(n_waypoints)
+            except ParameterError as exc:
+                raise ValueError(f"{where}.{exc.name}: {exc.message}") from None
+
+    def learner_params(self) -> dict[str, dict[str, Any]]:
+        """name -> the learner's parameters, as plain data."""
+        return {name: components.params(v) for name, v in self.learners.items()}
+
+    def user_params(self) -> dict[str, Any]:
+        """The user as plain data: its name and parameters."""
+        return {"name": self.user_name, **components.params(self.user)}
+
+    def as_dict(self) -> dict[str, Any]:
+        """The settings as plain data (``summary.json``; the study file's nested form)."""
+        return {
+            "theta_star": self.theta_star,
+            "theta0": self.theta0,
+            "cov0": self.cov0,
+            "iterations": self.iterations,
+            "runs": self.runs,
+            "seed": self.seed,
+            "learners": self.learner_params(),
+            "user": self.user_params(),
+            "filter": components.params(self.filter),
+            "warm_start": self.warm_start,
+        }
+
+
+#: ``environments`` as settings hold it: "paper", or each a paper environment's name or a
+#: spec of the user's own (:class:`~corrections_sim.study.schema.EnvironmentSpec`).
+Environments = Any
+
+
+@dataclass(frozen=True)
+class FigureSettings:
+    """A learning study: its study settings, features, environments and planner settings.
+
+    Attributes:
+        study: learners, user, prior, counts (see :class:`StudySettings`).
+        planner: planner settings as (name, value) pairs, passed to ``PlannerConfig``
+            (``n_starts``, the multi-start count, and ``solver``).
+        features: the features θ weighs, in order (k of them).
+        environments: "paper" (the 48), or paper environment names and specs of the user's own
+            (see :mod:`corrections_sim.study.schema`).
+        plugins: the plug-in files the study imports first.
+        name: the figure or study file's name (output folder, titles); not a setting.
+        description: a line for the plot's title; not a setting.
+    """
+
+    study: StudySettings
+    planner: tuple[tuple[str, Any], ...] = (("n_starts", 1), ("solver", "fatrop"))
+    features: tuple[str, ...] = ("laptop", "table")
+    environments: Environments = "paper"
+    plugins: tuple = ()
+    name: str = field(default="", compare=False)
+    description: str = field(default="", compare=False)
+
+    def __post_init__(self) -> None:
+        self.study.check(self.planner_config().n_waypoints)
+
+    def planner_config(self) -> PlannerConfig:
+        return PlannerConfig(features=self.features, **dict(self.planner))
+
+    def envs(self) -> tuple[Environment, ...]:
+        """The study's environments (memoized per process)."""
+        from corrections_sim.study import schema
+
+        return schema.resolve(self.environments)
+
+    def as_dict(self) -> dict:
+        from corrections_sim.study import schema
+
+        d = self.study.as_dict()
+        d["planner"] = dict(self.planner)
+        d["features"] = list(self.features)
+        d["environments"] = schema.as_data(self.environments)
+        if self.plugins:
+            d["plugins"] = [p.as_dict() for p in self.plugins]
+        return d
