@@ -66,11 +66,13 @@ def defaults(cls: type) -> dict[str, Any]:
     return out
 
 
-def _nested_registry(cls: type, name: str) -> Registry | None:
-    for f in dataclasses.fields(cls):
-        if f.name == name:
-            return f.metadata.get("registry")
-    return None
+def nested_registries(cls: type) -> dict[str, Registry]:
+    """The fields of a component class that hold components of another registry."""
+    if not dataclasses.is_dataclass(cls):
+        return {}
+    return {
+        f.name: f.metadata["registry"] for f in dataclasses.fields(cls) if "registry" in f.metadata
+    }
 
 
 def build(registry: Registry, name: str, values: Mapping[str, Any] | None, *, where: str) -> Any:
@@ -99,7 +101,7 @@ def build(registry: Registry, name: str, values: Mapping[str, Any] | None, *, wh
             )
     kwargs = {}
     for key, value in values.items():
-        inner = _nested_registry(cls, key) if dataclasses.is_dataclass(cls) else None
+        inner = nested_registries(cls).get(key)
         if inner is not None and not (inner.base and isinstance(value, inner.base)):
             kwargs[key] = build_spec(inner, value, where=f"{where}.{key}")
         else:

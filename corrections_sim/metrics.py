@@ -31,8 +31,10 @@ def regret_terms(
 
     Args:
         theta_star: the user's θ* (k,).
-        phi_star, smooth_star: Φ and S of the user's optimal trajectory ξ*(θ*, E).
-        phi, smooth: Φ and S of the robot's trajectory ξ*(θ̂, E).
+        phi_star: Φ of the user's optimal trajectory ξ*(θ*, E) (k,).
+        smooth_star: S, its smoothness cost.
+        phi: Φ of the robot's trajectory ξ*(θ̂, E) (k,).
+        smooth: S, its smoothness cost.
         smoothness_weight: λ of the planner.
     """
     paper = float(theta_star @ (np.asarray(phi_star) - np.asarray(phi)))

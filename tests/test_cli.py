@@ -20,6 +20,7 @@ import pytest
 
 from corrections_sim.cli import main as cli
 from corrections_sim.figures import learning
+from corrections_sim.study import runner
 from corrections_sim.study.store import RunStore
 
 TINY = ["fig4", "--quick", "--runs", "2", "--iterations", "2"]
@@ -183,7 +184,7 @@ def test_a_worker_that_dies_is_replaced_and_its_run_redone(uninterrupted, tmp_pa
 
     class KillsOnce(ProcessPoolExecutor):
         def submit(self, fn, *args, **kwargs):
-            if fn is learning.run_one and len(pools) == 1 and not self.killed:
+            if fn is runner.run_one and len(pools) == 1 and not self.killed:
                 self.killed = True
                 fn = _die
             return super().submit(fn, *args, **kwargs)

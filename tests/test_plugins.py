@@ -376,13 +376,14 @@ import json, runpy
 from concurrent.futures import ThreadPoolExecutor
 runpy.run_path({str(EXAMPLES / "custom_learner.py")!r})
 from corrections_sim.figures import learning
+from corrections_sim.study import runner
 from corrections_sim.figures.plotting import learner_label, learner_style
 from corrections_sim.study import schema
 s = schema.parse_study(dict(
     theta_star=[1.0, -1.0], theta0=[0.0, 0.0], cov0=[[1.0, 0.0], [0.0, 1.0]], runs=1,
     iterations=1, seed=3, learners={{"KF": {{}}, "PP": {{}}, "NPP": {{"step": 0.5}}}}))
 with ThreadPoolExecutor(1) as pool:
-    result = learning.run(s, pool, mean_estimate=False)
+    result = runner.run(s, pool, mean_estimate=False)
 rows = [r for r in result.records if r["learner"] == "NPP"]
 print(json.dumps({{"order": [r["learner"] for r in result.records][::2],
                   "npp": [r["estimate_error"] for r in rows], "alphas": sorted(result.alphas),

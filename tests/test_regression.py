@@ -23,6 +23,7 @@ import numpy as np
 import pytest
 
 from corrections_sim.figures import learning
+from corrections_sim.study import analysis, runner
 
 REFERENCE = Path(__file__).resolve().parents[1] / "results" / "reference"
 TOLERANCE = {"estimate_error": 0.01, "regret": 0.03}
@@ -42,7 +43,7 @@ def quick_run(request):
     settings = learning.load_settings(figure, quick=True)
     # One worker thread: the same code path as the process pool, without process start-up.
     with ThreadPoolExecutor(max_workers=1) as executor:
-        result = learning.run(settings, executor)
+        result = runner.run(settings, executor)
     with open(REFERENCE / figure / "curves.csv", newline="") as fh:
         reference = list(csv.DictReader(fh))
     return figure, settings, result, reference
@@ -110,7 +111,7 @@ def test_kf_c_is_calibrated_where_the_papers_kf_is_not(quick_run):
     figure, settings, result, _ = quick_run
     if figure != "fig4":
         pytest.skip("asserted with fig. 4's equal initial uncertainty")
-    stats = learning.summarize(settings, result)["calibration"]
+    stats = analysis.summarize(settings, result)["calibration"]
     low, high = stats["KF"]["band"]
     assert stats["KF"]["mean_nees"][-1] > high, stats["KF"]["mean_nees"]
     assert stats["KF-C"]["inside_band"] == 1.0, (stats["KF-C"]["mean_nees"], stats["KF-C"]["band"])

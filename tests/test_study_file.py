@@ -18,6 +18,7 @@ import pytest
 
 from corrections_sim.cli import main as cli
 from corrections_sim.figures import learning
+from corrections_sim.study import runner
 from corrections_sim.study import schema as study_file
 
 EXPERIMENTS = Path(__file__).resolve().parents[1] / "experiments"
@@ -281,7 +282,7 @@ def _fails_on_the_second_run(settings, shared, learner, run, alphas=None):
     return learning_run_one(settings, shared, learner, run, alphas)
 
 
-learning_run_one = learning.run_one
+learning_run_one = runner.run_one
 
 
 def test_a_plug_in_that_raises_is_one_line_and_finished_runs_are_kept(
@@ -296,7 +297,7 @@ def test_a_plug_in_that_raises_is_one_line_and_finished_runs_are_kept(
             yield pool, "test threads"
 
     monkeypatch.setattr(cli, "_executor", threads)
-    monkeypatch.setattr(learning, "run_one", _fails_on_the_second_run)
+    monkeypatch.setattr(runner, "run_one", _fails_on_the_second_run)
     argv = ["study", str(path), "--out", str(tmp_path / "out")]
     assert _main(argv) == 2
     err = capsys.readouterr().err
@@ -306,7 +307,7 @@ def test_a_plug_in_that_raises_is_one_line_and_finished_runs_are_kept(
     assert "1 finished run kept" in err, err
     assert not (tmp_path / "out" / "mine").exists()
 
-    monkeypatch.setattr(learning, "run_one", learning_run_one)
+    monkeypatch.setattr(runner, "run_one", learning_run_one)
     assert _main(argv) == 0
     summary = json.loads((tmp_path / "out" / "mine" / "summary.json").read_text())
     assert summary["resumed_runs"] == 1
@@ -320,3 +321,28 @@ def test_sizes_are_refused_before_anything_is_built(monkeypatch):
     values = {"theta_star": [1.0, -1.0], "runs": 10**40, "iterations": 12}
     with pytest.raises(ValueError, match="runs"):
         study_file.parse_study(values)
+
+
+def test_an_environment_sets_a_plug_in_features_parameter():
+    """A study-file environment gives a registered extra parameter its own value (``extra``);
+    one nobody registered is refused by its key path."""
+    from corrections_sim.scene.environments import ENV_PARAMETERS, register_env_parameter
+
+    register_env_parameter("test_person_x", default=0.5)
+    try:
+        values = {
+            "theta_star": [1.0, -1.0],
+            "environments": [
+                {"name": "a", "like": "s0-t0-l0", "extra": {"test_person_x": 0.3}},
+                {"name": "b", "like": "s0-t0-l0"},
+            ],
+        }
+        settings = study_file.parse_study(values)
+        a, b = settings.envs()
+        assert a.param("test_person_x") == 0.3 and b.param("test_person_x") == 0.5
+        assert settings.as_dict()["environments"][0]["extra"] == {"test_person_x": 0.3}
+        values["environments"][0]["extra"] = {"test_persn_x": 0.3}
+        with pytest.raises(ValueError, match=r"environments\[0\].extra.test_persn_x: not a"):
+            study_file.parse_study(values)
+    finally:
+        ENV_PARAMETERS.unregister("test_person_x")

@@ -27,10 +27,10 @@ from pathlib import Path
 
 import numpy as np
 
+from corrections_sim.belief import Belief
 from corrections_sim.figures import presets
 from corrections_sim.figures.presets import PresetFigure, Scene
 from corrections_sim.figures.registry import register
-from corrections_sim.learning import Belief
 from corrections_sim.planning.features import feature_counts
 from corrections_sim.planning.planner import (
     Planner,

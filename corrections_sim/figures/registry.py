@@ -24,6 +24,8 @@ from concurrent.futures import Executor
 from pathlib import Path
 from typing import Any, Protocol
 
+from corrections_sim.study.runner import RunCache
+
 #: Modules whose import registers the package's figures (figs. 1–6 and ``study``).
 BUILT_IN = (
     "corrections_sim.figures.selection",
@@ -36,14 +38,6 @@ BUILT_IN = (
 COMMON_OPTIONS = ("out", "quick", "force", "workers", "scheduler")
 
 Progress = Callable[[int, int], None]
-
-
-class RunCache(Protocol):
-    """Where finished runs live between invocations (e.g. ``store.RunStore``)."""
-
-    def load_all(self) -> Mapping[tuple[str, int], Any]: ...
-
-    def save(self, learner: str, run: int, result: Any) -> object: ...
 
 
 #: The run caches a figure receives: part ("" for the whole figure, "column-0", …) -> cache.

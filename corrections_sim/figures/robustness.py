@@ -11,7 +11,8 @@ Settings are data in ``experiments/fig6.toml`` (the one dialect of
 :mod:`corrections_sim.study.schema`): the study settings every column shares (fig. 4's by
 default) and a list of ``[[columns]]`` tables, each a column with its ``label`` and its
 ``user``, a name or a table with the user's parameters (``{ name = "biased", step = 0.5 }``;
-plug-in users included). Each column is a learning study run by :func:`learning.run`.
+plug-in users included). Each column is a learning study run by
+:func:`corrections_sim.study.runner.run`.
 """
 
 from __future__ import annotations
@@ -26,11 +27,12 @@ import numpy as np
 
 from corrections_sim import provenance
 from corrections_sim.figures import learning
-from corrections_sim.figures.learning import FigureResult, FigureSettings
 from corrections_sim.figures.output import write_records
 from corrections_sim.figures.presets import EXPERIMENTS_DIR
-from corrections_sim.figures.registry import Caches, RunCache, register
-from corrections_sim.study import schema
+from corrections_sim.figures.registry import Caches, register
+from corrections_sim.study import analysis, runner, schema
+from corrections_sim.study.runner import FigureResult, RunCache
+from corrections_sim.study.settings import FigureSettings
 
 FIGURE = "fig6"
 #: Keys a column may set; everything else is shared by all columns.
@@ -112,17 +114,17 @@ def run(
     """Every column's study on ``executor``, one after the other; one result per column."""
     caches = caches or [None] * len(settings.columns)
     results = []
-    total = sum(len(learning.tasks(c.settings)) for c in settings.columns)
+    total = sum(len(runner.tasks(c.settings)) for c in settings.columns)
     offset = 0
     for column, cache in zip(settings.columns, caches, strict=True):
-        n = len(learning.tasks(column.settings))
+        n = len(runner.tasks(column.settings))
 
         def report(done: int, _total: int, base: int = offset) -> None:
             if progress:
                 progress(base + done, total)
 
         results.append(
-            learning.run(column.settings, executor, report, cache=cache, mean_estimate=False)
+            runner.run(column.settings, executor, report, cache=cache, mean_estimate=False)
         )
         offset += n
     return results
@@ -132,7 +134,7 @@ def matrix(settings: RobustnessSettings, results: Sequence[FigureResult]) -> lis
     """One row per (learner, user): final error and regret (mean, SEM), calibration."""
     rows = []
     for column, result in zip(settings.columns, results, strict=True):
-        stats = learning.summarize(column.settings, result)
+        stats = analysis.summarize(column.settings, result)
         for learner in settings.learners:
             final = stats["final"][learner]
             calib = stats["calibration"].get(learner)
@@ -198,7 +200,7 @@ class RobustnessFigure:
         return self.name
 
     def cache_keys(self, settings: RobustnessSettings) -> dict[str, dict]:
-        return {f"column-{i}": learning.run_key(c.settings) for i, c in enumerate(settings.columns)}
+        return {f"column-{i}": runner.run_key(c.settings) for i, c in enumerate(settings.columns)}
 
     def recorded(self, settings: RobustnessSettings, *, quick: bool) -> dict:
         return settings.as_dict()

@@ -1,13 +1,13 @@
-"""Learners of the human's preferences θ from corrections: pure numpy, no planner.
+"""Learners of the human's preferences θ from corrections.
 
-* :mod:`.belief`: the Gaussian belief N(θ̂, P) and the filter's noise (M, N).
-* :mod:`.perceptron`: the Preference Perceptron, eq. (B5).
-* :mod:`.kalman`: UKF and EKF updates, eqs. (K1)–(K7), and their predicted covariances.
-* :mod:`.active`: greedy environment selection, eq. (A1).
-* :mod:`.attenuated`: a UKF for corrections that deliver an unknown fraction of the intended
-  feature change (a Gaussian sum over the fraction, collapsed after each step).
-* :mod:`.preference_posterior`: a Gaussian posterior under a Boltzmann model of corrections
-  (a correction is a noisy improvement); no planner solves, no model of how people edit.
+* :mod:`.base`: the :class:`~.base.Learner` protocol, its context and the ``LEARNERS`` registry;
+  :mod:`.paper`: the paper's learners and their calibrated variants, registered by name;
+  :mod:`.step`: :class:`~.step.Step`, the one result every update returns.
+* The maths, pure numpy (no planner): :mod:`.perceptron` (eq. B5), :mod:`.kalman` (UKF and
+  EKF, eqs. K1–K7, and their predicted covariances), :mod:`.active` (eq. A1),
+  :mod:`.attenuated` (a UKF for corrections that deliver an unknown fraction of the intended
+  feature change), :mod:`.preference_posterior` (a Gaussian posterior under a Boltzmann model
+  of corrections).
 """
 
 from corrections_sim.belief import Belief, KalmanNoise, symmetrize

@@ -51,6 +51,7 @@ from corrections_sim.learning.kalman import (
     _repair_covariance,
     _repair_innovation_covariance,
 )
+from corrections_sim.learning.step import Step
 
 
 @dataclass(frozen=True)
@@ -97,8 +98,8 @@ class Attenuation:
         return np.geomspace(self.a_min, self.a_max, self.n_a)
 
 
-@dataclass(frozen=True, eq=False)
-class AttenuatedStep:
+@dataclass(frozen=True, eq=False, kw_only=True)
+class AttenuatedStep(Step):
     """Result of one correction.
 
     Attributes:
@@ -111,12 +112,7 @@ class AttenuatedStep:
         repaired: True if some S_j or P_j had to be repaired to stay positive definite.
     """
 
-    belief: Belief
-    gain: np.ndarray
-    innovation: np.ndarray
-    innovation_cov: np.ndarray
     weights: np.ndarray
-    repaired: bool
 
 
 def update(

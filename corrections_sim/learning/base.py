@@ -42,6 +42,7 @@ import numpy as np
 from corrections_sim import components
 from corrections_sim.belief import Belief, KalmanNoise
 from corrections_sim.learning.kalman import SigmaPoints
+from corrections_sim.learning.step import Step  # noqa: F401  (what update returns)
 from corrections_sim.planning.planner import Plan
 from corrections_sim.registry import Registry
 from corrections_sim.scene.environments import Environment
@@ -78,24 +79,6 @@ class LearnerContext:
     noise: KalmanNoise
     sigma: SigmaPoints
     iteration: int = 0
-
-
-@dataclass(frozen=True, eq=False)
-class Step:
-    """One update: the new belief and what calibration needs of it.
-
-    Attributes:
-        belief: the belief after the correction.
-        gain: Kalman gain K (k, k), or None (a learner without one). The gains of
-            ``rate_from`` learners' runs give PP-type learners their rate.
-        innovation: Φ_h minus what the learner predicted (k,).
-        innovation_cov: its predicted covariance S (k, k), or None (then no NIS).
-    """
-
-    belief: Belief
-    gain: np.ndarray | None
-    innovation: np.ndarray
-    innovation_cov: np.ndarray | None = None
 
 
 class Learner(abc.ABC):

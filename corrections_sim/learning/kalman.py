@@ -46,6 +46,7 @@ from corrections_sim.belief import (
     _as_vector,
     symmetrize,
 )
+from corrections_sim.learning.step import Step
 
 Observe = Callable[[np.ndarray], np.ndarray]
 """Batch observation model: thetas (n, k) -> features Φ(ξ*(θ, E), E) for each row, (n, k)."""
@@ -133,8 +134,8 @@ class SigmaPoints:
         return np.vstack([mean, mean + root.T, mean - root.T])
 
 
-@dataclass(frozen=True, eq=False)
-class UkfStep:
+@dataclass(frozen=True, eq=False, kw_only=True)
+class UkfStep(Step):
     """Result of one UKF correction.
 
     Attributes:
@@ -150,18 +151,13 @@ class UkfStep:
         repaired: True if S or P⁺ had to be repaired to stay positive definite.
     """
 
-    belief: Belief
-    gain: np.ndarray
-    innovation: np.ndarray
     predicted_obs: np.ndarray
     sigma_points: np.ndarray
     sigma_obs: np.ndarray
-    innovation_cov: np.ndarray
-    repaired: bool
 
 
 @dataclass(frozen=True, eq=False)
-class EkfStep:
+class EkfStep(Step):
     """Result of one EKF correction, eqs. (K5)–(K7).
 
     Attributes:
@@ -171,12 +167,6 @@ class EkfStep:
         innovation_cov: S = H P⁻ Hᵀ + N (after any repair), shape (k, k).
         repaired: True if S or P⁺ had to be repaired to stay positive definite.
     """
-
-    belief: Belief
-    gain: np.ndarray
-    innovation: np.ndarray
-    innovation_cov: np.ndarray
-    repaired: bool
 
 
 @dataclass(frozen=True, eq=False)

@@ -125,7 +125,7 @@ class UnscentedKalman(Learner):
         self, ctx: LearnerContext, belief: Belief, env: Environment, plan: Plan, phi_h: np.ndarray
     ) -> Step:
         # Innovation against Φ(ξᵗ) (eq. K5); for KF-C that is hₜ(θ̂), since C(ξᵗ, ξᵗ) = ξᵗ.
-        step = ukf_update(
+        return ukf_update(
             belief,
             self.observer(ctx, belief, env),
             phi_h,
@@ -133,7 +133,6 @@ class UnscentedKalman(Learner):
             ctx.sigma,
             reference=plan.features,
         )
-        return Step(step.belief, step.gain, step.innovation, step.innovation_cov)
 
 
 @register_learner("EKF")
@@ -157,8 +156,7 @@ class ExtendedKalman(Learner):
         self, ctx: LearnerContext, belief: Belief, env: Environment, plan: Plan, phi_h: np.ndarray
     ) -> Step:
         jac = finite_difference_jacobian(ctx.book.observe(env), belief.theta, self.step)
-        step = ekf_update(belief, jac, plan.features, phi_h, ctx.noise)
-        return Step(step.belief, step.gain, step.innovation, step.innovation_cov)
+        return ekf_update(belief, jac, plan.features, phi_h, ctx.noise)
 
 
 class _Active:
@@ -310,7 +308,7 @@ class AttenuatedKalman(Learner):
     def update(
         self, ctx: LearnerContext, belief: Belief, env: Environment, plan: Plan, phi_h: np.ndarray
     ) -> Step:
-        step = attenuated_update(
+        return attenuated_update(
             belief,
             ctx.book.observe(env),
             plan.features,
@@ -319,7 +317,6 @@ class AttenuatedKalman(Learner):
             self.attenuation(),
             ctx.sigma,
         )
-        return Step(step.belief, step.gain, step.innovation, step.innovation_cov)
 
 
 @register_learner("BP")
@@ -364,5 +361,4 @@ class BoltzmannPosterior(Learner):
         self, ctx: LearnerContext, belief: Belief, env: Environment, plan: Plan, phi_h: np.ndarray
     ) -> Step:
         model = self.correction_model(float(ctx.noise.process[0, 0]))
-        post = posterior_update(belief, None, plan.features, phi_h, model)
-        return Step(post.belief, post.gain, post.innovation, None)
+        return posterior_update(belief, None, plan.features, phi_h, model)

@@ -49,6 +49,7 @@ import numpy as np
 
 from corrections_sim.belief import Belief, _as_vector, symmetrize
 from corrections_sim.learning.kalman import COV_FLOOR_RTOL, Observe
+from corrections_sim.learning.step import Step
 
 LogLikelihood = Callable[[np.ndarray], np.ndarray]
 """log ℓ(s) of the projected preference s = θ·Δ, vectorized: shape (n,) -> (n,)."""
@@ -138,8 +139,8 @@ class BoltzmannCorrection:
         return np.logaddexp(math.log(0.5 * self.lapse), math.log1p(-self.lapse) + log_mix)
 
 
-@dataclass(frozen=True, eq=False)
-class PosteriorStep:
+@dataclass(frozen=True, eq=False, kw_only=True)
+class PosteriorStep(Step):
     """Result of one correction.
 
     Attributes:
@@ -154,12 +155,7 @@ class PosteriorStep:
         repaired: True if the tilted variance τ² had to be floored to keep P⁺ definite.
     """
 
-    belief: Belief
-    gain: np.ndarray
-    innovation: np.ndarray
-    innovation_cov: None
     log_evidence: float
-    repaired: bool
 
 
 def update(
@@ -221,7 +217,10 @@ def moment_match(
     cov = belief.cov
     if not np.any(d):
         return PosteriorStep(
-            belief, np.zeros((k, k)), d, None, float(log_likelihood(np.zeros(1))[0]), False
+            belief=belief,
+            gain=np.zeros((k, k)),
+            innovation=d,
+            log_evidence=float(log_likelihood(np.zeros(1))[0]),
         )
     mean_s = float(belief.theta @ d)
     cov_d = cov @ d
@@ -235,7 +234,13 @@ def moment_match(
         theta=belief.theta + weight * cov_d,
         cov=symmetrize(cov - np.outer(cov_d, cov_d) * (var_s - tau2) / var_s**2),
     )
-    return PosteriorStep(post, weight * cov, d, None, log_z, repaired)
+    return PosteriorStep(
+        belief=post,
+        gain=weight * cov,
+        innovation=d,
+        log_evidence=log_z,
+        repaired=repaired,
+    )
 
 
 def tilted_moments(

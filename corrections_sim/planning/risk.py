@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from corrections_sim.learning import Belief
+from corrections_sim.belief import Belief
 from corrections_sim.planning.features import feature_counts, waypoint_features
 from corrections_sim.planning.planner import (
     Plan,

@@ -24,6 +24,7 @@ from corrections_sim.learning.kalman import SigmaPoints
 from corrections_sim.people.users import USERS, BiasedUser, User
 from corrections_sim.planning.planner import PlannerConfig
 from corrections_sim.scene.environments import Environment
+from corrections_sim.study import environments
 
 #: The paper's three; the others are opt-in (``learners`` in a study file, ``--learners``).
 DEFAULT_LEARNERS = ("PP", "KF", "AL")
@@ -207,9 +208,7 @@ class StudySettings:
         }
 
 
-#: ``environments`` as settings hold it: "paper", or each a paper environment's name or a
-#: spec of the user's own (:class:`~corrections_sim.study.schema.EnvironmentSpec`).
-Environments = Any
+Environments = environments.Environments
 
 
 @dataclass(frozen=True)
@@ -244,17 +243,13 @@ class FigureSettings:
 
     def envs(self) -> tuple[Environment, ...]:
         """The study's environments (memoized per process)."""
-        from corrections_sim.study import schema
-
-        return schema.resolve(self.environments)
+        return environments.resolve(self.environments)
 
     def as_dict(self) -> dict:
-        from corrections_sim.study import schema
-
         d = self.study.as_dict()
         d["planner"] = dict(self.planner)
         d["features"] = list(self.features)
-        d["environments"] = schema.as_data(self.environments)
+        d["environments"] = environments.as_data(self.environments)
         if self.plugins:
             d["plugins"] = [p.as_dict() for p in self.plugins]
         return d

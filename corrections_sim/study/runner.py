@@ -1,0 +1,266 @@
+"""The runner: every (learner, run) of a study on any ``concurrent.futures`` executor.
+
+:func:`run` executes a study's runs on an executor (a process pool, a Dask client's executor,
+threads) and returns tidy records. The numbers do not depend on the executor, the number of
+workers or the order in which runs finish: each run draws from its own generator, made from
+(seed, learner stream, run), and everything is put back in (learner, run) order.
+
+Order: first the plans every run shares (the user's ξ*(θ*, E) and the robot's ξ*(θ̂⁰, E) in
+all environments, one task); then the runs of every learner with a covariance; a PP-type
+learner's rate αᵗ is the mean of diag(Kᵗ) over the runs of the filter it follows (PP: KF, as
+in the paper §6; PP-C: KF-C), unless its ``fixed_alpha`` fixes it; then the PP-type runs. A
+:class:`RunCache` (e.g. :class:`~corrections_sim.study.store.RunStore`) makes a study
+resumable: finished runs are loaded instead of recomputed, and each new one is handed to it
+the moment it finishes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from concurrent.futures import Executor, Future, as_completed
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+
+from corrections_sim import components
+from corrections_sim.learning import learning_rate_schedule
+from corrections_sim.learning.base import LEARNERS, make_learner
+from corrections_sim.planning.planner import shared_planner
+from corrections_sim.planning.plans import PlanBook, PlanEntries, Target, evaluate
+from corrections_sim.study.loop import RunResult, run_learner
+from corrections_sim.study.plugins import load_plugins
+from corrections_sim.study.settings import FigureSettings
+
+
+class RunCache(Protocol):
+    """Where finished runs live between invocations (e.g. ``store.RunStore``)."""
+
+    def load_all(self) -> Mapping[tuple[str, int], Any]: ...
+
+    def save(self, learner: str, run: int, result: Any) -> object: ...
+
+
+def _order(name: str) -> int:
+    """A learner's place in tables and plots: its registration order (plug-ins registered
+    after this module was imported included)."""
+    return list(LEARNERS).index(name)
+
+
+@dataclass(frozen=True)
+class Shared:
+    """What every run needs and nobody should solve twice.
+
+    Attributes:
+        target: the user's side, θ* and ξ*(θ*, E) for all environments.
+        prior: the robot's plans ξ*(θ̂⁰, E) for all environments (every run starts there).
+        solves: planner solves it took.
+    """
+
+    target: Target
+    prior: PlanEntries
+    solves: int
+
+
+def prepare(settings: FigureSettings) -> Shared:
+    """Solve the shared plans; a task for a worker (the caller needs no planner)."""
+    load_plugins(settings.plugins)
+    s = settings.study
+    planner = shared_planner(settings.planner_config())
+    envs = settings.envs()
+    target = Target.solve(planner, np.array(s.theta_star), envs)
+    book = PlanBook(planner)
+    evaluate(book, target, envs, np.array(s.theta0, float))
+    return Shared(target=target, prior=book.entries(), solves=len(envs) + book.solves)
+
+
+def run_one(
+    settings: FigureSettings, shared: Shared, learner: str, run: int, alphas=None
+) -> RunResult:
+    """One (learner, run); safe to call in a worker process."""
+    load_plugins(settings.plugins)
+    s = settings.study
+    seq = np.random.SeedSequence([s.seed, LEARNERS[learner].stream, run])
+    return run_learner(
+        learner,
+        run,
+        s,
+        shared_planner(settings.planner_config()),
+        settings.envs(),
+        shared.target,
+        s.user,
+        np.random.default_rng(seq),
+        alphas=alphas,
+        known=shared.prior,
+    )
+
+
+def mean_estimate_point(
+    settings: FigureSettings, shared: Shared, theta: tuple[float, ...]
+) -> tuple[float, float, int, int]:
+    """(regret, paper regret, failed environments, solves) of one θ; a worker task."""
+    load_plugins(settings.plugins)
+    book = PlanBook(shared_planner(settings.planner_config()), shared.prior)
+    regret, paper, failed = evaluate(book, shared.target, settings.envs(), np.array(theta))
+    return regret, paper, failed, book.solves
+
+
+def _mean_thetas(
+    settings: FigureSettings, records: list[dict]
+) -> list[tuple[str, int, int, tuple]]:
+    """(learner, t, runs, mean θ̂ᵗ over runs) for every learner and iteration."""
+    s = settings.study
+    out = []
+    for learner in sorted(s.learners, key=_order):
+        rows = [r for r in records if r["learner"] == learner]
+        for t in range(s.iterations + 1):
+            at_t = [r for r in rows if r["iteration"] == t]
+            theta = np.mean([[r[f"theta_{i}"] for i in range(s.k)] for r in at_t], axis=0)
+            out.append((learner, t, len(at_t), tuple(float(v) for v in theta)))
+    return out
+
+
+@dataclass(frozen=True)
+class FigureResult:
+    """Everything a figure's files are made of.
+
+    Attributes:
+        records: one dict per (learner, run, iteration), in that order.
+        mean_estimate: the regret of the mean θ̂ᵗ over runs, per learner and t.
+        alphas: each PP-type learner's learning rate per iteration.
+        solves: planner solves behind these results (including runs loaded from a cache).
+        resumed: runs loaded from the cache rather than computed now.
+    """
+
+    records: list[dict]
+    mean_estimate: list[dict]
+    alphas: dict[str, list[float]]
+    solves: int
+    resumed: int
+
+
+def tasks(settings: FigureSettings) -> list[tuple[str, int]]:
+    """Every (learner, run) of the figure, PP-type learners last (their learning rate needs
+    the filter runs); an active learner runs once unless the user is random."""
+    s = settings.study
+    names = sorted(s.learners, key=lambda n: (LEARNERS[n].needs_rates(), _order(n)))
+    return [(name, r) for name in names for r in range(s.runs_of(name))]
+
+
+def learning_rates(settings: FigureSettings, results: Mapping) -> dict[str, np.ndarray]:
+    """αᵗ of every PP-type learner: ``fixed_alpha``, or the mean diag(Kᵗ) over the runs of
+    the filter it follows (a step that failed counts as a zero gain)."""
+    s = settings.study
+    rates = {}
+    for name, learner in s.learners.items():
+        if not LEARNERS[name].needs_rates():
+            continue
+        if learner.fixed_rate() is not None:
+            rates[name] = np.full(s.iterations, learner.fixed_rate())
+            continue
+        source = learner.rate_source()
+        gains = [results[(source, r)].gains for r in range(s.runs_of(source))]
+        rates[name] = learning_rate_schedule(np.nan_to_num(np.array(gains), nan=0.0))
+    return rates
+
+
+def run(
+    settings: FigureSettings,
+    executor: Executor,
+    progress: Callable[[int, int], None] | None = None,
+    cache: RunCache | None = None,
+    *,
+    mean_estimate: bool = True,
+) -> FigureResult:
+    """All runs of the figure on ``executor``; records sorted by (learner, run, iteration).
+
+    Args:
+        settings: the figure's resolved settings.
+        executor: where the runs execute; any ``concurrent.futures.Executor``.
+        progress: called as progress(done, total) after each finished run (loaded runs
+            count as done from the start).
+        cache: finished runs to reuse, and where to put each new one at once.
+        mean_estimate: also evaluate the regret of the mean θ̂ᵗ over runs (the paper's
+            fig. 4 caption; 48 solves per learner and iteration).
+    """
+    s = settings.study
+    keys = tasks(settings)
+    results: dict[tuple[str, int], RunResult] = {}
+    if cache is not None:
+        wanted = set(keys)
+        results.update((k, v) for k, v in cache.load_all().items() if k in wanted)
+    resumed = len(results)
+    shared = executor.submit(prepare, settings).result()
+    total = len(keys)
+    done = resumed
+    if progress:
+        progress(done, total)
+
+    def execute(batch: list[tuple[str, int]], alphas=None) -> None:
+        nonlocal done
+        futures: dict[Future, tuple[str, int]] = {}
+        for learner, r in batch:
+            if (learner, r) in results:
+                continue
+            rates = (alphas or {}).get(learner)
+            futures[executor.submit(run_one, settings, shared, learner, r, rates)] = (learner, r)
+        for fut in as_completed(futures):
+            key = futures[fut]
+            results[key] = fut.result()
+            if cache is not None:
+                cache.save(*key, results[key])
+            done += 1
+            if progress:
+                progress(done, total)
+
+    execute([k for k in keys if not LEARNERS[k[0]].needs_rates()])
+    alphas = learning_rates(settings, results)
+    execute([k for k in keys if LEARNERS[k[0]].needs_rates()], alphas)
+
+    records = [
+        rec
+        for key in sorted(results, key=lambda k: (_order(k[0]), k[1]))
+        for rec in results[key].records
+    ]
+    points = _mean_thetas(settings, records) if mean_estimate else []
+    values = list(
+        executor.map(
+            mean_estimate_point,
+            [settings] * len(points),
+            [shared] * len(points),
+            [theta for *_, theta in points],
+        )
+    )
+    mean_rows = [
+        {
+            "learner": learner,
+            "iteration": t,
+            "runs": n,
+            **{f"theta_{i}": theta[i] for i in range(s.k)},
+            "regret": regret,
+            "regret_paper": paper,
+            "regret_failures": failed,
+        }
+        for (learner, t, n, theta), (regret, paper, failed, _) in zip(points, values, strict=True)
+    ]
+    return FigureResult(
+        records=records,
+        mean_estimate=mean_rows,
+        alphas={name: [float(a) for a in rate] for name, rate in alphas.items()},
+        solves=shared.solves + sum(r.solves for r in results.values()) + sum(v[3] for v in values),
+        resumed=resumed,
+    )
+
+
+def run_key(settings: FigureSettings) -> dict:
+    """The settings a run's numbers depend on: all but which learners run (a run of one
+    learner is the same whichever others run beside it), so adding a learner to a study
+    reuses the runs already made; a learner's parameters count where they differ from its
+    defaults (changing one gives new runs)."""
+    key = {k: v for k, v in settings.as_dict().items() if k != "learners"}
+    key["learner_params"] = {
+        name: params
+        for name, params in settings.study.learner_params().items()
+        if params != components.params(make_learner(name))
+    }
+    return key
