@@ -97,6 +97,8 @@ class Belief:
         theta: mean estimate θ̂, shape (k,).
         cov: covariance P, shape (k, k), symmetric positive definite. The Preference
             Perceptron has no covariance; it carries its initial one unchanged.
+        noise: the belief over the person's observation noise N, for a learner that learns
+            it (:class:`NoisePosterior`); None for one that assumes N.
 
     Raises:
         ValueError: on wrong shapes, non-finite values, or a cov that is not symmetric
@@ -105,6 +107,7 @@ class Belief:
 
     theta: np.ndarray
     cov: np.ndarray
+    noise: NoisePosterior | None = None
 
     def __post_init__(self) -> None:
         theta = _as_vector("Belief.theta", self.theta)
@@ -112,6 +115,11 @@ class Belief:
         _check_positive_definite("Belief.cov", cov)
         object.__setattr__(self, "theta", _freeze(theta))
         object.__setattr__(self, "cov", _freeze(cov))
+        if self.noise is not None and self.noise.dim != theta.shape[0]:
+            raise ValueError(
+                f"Belief.noise: a posterior over {self.noise.dim} x {self.noise.dim} noise, "
+                f"expected {theta.shape[0]} x {theta.shape[0]}"
+            )
 
     @property
     def dim(self) -> int:
@@ -158,3 +166,42 @@ class KalmanNoise:
     def dim(self) -> int:
         """Number of features k."""
         return int(self.process.shape[0])
+
+
+@dataclass(frozen=True, eq=False)
+class NoisePosterior:
+    """A belief over the observation noise N: inverse-Wishart IW(ν, V), density
+    ∝ |N|^(−(ν + k + 1)/2) exp(−tr(V N⁻¹)/2).
+
+    Under it E[N⁻¹] = ν V⁻¹, so the noise a variational-Bayes filter plugs into its update
+    is N̂ = E[N⁻¹]⁻¹ = V / ν (:meth:`estimate`).
+
+    Attributes:
+        dof: ν > k − 1, the degrees of freedom: how many corrections' worth of evidence.
+        scale: V, shape (k, k), symmetric positive definite.
+    """
+
+    dof: float
+    scale: np.ndarray
+
+    def __post_init__(self) -> None:
+        scale = _as_symmetric("NoisePosterior.scale", self.scale)
+        _check_positive_definite("NoisePosterior.scale", scale)
+        k = scale.shape[0]
+        if not (np.isfinite(self.dof) and self.dof > k - 1):
+            raise ValueError(f"NoisePosterior.dof: must be finite and > {k - 1}, got {self.dof}")
+        object.__setattr__(self, "dof", float(self.dof))
+        object.__setattr__(self, "scale", _freeze(scale))
+
+    @classmethod
+    def around(cls, noise: np.ndarray, dof: float) -> NoisePosterior:
+        """A prior whose estimate is ``noise`` (k, k), held with ``dof`` degrees of freedom."""
+        return cls(dof=dof, scale=dof * np.asarray(noise, dtype=float))
+
+    @property
+    def dim(self) -> int:
+        return int(self.scale.shape[0])
+
+    def estimate(self) -> np.ndarray:
+        """N̂ = V / ν, shape (k, k)."""
+        return self.scale / self.dof

@@ -46,8 +46,11 @@ def write_records(path: Path, rows: Sequence[dict]) -> Path:
     The committed curves were written this way (``csv`` module defaults: CRLF line ends;
     floats with ``repr``, None as an empty cell), so the same records give the same bytes.
     """
+    # Columns in order of first appearance: a learner that records more (noise_ij of one that
+    # learns N) adds columns, empty for the others.
+    fieldnames = list(dict.fromkeys(key for row in rows for key in row))
     with open(path, "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer = csv.DictWriter(fh, fieldnames=fieldnames)
         writer.writeheader()
         for row in rows:
             writer.writerow({k: (repr(v) if isinstance(v, float) else v) for k, v in row.items()})

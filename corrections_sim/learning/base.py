@@ -122,6 +122,11 @@ class Learner(abc.ABC):
         (called once the planner's T is known, before anything runs)."""
         return None
 
+    def initial(self, belief: Belief, noise: KalmanNoise) -> Belief:
+        """The belief a run starts from, given the study's prior N(θ̂⁰, P⁰) and the shared
+        filter noise: the prior itself, unless the learner believes more (e.g. about N)."""
+        return belief
+
     def choose(self, ctx: LearnerContext, belief: Belief, draw: int) -> int:
         """Index of Eᵗ in ``ctx.envs``; ``draw`` is the run's random choice."""
         return draw

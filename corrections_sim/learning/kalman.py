@@ -43,6 +43,7 @@ import numpy as np
 from corrections_sim.belief import (
     Belief,
     KalmanNoise,
+    NoisePosterior,
     _as_vector,
     symmetrize,
 )
@@ -265,6 +266,96 @@ def ukf_predicted_covariance(
     return _ukf_statistics(belief, observe, noise, sigma or SigmaPoints()).cov.copy()
 
 
+@dataclass(frozen=True, eq=False, kw_only=True)
+class VbUkfStep(UkfStep):
+    """Result of one UKF correction that learns the observation noise too.
+
+    Attributes:
+        noise_estimate: N̂ = V/ν of the posterior over N after this correction, (k, k).
+        fixed_point_change: max |ΔN̂| of the last fixed-point iteration (convergence).
+    """
+
+    noise_estimate: np.ndarray
+    fixed_point_change: float
+
+
+def vb_ukf_update(
+    belief: Belief,
+    observe: Observe,
+    phi_human: np.ndarray,
+    noise: KalmanNoise,
+    sigma: SigmaPoints | None = None,
+    *,
+    reference: np.ndarray | None = None,
+    iterations: int = 10,
+) -> VbUkfStep:
+    """One UKF step that learns the observation noise N jointly with θ: variational Bayes in
+    the sigma-point filter (Särkkä & Hartikainen 2013), N ~ IW(ν, V) (``belief.noise``).
+
+    The 2k + 1 observations h(χ) are made once, as in :func:`ukf_update`; the fixed point
+    iterates only on them (no extra h), with N̂ = V⁽ʲ⁾/ν⁺, ν⁺ = ν + 1:
+
+        S = P_zz + N̂;  K = P_θz S⁻¹;  θ̂⁺ = θ̂ + K ν_z;  P⁺ = P⁻ − K S Kᵀ
+        V⁽ʲ⁺¹⁾ = V + r rᵀ + H P⁺ Hᵀ + (P_zz − H P⁻ Hᵀ),   r = ν_z − H (θ̂⁺ − θ̂)
+
+    where ν_z is the innovation (against ``reference`` when given, as in the paper's update)
+    and H = P_θzᵀ P⁻⁻¹ the statistical linearization of h from the same sigma points: r rᵀ +
+    H P⁺ Hᵀ is E[(Φ_h − h(θ))(Φ_h − h(θ))ᵀ] under the posterior of θ, and P_zz − H P⁻ Hᵀ ⪰ 0
+    the part of h's spread that is not linear in θ. With ν → ∞ this is :func:`ukf_update` with
+    N = V/ν. The process noise M comes from ``noise``; its observation noise is not used.
+
+    Args:
+        belief: prior belief N(θ̂ᵗ, Pᵗ) with ``belief.noise`` the posterior over N so far.
+        observe, phi_human, sigma, reference: as in :func:`ukf_update`.
+        noise: the process noise M (``noise.process``).
+        iterations: fixed-point iterations (≥ 1).
+
+    Returns:
+        The posterior (its ``belief.noise`` updated) and the intermediate quantities.
+
+    Raises:
+        ValueError: a belief without a noise posterior, or as :func:`ukf_update`.
+    """
+    if belief.noise is None:
+        raise ValueError("belief.noise: a noise-learning update needs a posterior over N")
+    if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
+        raise ValueError(f"iterations = {iterations!r}: expected an integer >= 1")
+    phi_human = _as_vector("phi_human", phi_human, belief.dim)
+    moments = _sigma_moments(belief, observe, noise, sigma or SigmaPoints())
+    base = moments.obs_mean if reference is None else _as_vector("reference", reference, belief.dim)
+    innovation = phi_human - base
+    jac = np.linalg.solve(moments.prior_cov, moments.cross_cov).T  # H, (k, k)
+    nonlinear = symmetrize(moments.obs_cov - jac @ moments.prior_cov @ jac.T)
+    dof = belief.noise.dof + 1.0
+    scale = belief.noise.scale
+    estimate = scale / dof
+    change = np.inf
+    for _ in range(iterations):
+        stats = _correct(moments, estimate)
+        mean = belief.theta + stats.gain @ innovation
+        residual = innovation - jac @ (mean - belief.theta)
+        scale = symmetrize(
+            belief.noise.scale + np.outer(residual, residual) + jac @ stats.cov @ jac.T + nonlinear
+        )
+        new_estimate = scale / dof
+        change = float(np.max(np.abs(new_estimate - estimate)))
+        estimate = new_estimate
+    stats = _correct(moments, estimate)
+    posterior = NoisePosterior(dof=dof, scale=scale)
+    return VbUkfStep(
+        belief=Belief(theta=belief.theta + stats.gain @ innovation, cov=stats.cov, noise=posterior),
+        gain=stats.gain,
+        innovation=innovation,
+        predicted_obs=stats.obs_mean,
+        sigma_points=stats.points,
+        sigma_obs=stats.obs,
+        innovation_cov=stats.innovation_cov,
+        repaired=stats.repaired,
+        noise_estimate=_frozen(posterior.estimate()),
+        fixed_point_change=change,
+    )
+
+
 def ekf_update(
     belief: Belief,
     jacobian: np.ndarray,
@@ -359,9 +450,21 @@ def finite_difference_jacobian(
     return (obs[:k] - obs[k:]).T / (2.0 * steps)
 
 
-def _ukf_statistics(
+@dataclass(frozen=True, eq=False)
+class _SigmaMoments:
+    """What the sigma points say before any noise N is added (one batch of h)."""
+
+    prior_cov: np.ndarray  # P⁻ = P + M, (k, k)
+    points: np.ndarray  # χ, (2k+1, k)
+    obs: np.ndarray  # h(χ), (2k+1, k)
+    obs_mean: np.ndarray  # ẑ, (k,)
+    obs_cov: np.ndarray  # P_zz without N, (k, k)
+    cross_cov: np.ndarray  # P_θz, (k, k)
+
+
+def _sigma_moments(
     belief: Belief, observe: Observe, noise: KalmanNoise, sigma: SigmaPoints
-) -> _UkfStatistics:
+) -> _SigmaMoments:
     k = belief.dim
     _check_noise(noise, k)
     prior_cov = symmetrize(belief.cov + noise.process)
@@ -379,20 +482,30 @@ def _ukf_statistics(
             "observe: features at the sigma points are too far apart to form a covariance "
             f"(overflow); largest |feature| {float(np.max(np.abs(obs))):.3g}"
         )
-    innovation_cov, s_repaired = _repair_innovation_covariance(
-        obs_cov + noise.observation, noise.observation
-    )
-    gain = np.linalg.solve(innovation_cov, cross_cov.T).T
-    cov, p_repaired = _repair_covariance(prior_cov - gain @ innovation_cov @ gain.T, prior_cov)
+    return _SigmaMoments(prior_cov, points, obs, obs_mean, obs_cov, cross_cov)
+
+
+def _correct(moments: _SigmaMoments, observation: np.ndarray) -> _UkfStatistics:
+    """The UKF correction of ``moments`` with observation noise N = ``observation``."""
+    m = moments
+    innovation_cov, s_repaired = _repair_innovation_covariance(m.obs_cov + observation, observation)
+    gain = np.linalg.solve(innovation_cov, m.cross_cov.T).T
+    cov, p_repaired = _repair_covariance(m.prior_cov - gain @ innovation_cov @ gain.T, m.prior_cov)
     return _UkfStatistics(
-        points=_frozen(points),
-        obs=_frozen(obs),
-        obs_mean=_frozen(obs_mean),
+        points=_frozen(m.points),
+        obs=_frozen(m.obs),
+        obs_mean=_frozen(m.obs_mean),
         gain=_frozen(gain),
         cov=_frozen(cov),
         innovation_cov=_frozen(innovation_cov),
         repaired=s_repaired or p_repaired,
     )
+
+
+def _ukf_statistics(
+    belief: Belief, observe: Observe, noise: KalmanNoise, sigma: SigmaPoints
+) -> _UkfStatistics:
+    return _correct(_sigma_moments(belief, observe, noise, sigma), noise.observation)
 
 
 def _ekf_statistics(belief: Belief, jacobian: np.ndarray, noise: KalmanNoise) -> _EkfStatistics:

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from corrections_sim import components
-from corrections_sim.belief import Belief
+from corrections_sim.belief import Belief, KalmanNoise, NoisePosterior
 from corrections_sim.components import ParameterError
 from corrections_sim.learning.active import select_environment
 from corrections_sim.learning.attenuated import Attenuation
@@ -40,6 +40,7 @@ from corrections_sim.learning.kalman import (
     finite_difference_jacobian,
     ukf_predicted_covariance,
     ukf_update,
+    vb_ukf_update,
 )
 from corrections_sim.learning.perceptron import perceptron_update
 from corrections_sim.learning.preference_posterior import BoltzmannCorrection
@@ -108,14 +109,52 @@ class Perceptron(Learner):
         return Step(new, None, phi_h - plan.features, None)
 
 
+#: How a filter treats the person's observation noise N (the ``noise`` parameter).
+NOISE_MODES = ("fixed", "learnt")
+
+
 @register_learner("KF")
 @dataclass(frozen=True)
 class UnscentedKalman(Learner):
     """The UKF the paper simulates, observation h(θ) = Φ(ξ*(θ, E), E), with the study's
-    M, N and sigma points."""
+    M, N and sigma points.
+
+    Attributes:
+        noise: "fixed" (N is the study's, the paper's filter) or "learnt": N is estimated
+            jointly with θ by variational Bayes (:func:`~.kalman.vb_ukf_update`), from a prior
+            IW whose estimate is the study's N, held with ``noise_dof`` degrees of freedom.
+        noise_dof: the prior's degrees of freedom ν₀ > k − 1 (how many corrections' worth
+            the study's N counts for); None: k + 2.
+    """
 
     label = "Kalman filter (KF)"
     style = ("#1f77b4", "-")
+
+    noise: str = "fixed"
+    noise_dof: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.noise not in NOISE_MODES:
+            raise ParameterError(
+                "noise", f"must be one of {', '.join(NOISE_MODES)}, got {self.noise!r}"
+            )
+        if self.noise_dof is not None:
+            _positive("noise_dof", self.noise_dof)
+
+    def initial(self, belief: Belief, noise: KalmanNoise) -> Belief:
+        if self.noise == "fixed":
+            return belief
+        dof = self.noise_dof if self.noise_dof is not None else belief.dim + 2.0
+        if not dof > belief.dim - 1:
+            raise ParameterError("noise_dof", f"must be > k - 1 = {belief.dim - 1}, got {dof}")
+        prior = NoisePosterior.around(noise.observation, dof)
+        return Belief(theta=belief.theta, cov=belief.cov, noise=prior)
+
+    def filter_noise(self, ctx: LearnerContext, belief: Belief) -> KalmanNoise:
+        """M and N as this filter believes them now (N̂ when it learns N)."""
+        if belief.noise is None:
+            return ctx.noise
+        return KalmanNoise(process=ctx.noise.process, observation=belief.noise.estimate())
 
     def observer(self, ctx: LearnerContext, belief: Belief, env: Environment) -> Observe:
         """What this learner believes a correction in ``env`` shows, as a function of θ."""
@@ -125,7 +164,8 @@ class UnscentedKalman(Learner):
         self, ctx: LearnerContext, belief: Belief, env: Environment, plan: Plan, phi_h: np.ndarray
     ) -> Step:
         # Innovation against Φ(ξᵗ) (eq. K5); for KF-C that is hₜ(θ̂), since C(ξᵗ, ξᵗ) = ξᵗ.
-        return ukf_update(
+        update = vb_ukf_update if belief.noise is not None else ukf_update
+        return update(
             belief,
             self.observer(ctx, belief, env),
             phi_h,
@@ -171,7 +211,8 @@ class _Active:
         for i, env in enumerate(ctx.envs):
             try:
                 observe = self.observer(ctx, belief, env)
-                covs.append(ukf_predicted_covariance(belief, observe, ctx.noise, ctx.sigma))
+                noise = self.filter_noise(ctx, belief)
+                covs.append(ukf_predicted_covariance(belief, observe, noise, ctx.sigma))
                 candidates.append(i)
             except PlanningError:
                 continue
@@ -236,6 +277,7 @@ class CorrectionAwareKalman(UnscentedKalman):
     model: CorrectionModel = components.nested(CORRECTIONS, WaypointCorrection())
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         if not isinstance(self.model, CorrectionModel):
             raise ParameterError("model", f"expected a correction model, got {self.model!r}")
 
@@ -362,3 +404,23 @@ class BoltzmannPosterior(Learner):
     ) -> Step:
         model = self.correction_model(float(ctx.noise.process[0, 0]))
         return posterior_update(belief, None, plan.features, phi_h, model)
+
+
+@register_learner("KF-CL")
+@dataclass(frozen=True)
+class CorrectionAwareKalmanLearntNoise(CorrectionAwareKalman):
+    """KF-C that learns the person's observation noise N (``noise = "learnt"``)."""
+
+    label = "KF-C, N learnt (KF-CL)"
+    style = ("#17becf", "--")
+
+    noise: str = "learnt"
+
+
+@register_learner("AL-CL")
+@dataclass(frozen=True)
+class CorrectionAwareActiveLearntNoise(_Active, CorrectionAwareKalmanLearntNoise):
+    """AL-C that learns the person's observation noise N: environments by eq. (A1) with N̂."""
+
+    label = "AL-C, N learnt (AL-CL)"
+    style = ("#ff7f0e", "--")

@@ -103,9 +103,30 @@ def summarize(settings: FigureSettings, result: FigureResult) -> dict:
                 for col in nis.T
             ]
             entry["nis_band"] = list(calibration.mean_band(s.k, nis.shape[0]))
+            noise = learnt_noise(result.records, learner, s.k)
+            if noise:
+                entry["mean_noise"] = noise
             calib[learner] = entry
     return {
         "final": final,
         "calibration": calib,
         "paired": paired_differences(settings, data),
     }
+
+
+def learnt_noise(records: list[dict], learner: str, k: int) -> dict[str, list[float]]:
+    """The mean over runs of a noise-learning learner's N̂ at every iteration, per entry
+    ``noise_ij`` (i ≤ j); empty for a learner that assumes N."""
+    rows = [r for r in records if r["learner"] == learner and "noise_00" in r]
+    if not rows:
+        return {}
+    last = max(r["iteration"] for r in rows)
+    out = {}
+    for i in range(k):
+        for j in range(i, k):
+            key = f"noise_{i}{j}"
+            out[key] = [
+                float(np.mean([r[key] for r in rows if r["iteration"] == t]))
+                for t in range(last + 1)
+            ]
+    return out

@@ -76,10 +76,10 @@ def run_learner(
     if cls.needs_rates() and alphas is None:
         raise ValueError(f"alphas: {learner} needs a learning rate per iteration")
     agent = settings.learners[learner]
-    noise, sigma = settings.noise(), settings.sigma()
     book = PlanBook(planner, known, warm_start=settings.warm_start)
     names = planner.config.features
-    belief = settings.prior()
+    noise, sigma = settings.noise(), settings.sigma()
+    belief = agent.initial(settings.prior(), noise)
     k, n_iter = settings.k, settings.iterations
     # Drawn up front so PP and KF run r see the same environments (common random numbers).
     draws = rng.integers(len(envs), size=n_iter)
@@ -104,6 +104,11 @@ def run_learner(
         for i in range(k):
             for j in range(i, k):
                 rec[f"cov_{i}{j}"] = float(belief.cov[i, j])
+        if belief.noise is not None:  # a learner that learns N: its estimate N̂
+            estimate = belief.noise.estimate()
+            for i in range(k):
+                for j in range(i, k):
+                    rec[f"noise_{i}{j}"] = float(estimate[i, j])
         # None (an empty CSV cell) where there is nothing to normalize by: a learner without
         # a covariance (the perceptron), and the prior no innovation.
         rec["nees"] = (
