@@ -296,13 +296,15 @@ def vb_ukf_update(
     iterates only on them (no extra h), with N̂ = V⁽ʲ⁾/ν⁺, ν⁺ = ν + 1:
 
         S = P_zz + N̂;  K = P_θz S⁻¹;  θ̂⁺ = θ̂ + K ν_z;  P⁺ = P⁻ − K S Kᵀ
-        V⁽ʲ⁺¹⁾ = V + r rᵀ + H P⁺ Hᵀ + (P_zz − H P⁻ Hᵀ),   r = ν_z − H (θ̂⁺ − θ̂)
+        V⁽ʲ⁺¹⁾ = V + E[n nᵀ | Φ_h] = V + N̂ − N̂ S⁻¹ N̂ + (N̂ S⁻¹ ν_z)(N̂ S⁻¹ ν_z)ᵀ
 
-    where ν_z is the innovation (against ``reference`` when given, as in the paper's update)
-    and H = P_θzᵀ P⁻⁻¹ the statistical linearization of h from the same sigma points: r rᵀ +
-    H P⁺ Hᵀ is E[(Φ_h − h(θ))(Φ_h − h(θ))ᵀ] under the posterior of θ, and P_zz − H P⁻ Hᵀ ⪰ 0
-    the part of h's spread that is not linear in θ. With ν → ∞ this is :func:`ukf_update` with
-    N = V/ν. The process noise M comes from ``noise``; its observation noise is not used.
+    where ν_z is the innovation (against ``reference`` when given, as in the paper's update).
+    The sigma points linearize h statistically, Φ_h = H θ + b + e + n with e ~ N(0, Ω) the part
+    of h's spread that is not linear in θ (Ω = P_zz − H P⁻ Hᵀ, inside S): E[n nᵀ | Φ_h] is
+    the person's noise n's share of the innovation, so a nonlinear h is not mistaken for a
+    noisy person. On a linear h (Ω = 0) it is E[(Φ_h − Hθ)(Φ_h − Hθ)ᵀ] under the posterior of
+    θ, the exact VB step. With ν → ∞ this is :func:`ukf_update` with N = V/ν. The process
+    noise M comes from ``noise``; its observation noise is not used.
 
     Args:
         belief: prior belief N(θ̂ᵗ, Pᵗ) with ``belief.noise`` the posterior over N so far.
@@ -324,19 +326,16 @@ def vb_ukf_update(
     moments = _sigma_moments(belief, observe, noise, sigma or SigmaPoints())
     base = moments.obs_mean if reference is None else _as_vector("reference", reference, belief.dim)
     innovation = phi_human - base
-    jac = np.linalg.solve(moments.prior_cov, moments.cross_cov).T  # H, (k, k)
-    nonlinear = symmetrize(moments.obs_cov - jac @ moments.prior_cov @ jac.T)
     dof = belief.noise.dof + 1.0
     scale = belief.noise.scale
     estimate = scale / dof
     change = np.inf
     for _ in range(iterations):
         stats = _correct(moments, estimate)
-        mean = belief.theta + stats.gain @ innovation
-        residual = innovation - jac @ (mean - belief.theta)
-        scale = symmetrize(
-            belief.noise.scale + np.outer(residual, residual) + jac @ stats.cov @ jac.T + nonlinear
-        )
+        share = np.linalg.solve(stats.innovation_cov, estimate).T  # N̂ S⁻¹
+        noise_mean = share @ innovation  # E[n | Φ_h]
+        noise_cov = estimate - share @ estimate  # Cov[n | Φ_h]
+        scale = symmetrize(belief.noise.scale + noise_cov + np.outer(noise_mean, noise_mean))
         new_estimate = scale / dof
         change = float(np.max(np.abs(new_estimate - estimate)))
         estimate = new_estimate
