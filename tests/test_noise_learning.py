@@ -116,3 +116,26 @@ def test_a_noise_learning_learner_records_its_estimate_and_others_leave_it_empty
     path = write_records(tmp_path / "curves.csv", records)
     header, first = path.read_text().splitlines()[:2]
     assert header.endswith("noise_00,noise_01,noise_11") and first.endswith(",,")
+
+
+def test_quick_fig4_learnt_noise_raises_nis_lowers_the_noise_and_learns_no_worse():
+    """CI's regression guard for learning N (fig. 4's quick preset, KF-C beside KF-CL):
+    measured, KF-CL's mean NIS over t = 3..4 is 1.3x KF-C's, N-hat falls from 0.25 to
+    (0.19, 0.15) and the final error is 0.78 against 0.84."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from corrections_sim.figures import learning
+    from corrections_sim.study import analysis, runner
+
+    settings = learning.load_settings("fig4", quick=True, overrides={"learners": ["KF-C", "KF-CL"]})
+    with ThreadPoolExecutor(max_workers=1) as executor:
+        result = runner.run(settings, executor, mean_estimate=False)
+    stats = analysis.summarize(settings, result)
+    fixed, learnt = stats["calibration"]["KF-C"], stats["calibration"]["KF-CL"]
+    assert np.mean(learnt["mean_nis"][2:]) > 1.15 * np.mean(fixed["mean_nis"][2:])
+    assert "mean_noise" not in fixed
+    assert max(learnt["mean_noise"]["noise_00"][-1], learnt["mean_noise"]["noise_11"][-1]) < 0.225
+    final = stats["final"]
+    assert (
+        final["KF-CL"]["estimate_error"]["mean"] <= final["KF-C"]["estimate_error"]["mean"] + 0.02
+    )
