@@ -1,0 +1,146 @@
+"""Exact reference posteriors on a grid over θ (k = 2), under exactly a learner's model.
+
+A Gaussian learner approximates p(θ | corrections); where its NEES is off, the question is
+whether the approximation (the unscented transform, a Gaussian collapse, moment matching) or
+the model of the person is to blame. This module computes the posterior itself, on a regular
+grid, from the values of the learner's observation model at the grid's points (the caller
+solves ξ*(θ, E) there once; this module never plans):
+
+* :func:`gaussian_log_likelihood` — KF/KF-C's model, Φ_h ~ N(h(θ), N) with N known;
+* :func:`learnt_noise_log_likelihood` — the same with N integrated out under an
+  inverse-Wishart prior IW(ν₀, V₀) (what a ``noise = "learnt"`` filter assumes), exactly:
+  p(z₁…z_t | θ) ∝ |V₀ + Σᵢ rᵢ rᵢᵀ|^(−(ν₀ + t)/2), rᵢ = zᵢ − hᵢ(θ);
+* :func:`boltzmann_log_likelihood` — BP's model, P(ξ_h ≻ ξᵗ | θ) = ε/2 + (1 − ε) mean_β σ(β θ·Δ).
+
+:func:`posterior` turns a log prior plus log likelihoods into normalized cell weights;
+:func:`moments`, :func:`kl_to_gaussian` and :func:`nees` compare it with a learner's Gaussian.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.special import expit
+
+from corrections_sim.belief import Belief
+
+
+@dataclass(frozen=True)
+class Grid:
+    """A regular grid over θ: ``points`` per axis between ``low`` and ``high`` (inclusive).
+
+    Attributes:
+        low, high: the box's corners, shape (k,) each.
+        points: grid points per axis (≥ 3).
+    """
+
+    low: tuple[float, ...]
+    high: tuple[float, ...]
+    points: int
+
+    def __post_init__(self) -> None:
+        if len(self.low) != len(self.high) or not self.low:
+            raise ValueError(f"low {self.low} and high {self.high}: expected two k-vectors")
+        if not all(h > lo for lo, h in zip(self.low, self.high, strict=True)):
+            raise ValueError(f"high {self.high} must exceed low {self.low} on every axis")
+        if isinstance(self.points, bool) or not isinstance(self.points, int) or self.points < 3:
+            raise ValueError(f"points = {self.points!r}: expected an integer >= 3")
+
+    @property
+    def axes(self) -> list[np.ndarray]:
+        return [np.linspace(lo, h, self.points) for lo, h in zip(self.low, self.high, strict=True)]
+
+    @property
+    def spacing(self) -> np.ndarray:
+        """Cell widths per axis, shape (k,)."""
+        return (np.array(self.high) - np.array(self.low)) / (self.points - 1)
+
+    def thetas(self) -> np.ndarray:
+        """Every grid point, shape (points^k, k), the last axis fastest."""
+        mesh = np.meshgrid(*self.axes, indexing="ij")
+        return np.stack([m.ravel() for m in mesh], axis=1)
+
+    def halved(self) -> Grid:
+        """The same box at half the spacing (for the grid's own convergence check)."""
+        return Grid(self.low, self.high, 2 * self.points - 1)
+
+
+def gaussian_log_prior(thetas: np.ndarray, prior: Belief) -> np.ndarray:
+    """log N(θ; θ̂⁰, P⁰) at each grid point (n,), up to a constant."""
+    d = thetas - prior.theta
+    return -0.5 * np.einsum("ni,ij,nj->n", d, np.linalg.inv(prior.cov), d)
+
+
+def gaussian_log_likelihood(z: np.ndarray, h: np.ndarray, noise: np.ndarray) -> np.ndarray:
+    """log N(z; h(θ), N) at each grid point, up to a constant.
+
+    Args:
+        z: the observation Φ_h (k,).
+        h: the model's prediction at each grid point (n, k).
+        noise: N (k, k), symmetric positive definite.
+    """
+    r = np.asarray(z, float)[None, :] - h
+    return -0.5 * np.einsum("ni,ij,nj->n", r, np.linalg.inv(noise), r)
+
+
+def learnt_noise_log_likelihood(
+    zs: np.ndarray, hs: np.ndarray, dof: float, scale: np.ndarray
+) -> np.ndarray:
+    """log p(z₁…z_t | θ) with N ~ IW(ν₀ = ``dof``, V₀ = ``scale``) integrated out, up to a
+    constant: −(ν₀ + t)/2 · log|V₀ + Σᵢ rᵢ rᵢᵀ|, rᵢ = zᵢ − hᵢ(θ).
+
+    Args:
+        zs: the observations, shape (t, k).
+        hs: the model's predictions, shape (t, n, k) (observation, grid point, feature).
+    """
+    zs, hs = np.atleast_2d(zs), np.asarray(hs, float)
+    r = zs[:, None, :] - hs  # (t, n, k)
+    spread = scale[None, :, :] + np.einsum("tni,tnj->nij", r, r)
+    sign, logdet = np.linalg.slogdet(spread)
+    if np.any(sign <= 0):
+        raise ValueError("scale: V0 + sum r r^T must stay positive definite")
+    return -0.5 * (dof + zs.shape[0]) * logdet
+
+
+def boltzmann_log_likelihood(
+    thetas: np.ndarray, delta: np.ndarray, betas: np.ndarray, lapse: float
+) -> np.ndarray:
+    """log P(correction improves | θ) = log(ε/2 + (1 − ε) mean_j σ(β_j θ·Δ)) per grid point,
+    β integrated out over ``betas`` (BP's model), Δ = Φ_h − Φ(ξᵗ)."""
+    s = thetas @ np.asarray(delta, float)
+    sig = expit(np.outer(s, np.asarray(betas, float))).mean(axis=1)
+    return np.log(0.5 * lapse + (1.0 - lapse) * sig)
+
+
+def posterior(log_density: np.ndarray) -> np.ndarray:
+    """Normalized cell weights (n,) from an unnormalized log density at the grid points."""
+    w = np.exp(log_density - np.max(log_density))
+    return w / w.sum()
+
+
+def moments(thetas: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean (k,) and covariance (k, k) of the grid posterior."""
+    mean = weights @ thetas
+    d = thetas - mean
+    return mean, (weights[:, None] * d).T @ d
+
+
+def kl_to_gaussian(grid: Grid, thetas: np.ndarray, weights: np.ndarray, belief: Belief) -> float:
+    """KL(reference ‖ N(θ̂, P)) in nats, the reference's density w / cell volume."""
+    volume = float(np.prod(grid.spacing))
+    keep = weights > 0
+    density = weights[keep] / volume
+    k = thetas.shape[1]
+    d = thetas[keep] - belief.theta
+    _, logdet = np.linalg.slogdet(belief.cov)
+    log_q = -0.5 * (
+        np.einsum("ni,ij,nj->n", d, np.linalg.inv(belief.cov), d) + logdet + k * np.log(2 * np.pi)
+    )
+    return float(np.sum(weights[keep] * (np.log(density) - log_q)))
+
+
+def nees(mean: np.ndarray, cov: np.ndarray, theta_star: np.ndarray) -> float:
+    """(θ̄ − θ*)ᵀ Σ⁻¹ (θ̄ − θ*) of the reference's own mean and covariance."""
+    d = np.asarray(mean) - np.asarray(theta_star)
+    return float(d @ np.linalg.solve(cov, d))
