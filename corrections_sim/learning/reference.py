@@ -81,7 +81,9 @@ def gaussian_log_likelihood(z: np.ndarray, h: np.ndarray, noise: np.ndarray) -> 
         noise: N (k, k), symmetric positive definite.
     """
     r = np.asarray(z, float)[None, :] - h
-    return -0.5 * np.einsum("ni,ij,nj->n", r, np.linalg.inv(noise), r)
+    with np.errstate(invalid="ignore"):
+        out = -0.5 * np.einsum("ni,ij,nj->n", r, np.linalg.inv(noise), r)
+    return np.where(np.isfinite(out), out, -np.inf)  # no plan at a grid point: impossible
 
 
 def learnt_noise_log_likelihood(
@@ -96,11 +98,14 @@ def learnt_noise_log_likelihood(
     """
     zs, hs = np.atleast_2d(zs), np.asarray(hs, float)
     r = zs[:, None, :] - hs  # (t, n, k)
-    spread = scale[None, :, :] + np.einsum("tni,tnj->nij", r, r)
+    finite = np.all(np.isfinite(r), axis=(0, 2))  # a grid point without a plan: impossible
+    spread = scale[None, :, :] + np.einsum("tni,tnj->nij", r[:, finite], r[:, finite])
     sign, logdet = np.linalg.slogdet(spread)
     if np.any(sign <= 0):
         raise ValueError("scale: V0 + sum r r^T must stay positive definite")
-    return -0.5 * (dof + zs.shape[0]) * logdet
+    out = np.full(r.shape[1], -np.inf)
+    out[finite] = -0.5 * (dof + zs.shape[0]) * logdet
+    return out
 
 
 def boltzmann_log_likelihood(

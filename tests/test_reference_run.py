@@ -1,0 +1,55 @@
+"""The reference beside a finished figure's runs (python -m corrections_sim.figures.reference):
+the replayed corrections are the run's own, and the exact posterior on a coarse grid gives
+finite NEES and KL for KF-C, for KF-CL (noise integrated out) and for BP."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from corrections_sim.cli import main as cli
+from corrections_sim.figures import reference
+
+STUDY = """\
+theta_star = [1.0, -1.0]
+runs = 1
+iterations = 2
+seed = 3
+environments = ["s0-t0-l1", "s1-t1-l2"]
+learners = ["KF-C", "KF-CL", "BP"]
+"""
+
+
+@pytest.fixture(scope="module")
+def figure(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("ref")
+    (folder / "tiny.toml").write_text(STUDY)
+    argv = ["study", str(folder / "tiny.toml"), "--out", str(folder / "out"), "--workers", "1"]
+    assert cli.main(argv) == 0
+    return folder / "out" / "tiny"
+
+
+@pytest.mark.parametrize("learner", ["KF-C", "KF-CL", "BP"])
+def test_the_reference_of_a_run(figure, learner, capsys):
+    assert reference.main([str(figure), "--learner", learner, "--runs", "1", "--points", "9"]) == 0
+    with open(figure / f"reference-{learner}.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [int(r["iteration"]) for r in rows] == [1, 2]
+    for r in rows:
+        assert np.isfinite(float(r["ref_nees"])) and float(r["ref_kl"]) >= -1e-9
+        assert float(r["ref_cov_00"]) > 0 and float(r["ref_cov_11"]) > 0
+    summary = json.loads((figure / "summary.json").read_text())
+    with open(figure / "curves.csv", newline="") as fh:
+        curves = [c for c in csv.DictReader(fh) if c["learner"] == learner]
+    assert [r["environment"] for r in rows] == [c["environment"] for c in curves[1:]]
+    assert summary["settings"]["learners"][learner] is not None
+    assert "ref NEES" in capsys.readouterr().out
+
+
+def test_a_learner_the_figure_did_not_run_is_one_line(figure, capsys):
+    assert reference.main([str(figure), "--learner", "KF"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: --learner KF: not in this figure") and err.count("\n") == 1
