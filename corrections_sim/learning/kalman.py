@@ -231,8 +231,15 @@ def ukf_update(
     stats = _ukf_statistics(belief, observe, noise, sigma or SigmaPoints())
     base = stats.obs_mean if reference is None else _as_vector("reference", reference, belief.dim)
     innovation = phi_human - base
-    return UkfStep(
-        belief=Belief(theta=belief.theta + stats.gain @ innovation, cov=stats.cov),
+    return _ukf_step(UkfStep, belief, stats, innovation)
+
+
+def _ukf_step(cls, prior: Belief, stats: _UkfStatistics, innovation: np.ndarray, **more):
+    """The step ``cls`` (a :class:`UkfStep`) of a correction; ``more``: the posterior belief's
+    ``noise`` and the subclass's own fields."""
+    noise = more.pop("noise", None)
+    return cls(
+        belief=Belief(theta=prior.theta + stats.gain @ innovation, cov=stats.cov, noise=noise),
         gain=stats.gain,
         innovation=innovation,
         predicted_obs=stats.obs_mean,
@@ -240,6 +247,7 @@ def ukf_update(
         sigma_obs=stats.obs,
         innovation_cov=stats.innovation_cov,
         repaired=stats.repaired,
+        **more,
     )
 
 
@@ -341,15 +349,12 @@ def vb_ukf_update(
         estimate = new_estimate
     stats = _correct(moments, estimate)
     posterior = NoisePosterior(dof=dof, scale=scale)
-    return VbUkfStep(
-        belief=Belief(theta=belief.theta + stats.gain @ innovation, cov=stats.cov, noise=posterior),
-        gain=stats.gain,
-        innovation=innovation,
-        predicted_obs=stats.obs_mean,
-        sigma_points=stats.points,
-        sigma_obs=stats.obs,
-        innovation_cov=stats.innovation_cov,
-        repaired=stats.repaired,
+    return _ukf_step(
+        VbUkfStep,
+        belief,
+        stats,
+        innovation,
+        noise=posterior,
         noise_estimate=_frozen(posterior.estimate()),
         fixed_point_change=change,
     )
