@@ -406,16 +406,167 @@ def _figures() -> dict:
     return figures()
 
 
+def _interact_settings(args: argparse.Namespace):
+    """The study an interactive session runs: the file given, else fig. 4's paper settings
+    (the 48 environments, laptop and table), with the command line's overrides."""
+    from corrections_sim.figures.presets import EXPERIMENTS_DIR
+    from corrections_sim.study import schema
+
+    overrides = {n: getattr(args, n) for n in ("set", "seed", "theta0", "cov0", "user")}
+    overrides = {n: v for n, v in overrides.items() if v is not None}
+    if args.headless and args.theta_star is not None:
+        overrides["theta_star"] = args.theta_star
+    source = Path(args.study_file) if args.study_file else EXPERIMENTS_DIR / "fig4.toml"
+    name = source.stem if args.study_file else "fig4"
+    try:
+        return schema.load_study(source, name=name, quick=False, overrides=overrides)
+    except ValueError as exc:
+        raise UsageError(f"{source}: {exc}") from None
+
+
+def _db(args: argparse.Namespace) -> Path:
+    return (
+        Path(args.db) if args.db else output_folder.default_out(False) / "interact" / "study.sqlite"
+    )
+
+
+def run_interact(args: argparse.Namespace) -> list[Path]:
+    """A session of corrections: in a browser page (prints its URL; ends with "Done" or
+    Ctrl-C, every confirmed correction already logged), or headless by a simulated user."""
+    from corrections_sim.interact.log import LogError, StudyLog
+    from corrections_sim.interact.session import Session, simulate
+
+    db = _db(args)
+    try:
+        log = StudyLog(db)
+    except (LogError, OSError) as exc:
+        raise UsageError(f"--db {db}: {exc}") from None
+    try:
+        if args.resume is not None:
+            if args.study_file or args.learner or args.headless:
+                raise UsageError("--resume: the session's own settings apply; give only --db")
+            session = Session.resume(log, args.resume)
+        else:
+            settings = _interact_settings(args)
+            corrector = "person"
+            if args.headless:
+                corrector = settings.study.user_params()
+            session = Session.start(
+                settings,
+                log,
+                learner=args.learner or "KF-CL",
+                correction=args.drag_model or "deform",
+                participant=args.participant or ("simulated" if args.headless else "anonymous"),
+                corrector=corrector,
+            )
+    except (LogError, ValueError) as exc:
+        raise UsageError(str(exc).splitlines()[0]) from None
+    if args.headless:
+        s = session.settings.study
+        count = args.iterations or s.iterations
+        rows = simulate(session, s.user, s.theta_star, count)
+        session.finish()
+        print(
+            f"session {session.id}: {len(rows)} corrections by the simulated {s.user_name} "
+            f"user; θ̂ = {np.round(session.belief.theta, 4).tolist()}",
+            file=sys.stderr,
+        )
+        return [db]
+    import threading
+
+    from corrections_sim.interact.page import serve
+
+    finished = threading.Event()
+    try:
+        server, page = serve(session, args.host or "127.0.0.1", args.port or 8080)
+    except OSError as exc:
+        raise UsageError(f"--port {args.port or 8080}: {exc.strerror or exc}") from None
+    page.on_done = finished.set
+    print(
+        f"session {session.id} ({session.learner}, "
+        f"participant {log.session(session.id).participant}): "
+        f"open http://{args.host or '127.0.0.1'}:{server.get_port()} ; resume later with "
+        f"--resume {session.id} --db {db}",
+        file=sys.stderr,
+        flush=True,
+    )
+    try:
+        while not finished.wait(0.5):
+            pass
+    finally:
+        server.stop()
+        log.close()
+    return [db]
+
+
+def run_replay(args: argparse.Namespace) -> list[Path]:
+    """A logged session replayed through learners, written as a study (curves.csv, the
+    plot, summary.json) in OUT/replay-<session>/."""
+    from corrections_sim.interact.log import LogError, StudyLog
+    from corrections_sim.interact.replay import replay, write
+
+    if not args.study_file:
+        raise UsageError("replay: give the database, e.g. replay results/interact/study.sqlite")
+    db = Path(args.study_file)
+    if not db.is_file():
+        raise UsageError(f"{db}: no such database")
+    try:
+        log = StudyLog(db)
+        ids = log.session_ids()
+        session = args.session if args.session is not None else (ids[-1] if ids else None)
+        if session is None:
+            raise UsageError(f"{db}: no sessions")
+        settings, result, facts = replay(log, session, args.learners)
+    except (LogError, ValueError) as exc:
+        raise UsageError(str(exc).splitlines()[0]) from None
+    out = _out(args)
+    final = out / f"replay-{session}"
+    with _staging(final) as staging:
+        fields = write(settings, result, facts, staging)
+        summary = {"figure": final.name, "settings": settings.as_dict(), **fields}
+        summary.update(provenance.record(args.argv))
+        (staging / "summary.json").write_text(
+            json.dumps(provenance.plain(summary), indent=2) + "\n"
+        )
+        names = sorted(p.name for p in staging.iterdir())
+    for name, entry in facts["final"].items():
+        error = entry["estimate_error"]
+        tail = "" if error is None else f", error {error:.3f} against the stated θ"
+        print(f"{name}: θ̂ = {np.round(entry['theta'], 3).tolist()}{tail}", file=sys.stderr)
+    return [final / n for n in names]
+
+
 #: Commands that are not figures: (function, help).
 TOOLS: dict[str, tuple[Callable[[argparse.Namespace], list[Path]], str]] = {
     "scene": (run_scene, "render the scene with optimal paths for two preferences"),
     "all": (run_all, "fig1 to fig6, one after the other"),
     "video": (run_video, "animate corrections of a recorded fig4/fig5 run (MP4 or GIF)"),
+    "interact": (run_interact, "a person corrects the robot in a browser page (or --headless)"),
+    "replay": (run_replay, "replay a logged session (FILE: the database) through learners"),
 }
 #: The options each tool takes; a figure takes the common ones and its own ``options``.
 TOOL_OPTIONS: dict[str, tuple[str, ...]] = {
     "scene": ("out", "env"),
     "video": ("out", "source", "learner", "run", "corrections", "model", "video_file"),
+    "interact": (
+        "study_file",
+        "learner",
+        "db",
+        "participant",
+        "host",
+        "port",
+        "resume",
+        "drag_model",
+        "headless",
+        "user",
+        "iterations",
+        "seed",
+        "set",
+        "theta_star",
+        "theta0",
+        "cov0",
+    ),
+    "replay": ("study_file", "out", "session", "learners"),
 }
 
 
@@ -574,7 +725,10 @@ def parser() -> argparse.ArgumentParser:
     )
     v = p.add_argument_group("video (reads OUT/<figure>/curves.csv of a finished fig4/fig5)")
     v.add_argument("--from", dest="source", metavar="FIG", help="fig4 or fig5 (default fig4)")
-    v.add_argument("--learner", help="whose run to show (default KF)")
+    v.add_argument(
+        "--learner",
+        help="video: whose run to show (default KF); interact: who learns (default KF-CL)",
+    )
     v.add_argument("--run", type=int, help="the run's index (default 0)")
     v.add_argument(
         "--corrections",
@@ -585,6 +739,25 @@ def parser() -> argparse.ArgumentParser:
     v.add_argument(
         "--video-file", help="an .mp4 or .gif (default OUT/video/<figure>-<learner>-run<N>.mp4)"
     )
+    i = p.add_argument_group(
+        "interact (FILE: a study file, default fig. 4's) and replay (FILE: the database)"
+    )
+    i.add_argument("--db", help="the study's SQLite log (default results/interact/study.sqlite)")
+    i.add_argument("--participant", help="the participant's pseudonym (never a name)")
+    i.add_argument("--host", help="address to serve the page on (default 127.0.0.1)")
+    i.add_argument("--port", type=_positive_int, help="port of the page (default 8080)")
+    i.add_argument("--resume", type=int, metavar="SESSION", help="continue a logged session")
+    i.add_argument(
+        "--drag-model",
+        help="how a dragged waypoint becomes the corrected path: deform (default, the "
+        "minimum-jerk deformation), waypoint (only that waypoint), or a plug-in's",
+    )
+    i.add_argument(
+        "--headless",
+        action="store_true",
+        help="no page: the study's simulated user (--user) corrects, --iterations times",
+    )
+    i.add_argument("--session", type=int, help="for replay: which session (default the last)")
     x = p.add_argument_group("where the runs execute")
     x.add_argument(
         "--workers",

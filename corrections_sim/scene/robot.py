@@ -239,6 +239,31 @@ def inverse_kinematics(
 ) -> np.ndarray | None:
     """Arm configuration that puts the cup centre at ``cup_position`` with the hand down.
 
+    :func:`cup_inverse_kinematics` with the hand's rotation :func:`hand_down_rotation` (yaw).
+    Returns ``None`` when it does not converge to ``tol`` (metres / radians) from ``q_init``.
+    """
+    return cup_inverse_kinematics(
+        cup_position,
+        hand_down_rotation(yaw),
+        q_init,
+        iterations=iterations,
+        damping=damping,
+        tol=tol,
+    )
+
+
+def cup_inverse_kinematics(
+    cup_position: np.ndarray,
+    rotation: np.ndarray,
+    q_init: np.ndarray,
+    *,
+    iterations: int = 200,
+    damping: float = 1e-3,
+    tol: float = 1e-6,
+) -> np.ndarray | None:
+    """Arm configuration that puts the cup centre at ``cup_position`` with the hand's world
+    rotation ``rotation`` (3, 3) (e.g. the one it has, to move the cup without tilting it).
+
     Damped least squares on the 6-D error of the hand frame (pinocchio Jacobian in the
     LOCAL frame), clipped to the joint limits each step. Returns ``None`` when it does not
     converge to ``tol`` (metres / radians) from ``q_init``.
@@ -246,7 +271,7 @@ def inverse_kinematics(
     m = model()
     data = m.createData()
     fid = m.getFrameId("panda_hand")
-    rot_target = hand_down_rotation(yaw)
+    rot_target = np.asarray(rotation, dtype=float)
     pos_target = np.asarray(cup_position, float) - rot_target @ np.array(g.CUP_CENTER_IN_HAND)
     target = pin.SE3(rot_target, pos_target)
     lo, hi = joint_limits()

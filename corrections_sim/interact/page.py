@@ -1,0 +1,437 @@
+"""The browser page (viser): the person sees ξᵗ, drags a waypoint's cup, submits.
+
+The thin edge over :class:`corrections_sim.interact.session.Session`: it draws the scene and
+the plan, turns a handle's drag into :meth:`Session.drag`, and buttons into
+:meth:`Session.submit`, :meth:`Session.skip`, :meth:`Session.finish`. Nothing here learns or
+logs by itself.
+
+One person at a time: the first browser tab to connect owns the session; a second tab open at
+the same time is told the server is busy (a user study has one participant per session; the
+experimenter starts another server, with another port, for a second one). When the owner's tab
+closes, the next tab to connect takes the session over where it stands (a reload loses
+nothing).
+"""
+
+from __future__ import annotations
+
+import io
+import threading
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from corrections_sim.interact.meshes import Poser, pieces
+from corrections_sim.interact.session import Refused, Session
+from corrections_sim.scene.robot import cup_pose
+from corrections_sim.scene.world import interpolate
+
+#: Where the page's camera starts: beyond the table's far corner, looking back at the robot.
+CAMERA_POSITION = (1.55, -1.05, 1.05)
+CAMERA_LOOK_AT = (0.45, 0.0, 0.2)
+CAMERA_FOV = 0.9  # vertical, radians
+PLAN_RGB = (40, 110, 220)
+CORRECTION_RGB = (235, 120, 20)
+AVERSE_RGB = (30, 160, 80)
+HANDLE_SCALE = 0.16
+
+
+def cup_path(trajectory: np.ndarray, substeps: int = 6) -> np.ndarray:
+    """Cup centre (N, 3) along the joint-space interpolation of ``trajectory`` (T, 7)."""
+    return np.array([cup_pose(q)[1] for q in interpolate(trajectory, substeps)])
+
+
+def project(
+    point,
+    width: float,
+    height: float,
+    *,
+    position=CAMERA_POSITION,
+    look_at=CAMERA_LOOK_AT,
+    up=(0.0, 0.0, 1.0),
+    fov: float = CAMERA_FOV,
+) -> tuple[float, float]:
+    """Pixel (x, y) of world ``point`` in a view ``width`` × ``height`` pixels from a camera
+    at ``position`` looking at ``look_at`` with vertical field of view ``fov`` (radians); by
+    default the page's initial camera. For driving the page from a script."""
+    position = np.asarray(position, float)
+    look_at = np.asarray(look_at, float)
+    up = np.asarray(up, float)
+    forward = look_at - position
+    forward /= np.linalg.norm(forward)
+    right = np.cross(forward, up)
+    right /= np.linalg.norm(right)
+    true_up = np.cross(right, forward)
+    d = np.asarray(point, float) - position
+    depth = d @ forward
+    focal = (height / 2) / np.tan(fov / 2)
+    x = width / 2 + focal * (d @ right) / depth
+    y = height / 2 - focal * (d @ true_up) / depth
+    return float(x), float(y)
+
+
+def belief_png(theta: np.ndarray, cov: np.ndarray | None, features, stated=None) -> bytes:
+    """θ̂ with its uncertainty: the 1σ and 2σ ellipses for k = 2, bars with ±σ otherwise."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(3.2, 2.6), dpi=90)
+    k = len(theta)
+    if k == 2 and cov is not None:
+        values, vectors = np.linalg.eigh(cov)
+        angles = np.linspace(0, 2 * np.pi, 100)
+        circle = np.stack([np.cos(angles), np.sin(angles)])
+        for n_sigma, alpha in ((1, 0.35), (2, 0.15)):
+            shape = vectors @ (n_sigma * np.sqrt(np.maximum(values, 0))[:, None] * circle)
+            ax.fill(theta[0] + shape[0], theta[1] + shape[1], color="C0", alpha=alpha, lw=0)
+        ax.plot(*theta, "o", color="C0", label="θ̂")
+        if stated is not None:
+            ax.plot(*stated, "*", color="C3", ms=10, label="stated")
+        ax.set_xlabel(f"θ {features[0]}")
+        ax.set_ylabel(f"θ {features[1]}")
+        ax.axhline(0, color="0.8", lw=0.6)
+        ax.axvline(0, color="0.8", lw=0.6)
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.legend(fontsize=7, loc="best")
+    else:
+        sigma = np.zeros(k) if cov is None else np.sqrt(np.maximum(np.diag(cov), 0))
+        ax.bar(range(k), theta, yerr=sigma, color="C0", capsize=4)
+        if stated is not None:
+            ax.plot(range(k), stated, "*", color="C3", ms=10)
+        ax.set_xticks(range(k), features, fontsize=8)
+        ax.axhline(0, color="0.5", lw=0.6)
+    ax.tick_params(labelsize=7)
+    fig.tight_layout()
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png")
+    plt.close(fig)
+    return buffer.getvalue()
+
+
+class Page:
+    """The page of one session on a viser server (see the module)."""
+
+    def __init__(self, server, session: Session, *, on_done: Callable[[], None] | None = None):
+        self.server = server
+        self.session = session
+        self.on_done = on_done
+        self.owner = None
+        self._lock = threading.RLock()
+        self.poser = Poser()
+        self.corrected: np.ndarray | None = None
+        self.drag_info: dict = {}
+        self.stated: np.ndarray | None = None
+        self.submitted = 0  # corrections submitted through this page (tests wait on it)
+        self.drags = 0  # drags handled, accepted or refused
+        self.last_message = ""
+        self._playing = False
+        server.initial_camera.position = CAMERA_POSITION
+        server.initial_camera.look_at = CAMERA_LOOK_AT
+        server.initial_camera.up = (0.0, 0.0, 1.0)
+        server.initial_camera.fov = CAMERA_FOV
+        server.on_client_connect(self._connect)
+        server.on_client_disconnect(self._disconnect)
+
+    # --- clients ---------------------------------------------------------------------------
+
+    def _connect(self, client) -> None:
+        with self._lock:
+            if self.owner is not None:
+                client.gui.add_markdown(
+                    "**The server is busy**: another tab holds this session. One person at a "
+                    "time; close the other tab and reload this one."
+                )
+                return
+            self.owner = client
+        try:
+            self._build(client)
+        except Exception:
+            with self._lock:
+                self.owner = None
+            raise
+
+    def _disconnect(self, client) -> None:
+        with self._lock:
+            if self.owner is not None and client.client_id == self.owner.client_id:
+                self.owner = None
+                self.corrected = None
+
+    # --- building the page -----------------------------------------------------------------
+
+    def _build(self, client) -> None:
+        s = self.session
+        self.client = client
+        scene, gui = client.scene, client.gui
+        self.meshes = {}
+        for piece in pieces():
+            self.meshes[piece.geom] = scene.add_mesh_simple(
+                f"/world/{piece.name}", piece.vertices, piece.faces, color=piece.rgb
+            )
+        self.title = gui.add_markdown("")
+        self.status = gui.add_markdown("")
+        self.where = gui.add_markdown("")
+        features = s.features
+        with gui.add_folder("Your preference (before the first correction)"):
+            gui.add_markdown("How much do you want the cup near each thing? −2 far … +2 near.")
+            self.sliders = [
+                gui.add_slider(name, min=-2.0, max=2.0, step=0.1, initial_value=0.0)
+                for name in features
+            ]
+            self.state_button = gui.add_button("State my preference")
+        n = s.n_waypoints
+        self.waypoint = gui.add_slider(
+            "Waypoint to move", min=1, max=n - 2, step=1, initial_value=(n - 1) // 2
+        )
+        self.play = gui.add_button("Play the plan")
+        self.submit_button = gui.add_button("Submit correction", disabled=True)
+        self.reset_button = gui.add_button("Reset the drag")
+        self.skip_button = gui.add_button("Skip this environment")
+        self.done_button = gui.add_button("Done: deploy")
+        self.belief_image = gui.add_image(
+            np.full((10, 10, 3), 255, np.uint8), label="θ̂ and its uncertainty"
+        )
+        self.belief_text = gui.add_markdown("")
+
+        self.state_button.on_click(lambda _: self._state())
+        self.waypoint.on_update(lambda _: self._show_waypoint())
+        self.play.on_click(lambda _: self._play())
+        self.submit_button.on_click(lambda _: self._submit())
+        self.reset_button.on_click(lambda _: self._reset(log=True))
+        self.skip_button.on_click(lambda _: self._skip())
+        self.done_button.on_click(lambda _: self._done())
+        if s.iteration > 0:
+            self.state_button.disabled = True
+        self._new_proposal()
+
+    def _say(self, text: str) -> None:
+        self.last_message = text
+        self.status.content = text
+
+    def _pose_arm(self, q: np.ndarray) -> None:
+        env = self.proposal.env
+        with self.client.atomic():
+            for geom, (position, wxyz) in self.poser.poses(q, env).items():
+                handle = self.meshes[geom]
+                handle.position = position
+                handle.wxyz = wxyz
+
+    def _new_proposal(self) -> None:
+        s = self.session
+        self.proposal = s.proposal()
+        self.corrected = None
+        self.drag_info = {}
+        plan = self.proposal.plan.trajectory
+        scene = self.client.scene
+        path = cup_path(plan)
+        scene.add_spline_catmull_rom(
+            "/plan/path", path, thickness=3.0, thickness_units="screen", color=PLAN_RGB
+        )
+        scene.add_point_cloud(
+            "/plan/waypoints",
+            np.array([cup_pose(q)[1] for q in plan]),
+            colors=PLAN_RGB,
+            point_size=0.014,
+            point_shape="circle",
+        )
+        for name in ("/correction/path", "/deploy/plain", "/deploy/averse"):
+            scene.add_spline_catmull_rom(name, path[:2], color=CORRECTION_RGB, visible=False)
+        self._make_handle()
+        self.submit_button.disabled = True
+        k = s.iteration
+        self.title.content = (
+            f"### Correction {k + 1}: environment {self.proposal.env.name}\n"
+            f"Learner **{s.learner}**, correction model **{s.correction_name}**. "
+            "Drag the arrows on the cup to move it at the chosen waypoint, then submit."
+        )
+        self._show_belief()
+        self._say("The robot's plan is the blue path. Move the cup where you want it.")
+
+    def _make_handle(self) -> None:
+        i = int(self.waypoint.value)
+        cup = cup_pose(self.proposal.plan.trajectory[i])[1]
+        self.handle = self.client.scene.add_transform_controls(
+            "/handle",
+            scale=HANDLE_SCALE,
+            disable_rotations=True,
+            depth_test=False,
+            position=cup,
+        )
+        self.handle.on_update(lambda event: self._dragged() if event.phase == "end" else None)
+        self.where.content = f"Cup at waypoint {i}: ({cup[0]:.3f}, {cup[1]:.3f}, {cup[2]:.3f}) m"
+        self._pose_arm(self.proposal.plan.trajectory[i])
+
+    def _show_waypoint(self) -> None:
+        with self._lock:
+            if self.corrected is not None:
+                self._reset(log=True)
+            self._make_handle()
+
+    def _show_belief(self) -> None:
+        s = self.session
+        b = s.belief
+        cov = b.cov if s.has_covariance else None
+        png = belief_png(b.theta, cov, s.features, self.stated)
+        from PIL import Image
+
+        self.belief_image.image = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
+        sigma = np.sqrt(np.diag(b.cov)) if cov is not None else None
+        rows = "\n".join(
+            f"| {name} | {b.theta[i]:+.3f} | "
+            + (f"±{sigma[i]:.3f}" if sigma is not None else "–")
+            + " |"
+            for i, name in enumerate(s.features)
+        )
+        self.belief_text.content = (
+            f"After **{s.iteration}** corrections:\n\n| feature | θ̂ | σ |\n|---|---|---|\n{rows}"
+        )
+
+    # --- actions ---------------------------------------------------------------------------
+
+    def _state(self) -> None:
+        with self._lock:
+            theta = np.array([s.value for s in self.sliders], float)
+            try:
+                self.stated = self.session.state(theta)
+            except Refused as exc:
+                self._say(f"**Refused**: {exc}")
+                return
+            self.state_button.disabled = True
+            self._show_belief()
+            self._say(f"Stated preference θ = {np.round(theta, 2).tolist()} recorded.")
+
+    def _dragged(self) -> None:
+        with self._lock:
+            i = int(self.waypoint.value)
+            position = np.array(self.handle.position, float)
+            try:
+                corrected = self.session.drag(i, position)
+            except Refused as exc:
+                self.corrected = None
+                self.submit_button.disabled = True
+                self._make_handle()  # back where it was
+                self._say(f"**Refused**: {exc}. Nothing was recorded; try another position.")
+                self.drags += 1
+                return
+            self.corrected = corrected
+            self.drag_info = {"waypoint": i, "handle": position.tolist()}
+            self.client.scene.add_spline_catmull_rom(
+                "/correction/path",
+                cup_path(corrected),
+                thickness=3.0,
+                thickness_units="screen",
+                color=CORRECTION_RGB,
+            )
+            self._pose_arm(corrected[i])
+            self.submit_button.disabled = False
+            self.where.content = (
+                f"Cup at waypoint {i} moved to ({position[0]:.3f}, {position[1]:.3f}, "
+                f"{position[2]:.3f}) m"
+            )
+            self._say("Your correction is the orange path. Submit it, or drag again.")
+            self.drags += 1
+
+    def _reset(self, *, log: bool) -> None:
+        with self._lock:
+            if log and self.corrected is not None:
+                self.session.undo()
+            self.corrected = None
+            self.submit_button.disabled = True
+            self.client.scene.add_spline_catmull_rom(
+                "/correction/path", np.zeros((2, 3)), visible=False
+            )
+            self._make_handle()
+
+    def _submit(self) -> None:
+        with self._lock:
+            if self.corrected is None:
+                self._say("Drag the cup first.")
+                return
+            self.submit_button.disabled = True
+            self.state_button.disabled = True
+            t0 = time.perf_counter()
+            try:
+                row = self.session.submit(self.corrected, drag=self.drag_info)
+            except Refused as exc:
+                self._say(f"**Refused**: {exc}")
+                return
+            self._new_proposal()
+            self.submitted += 1
+            skipped = f" (update skipped: {row['update_skipped']})" if row["update_skipped"] else ""
+            self._say(
+                f"Correction {row['iteration'] + 1} recorded{skipped}; "
+                f"next plan in {time.perf_counter() - t0:.2f} s."
+            )
+
+    def _skip(self) -> None:
+        with self._lock:
+            self.session.skip()
+            self._new_proposal()
+
+    def _play(self) -> None:
+        with self._lock:
+            if self._playing:
+                return
+            self._playing = True
+        try:
+            for q in interpolate(self.proposal.plan.trajectory, 6):
+                self._pose_arm(q)
+                time.sleep(0.05)
+            self._pose_arm(self.proposal.plan.trajectory[int(self.waypoint.value)])
+        finally:
+            self._playing = False
+
+    def _done(self) -> None:
+        with self._lock:
+            s = self.session
+            deployment = s.finish()
+            for button in (self.submit_button, self.skip_button, self.done_button):
+                button.disabled = True
+            self.handle.visible = False
+            scene = self.client.scene
+            scene.add_spline_catmull_rom("/correction/path", np.zeros((2, 3)), visible=False)
+            if deployment is None:
+                self._say("Session ended.")
+            else:
+                scene.add_spline_catmull_rom(
+                    "/deploy/averse",
+                    cup_path(deployment.averse.trajectory),
+                    thickness=3.0,
+                    thickness_units="screen",
+                    color=AVERSE_RGB,
+                )
+                f = s.features
+                plain = ", ".join(
+                    f"{n} {v:.2f}" for n, v in zip(f, deployment.plain.features, strict=True)
+                )
+                averse = ", ".join(
+                    f"{n} {v:.2f}" for n, v in zip(f, deployment.averse.features, strict=True)
+                )
+                self._say(
+                    "Session ended. Deployed in "
+                    f"{deployment.env.name}: blue, the plain plan ξ*(θ̂) (Φ: {plain}); green, "
+                    "the risk-averse plan of eq. (A4), "
+                    f"γ = {np.round(deployment.gamma, 2).tolist()} "
+                    f"(Φ: {averse})."
+                )
+        if self.on_done is not None:
+            self.on_done()
+
+
+def serve(session: Session, host: str = "127.0.0.1", port: int = 8080):
+    """A viser server on ``host:port`` showing ``session``'s page; (server, page).
+
+    Raises:
+        RuntimeError: viser is not installed (``pip install "corrections_sim[interact]"``).
+    """
+    try:
+        import viser
+    except ImportError:
+        raise RuntimeError(
+            'interact needs viser: pip install -e ".[interact]" (or pip install viser==1.1.1)'
+        ) from None
+    server = viser.ViserServer(host=host, port=port, verbose=False)
+    server.gui.configure_theme(control_width="large", show_share_button=False)
+    server.gui.main_panel.dock_right()
+    return server, Page(server, session)

@@ -1,0 +1,246 @@
+"""Replay a logged session through any learners, offline.
+
+Every learner sees the same corrections in the same environments, in the logged order: at
+iteration t it updates on the logged Φ_h of the correction of the logged robot plan ξᵗ (what
+the person actually corrected), from its own belief. The records are those of a study
+(:func:`corrections_sim.study.loop.run_learner`): θ̂ and P per iteration, and where the person
+stated a preference θ, the estimate error, regret and NEES against it; one run per learner.
+
+A PP-type learner whose rate comes from another learner's gains gets them from that learner
+replayed on the same corrections (added to the replay if it was not asked for). The session's
+own learner replayed gives back the logged θ̂ (checked: ``max_gap_to_log``), since a session
+plans cold and every plan is a pure function of (θ, E).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+
+import numpy as np
+
+from corrections_sim import calibration
+from corrections_sim.interact.log import StudyLog
+from corrections_sim.interact.session import build_learner, learner_rng, settings_from_log
+from corrections_sim.learning.base import LEARNERS, LearnerContext
+from corrections_sim.learning.perceptron import learning_rate_schedule
+from corrections_sim.metrics import estimate_error
+from corrections_sim.planning.planner import Plan, PlanningError, shared_planner
+from corrections_sim.planning.plans import PlanBook, Target, evaluate
+from corrections_sim.study.runner import FigureResult
+from corrections_sim.study.settings import FigureSettings
+
+#: Learners a replay runs when none are named (plus the session's own).
+DEFAULT_LEARNERS = ("PP", "KF", "KF-C", "BP")
+
+
+def logged_plan(row: dict) -> Plan:
+    """The robot's plan ξᵗ as the session showed it."""
+    return Plan(
+        trajectory=row["xi_robot"],
+        features=row["phi_robot"],
+        reward=float("nan"),
+        status="logged",
+        iterations=0,
+        solve_time=0.0,
+        starts=0,
+    )
+
+
+def _order_learners(names: Sequence[str], study) -> list[str]:
+    """Names with each rate source before the learner that needs it."""
+    out: list[str] = []
+
+    def add(name: str) -> None:
+        if name in out:
+            return
+        agent = study[name]
+        source = agent.rate_source()
+        if source is not None:
+            add(source)
+        out.append(name)
+
+    for name in names:
+        add(name)
+    return out
+
+
+def replay(
+    log: StudyLog,
+    session_id: int,
+    learners: Sequence[str] | None = None,
+    *,
+    regret: bool = True,
+) -> tuple[FigureSettings, FigureResult, dict]:
+    """(settings of the replay, its records as a study's result, facts for the summary).
+
+    Args:
+        learners: registered learner names (default :data:`DEFAULT_LEARNERS` and the
+            session's own).
+        regret: evaluate the regret against the stated θ (48 solves per learner and
+            iteration for the paper's environments); without a stated θ there is none.
+
+    Raises:
+        LogError: no such session.
+        ValueError: an unknown learner, or a session without corrections.
+    """
+    row = log.session(session_id)
+    rows = log.corrections(session_id)
+    if not rows:
+        raise ValueError(f"session {session_id}: no corrections to replay")
+    settings = settings_from_log(row.settings)
+    names = list(learners) if learners else [*DEFAULT_LEARNERS, row.learner]
+    for name in names:
+        if name not in LEARNERS:
+            raise ValueError(f"learner {name!r}: unknown; choose from {', '.join(LEARNERS)}")
+    agents = {}
+    for name in dict.fromkeys(names):
+        params = row.learner_params if name == row.learner else None
+        agents[name] = build_learner(settings, name, params)
+    # Rate sources the asked-for learners need, with the study's parameters.
+    order = _order_learners(list(agents), _Agents(agents, settings))
+    for name in order:
+        agents.setdefault(name, build_learner(settings, name))
+
+    stated = row.stated_theta
+    s = settings.study
+    planner = shared_planner(settings.planner_config())
+    envs = settings.envs()
+    book = PlanBook(planner)
+    target = Target.solve(planner, stated, envs) if stated is not None and regret else None
+    records: list[dict] = []
+    gains_of: dict[str, np.ndarray] = {}
+    alphas_of: dict[str, list[float]] = {}
+    gap_to_log = None
+    k, n = s.k, len(rows)
+    for name in order:
+        agent, cls = agents[name], LEARNERS[name]
+        alphas = None
+        if cls.needs_rates():
+            if agent.fixed_rate() is not None:
+                alphas = np.full(n, agent.fixed_rate())
+            else:
+                gains = gains_of[agent.rate_source()]
+                alphas = learning_rate_schedule(np.nan_to_num(gains[None], nan=0.0))
+            alphas_of[name] = [float(a) for a in alphas]
+        belief = agent.initial(s.prior(), s.noise())
+        gains = np.full((n, k, k), np.nan)
+
+        def record(t: int, env_name: str, skipped: str, step, belief=None, name=name, cls=cls):
+            rec = {"learner": name, "run": 0, "iteration": t, "environment": env_name}
+            if stated is not None:
+                rec["estimate_error"] = estimate_error(belief.theta, stated)
+                if target is not None:
+                    full, paper, failed = evaluate(book, target, envs, belief.theta)
+                    rec |= {"regret": full, "regret_paper": paper, "regret_failures": failed}
+            rec["update_skipped"] = skipped
+            for i in range(k):
+                rec[f"theta_{i}"] = float(belief.theta[i])
+            for i in range(k):
+                for j in range(i, k):
+                    rec[f"cov_{i}{j}"] = float(belief.cov[i, j])
+            if belief.noise is not None:
+                estimate = belief.noise.estimate()
+                for i in range(k):
+                    for j in range(i, k):
+                        rec[f"noise_{i}{j}"] = float(estimate[i, j])
+            rec["nees"] = (
+                calibration.nees(belief.theta, belief.cov, stated)
+                if cls.has_covariance and stated is not None
+                else None
+            )
+            rec["nis"] = (
+                calibration.nis(step.innovation, step.innovation_cov)
+                if step is not None and step.innovation_cov is not None
+                else None
+            )
+            records.append(rec)
+
+        record(0, "", "", None, belief)
+        for t, logged in enumerate(rows):
+            env = envs[int(logged["env_index"])]
+            ctx = LearnerContext(
+                book=book,
+                envs=envs,
+                features=settings.features,
+                n_waypoints=planner.config.n_waypoints,
+                alphas=alphas,
+                rng=learner_rng(row.seed, t),
+                noise=s.noise(),
+                sigma=s.sigma(),
+                iteration=t,
+            )
+            skipped, step = "", None
+            try:
+                step = agent.update(ctx, belief, env, logged_plan(logged), logged["phi_h"])
+                belief = step.belief
+                if step.gain is not None:
+                    gains[t] = step.gain
+            except PlanningError as exc:
+                skipped = str(exc).splitlines()[0]
+            record(t + 1, env.name, skipped, step, belief)
+            if name == row.learner:
+                gap = float(np.max(np.abs(belief.theta - logged["theta_after"])))
+                gap_to_log = gap if gap_to_log is None else max(gap_to_log, gap)
+        gains_of[name] = gains
+
+    study = dataclasses.replace(
+        s,
+        theta_star=tuple(float(v) for v in (stated if stated is not None else s.theta_star)),
+        iterations=n,
+        runs=1,
+        learners={name: agents[name] for name in order},
+    )
+    replayed = dataclasses.replace(settings, study=study, name=f"session-{session_id}")
+    result = FigureResult(
+        records=records, mean_estimate=[], alphas=alphas_of, solves=book.solves, resumed=0
+    )
+    facts = {
+        "session": session_id,
+        "participant": row.participant,
+        "session_learner": row.learner,
+        "correction_model": row.correction,
+        "corrections": n,
+        "stated_theta": None if stated is None else stated.tolist(),
+        "max_gap_to_log": gap_to_log,
+        "final": {
+            name: {
+                "theta": [r[f"theta_{i}"] for i in range(k)],
+                "estimate_error": r.get("estimate_error"),
+            }
+            for name in order
+            for r in [next(r for r in reversed(records) if r["learner"] == name)]
+        },
+    }
+    return replayed, result, facts
+
+
+class _Agents(dict):
+    """Learners by name for :func:`_order_learners`; a missing rate source is built with the
+    study's parameters."""
+
+    def __init__(self, agents: dict, settings: FigureSettings) -> None:
+        super().__init__(agents)
+        self.settings = settings
+
+    def __missing__(self, name: str):
+        self[name] = build_learner(self.settings, name)
+        return self[name]
+
+
+def write(settings: FigureSettings, result: FigureResult, facts: dict, folder) -> dict:
+    """A replay's files in ``folder``, as a study writes them: ``curves.csv`` and, where a
+    stated θ gives error, regret and NEES, the plot (PNG, PDF); returns the summary's fields."""
+    from pathlib import Path
+
+    from corrections_sim.figures.learning import write as write_study
+    from corrections_sim.figures.output import write_records
+
+    folder = Path(folder)
+    if facts["stated_theta"] is not None and "regret" in result.records[0]:
+        fields = write_study(settings, result, folder, settings.name)
+        (folder / "mean_estimate.csv").unlink(missing_ok=True)  # no mean over one run
+    else:
+        write_records(folder / "curves.csv", result.records)
+        fields = {}
+    return {"replay": facts, **fields}

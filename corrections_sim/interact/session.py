@@ -1,0 +1,511 @@
+"""A correction session: the robot plans, a person (or a simulated user) corrects, a learner
+updates, and every confirmed correction is logged before anything else happens.
+
+The same :class:`Session` serves the browser page (:mod:`corrections_sim.interact.page`), a
+simulated user run headless (:func:`simulate`) and ``--resume``, so a logged human session and
+a simulated one compare line by line. Iteration t:
+
+1. :meth:`Session.proposal` — the learner chooses Eᵗ (the seeded random draw, or its own choice,
+   e.g. eq. (A1) for AL) and the robot plans ξᵗ = ξ*(θ̂ᵗ, Eᵗ). A draw whose plan fails is
+   logged as a skip and the next draw is taken.
+2. :meth:`Session.drag` — the person moves the cup at free waypoint i; the package's IK puts
+   the hand there with the rotation it had (the cup does not tilt), and the session's
+   correction model completes ξ_h from ξᵗ and that one moved waypoint (``waypoint``: only it;
+   ``deform``: the minimum-jerk deformation of the whole path). A drag IK cannot reach, or
+   whose ξ_h collides (MuJoCo's check, as for the planner's plans), is :class:`Refused` with
+   the reason; nothing is logged but a ``refused`` event.
+3. :meth:`Session.submit` — the learner updates on Φ(ξ_h, Eᵗ); the row is committed to the log;
+   only then does the caller see the new belief.
+
+The environment draws are stateless functions of (seed, draw index), and the learners' own
+generator of (seed, iteration), so a session resumed from its log (:meth:`Session.resume`)
+continues exactly where it stopped: its corrections are replayed through the learner and
+each θ̂ checked against the logged one.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from corrections_sim import components
+from corrections_sim.calibration import nis
+from corrections_sim.interact.log import StudyLog, check_participant, now
+from corrections_sim.learning.base import LEARNERS, Learner, LearnerContext, make_learner
+from corrections_sim.people.corrections import CORRECTIONS, CorrectionModel
+from corrections_sim.people.users import Situation, User
+from corrections_sim.planning.features import feature_counts
+from corrections_sim.planning.planner import Plan, Planner, PlanningError, shared_planner
+from corrections_sim.planning.plans import PlanBook
+from corrections_sim.planning.risk import plan_a4
+from corrections_sim.scene.environments import Environment
+from corrections_sim.scene.robot import cup_inverse_kinematics, cup_pose
+from corrections_sim.scene.world import CollisionChecker
+from corrections_sim.study.schema import parse_study
+from corrections_sim.study.settings import FigureSettings
+
+#: Consecutive draws whose plan fails before a session gives up.
+MAX_FAILED_DRAWS = 20
+#: A logged θ̂ and the replayed one may differ by this much on --resume (max |Δ|).
+RESUME_TOLERANCE = 1e-9
+
+
+class Refused(ValueError):
+    """A drag or submission the session will not take; the message says why (shown on the page)."""
+
+
+@dataclass(frozen=True, eq=False)
+class Proposal:
+    """What the person is shown at iteration t: ξᵗ = ξ*(θ̂ᵗ, Eᵗ).
+
+    Attributes:
+        iteration: t, corrections confirmed so far.
+        draw: the index of the environment draw that led to it.
+        env_index: Eᵗ's index in the study's environments.
+        env: Eᵗ.
+        plan: the robot's plan ξᵗ.
+        shown_at: when it was proposed (UTC, ISO 8601), and ``monotonic``, for the seconds.
+    """
+
+    iteration: int
+    draw: int
+    env_index: int
+    env: Environment
+    plan: Plan
+    shown_at: str
+    monotonic: float = field(default_factory=time.monotonic)
+
+
+@dataclass(frozen=True, eq=False)
+class Deployment:
+    """The end of a session in Eᵗ: the plain plan ξ*(θ̂) beside the risk-averse one of eq. (A4)."""
+
+    env: Environment
+    plain: Plan
+    averse: Plan
+    gamma: np.ndarray  # the γ ∈ Γ that (A4) deploys with
+
+
+def environment_draw(seed: int, draw: int, n: int) -> int:
+    """The ``draw``-th random environment index in [0, n) of a session with ``seed``."""
+    return int(np.random.default_rng(np.random.SeedSequence([seed, 20, draw])).integers(n))
+
+
+def learner_rng(seed: int, iteration: int) -> np.random.Generator:
+    """The generator a learner gets at ``iteration`` (a pure function of the two)."""
+    return np.random.default_rng(np.random.SeedSequence([seed, 21, iteration]))
+
+
+def build_learner(settings: FigureSettings, name: str, params: Mapping | None = None) -> Learner:
+    """Learner ``name``: the study's (with its parameters) if it has one, else a new one with
+    ``params``; a PP-type learner needs a fixed rate in a live session."""
+    if params is None and name in settings.study.learners:
+        agent = settings.study.learners[name]
+    else:
+        agent = make_learner(name, params or {})
+    agent.check(settings.planner_config().n_waypoints)
+    return agent
+
+
+def build_correction(spec: str | Mapping) -> CorrectionModel:
+    """A correction model from a name or a table ``{name = ..., params...}``."""
+    if isinstance(spec, str):
+        spec = {"name": spec}
+    spec = dict(spec)
+    name = spec.pop("name", None)
+    if not isinstance(name, str):
+        raise ValueError(f"correction: expected a model name, got {name!r}")
+    return components.build(CORRECTIONS, name, spec, where="correction")
+
+
+def correction_spec(model: CorrectionModel) -> dict:
+    """The table that :func:`build_correction` takes back."""
+    return {"name": components.name_of(CORRECTIONS, model), **components.params(model)}
+
+
+class Session:
+    """One session of corrections (see the module). Thread-safe: one lock around every step.
+
+    Make one with :meth:`start` or :meth:`resume`.
+    """
+
+    def __init__(
+        self,
+        settings: FigureSettings,
+        learner: str,
+        agent: Learner,
+        correction: CorrectionModel,
+        log: StudyLog,
+        session_id: int,
+        seed: int,
+        *,
+        planner: Planner | None = None,
+    ) -> None:
+        cls = LEARNERS[learner]
+        if cls.needs_rates() and agent.fixed_rate() is None:
+            raise ValueError(
+                f"learner {learner}: its rate comes from {agent.rate_source()}'s gains over "
+                f"many runs; give it one for a session (--set learners.{learner}.fixed_alpha=0.1)"
+            )
+        self.settings = settings
+        self.learner = learner
+        self.agent = agent
+        self.has_covariance = cls.has_covariance
+        self.correction = correction
+        self.log = log
+        self.id = session_id
+        self.seed = int(seed)
+        self.planner = planner or shared_planner(settings.planner_config())
+        self.envs = settings.envs()
+        self.features = settings.features
+        self.n_waypoints = self.planner.config.n_waypoints
+        correction.check(self.n_waypoints)
+        s = settings.study
+        self._noise, self._sigma = s.noise(), s.sigma()
+        self.belief = agent.initial(s.prior(), self._noise)
+        self.book = PlanBook(self.planner)
+        self.checker = CollisionChecker()
+        self.iteration = 0
+        self.draws = 0
+        self.ended = False
+        self._pending: Proposal | None = None
+        self._lock = threading.RLock()
+
+    # --- making one ------------------------------------------------------------------------
+
+    @classmethod
+    def start(
+        cls,
+        settings: FigureSettings,
+        log: StudyLog,
+        *,
+        learner: str = "KF-CL",
+        params: Mapping | None = None,
+        correction: str | Mapping = "deform",
+        participant: str = "anonymous",
+        corrector: Any = "person",
+        seed: int | None = None,
+        planner: Planner | None = None,
+    ) -> Session:
+        """A new session, logged in ``log`` (its row is written first)."""
+        check_participant(participant)
+        agent = build_learner(settings, learner, params)
+        model = build_correction(correction)
+        seed = settings.study.seed if seed is None else int(seed)
+        session_id = log.new_session(
+            participant=participant,
+            settings=settings.as_dict(),
+            learner=learner,
+            learner_params=components.params(agent),
+            correction=correction_spec(model),
+            seed=seed,
+            corrector=corrector,
+        )
+        return cls(settings, learner, agent, model, log, session_id, seed, planner=planner)
+
+    @classmethod
+    def resume(cls, log: StudyLog, session_id: int, *, planner: Planner | None = None) -> Session:
+        """Session ``session_id`` of ``log``, continued after its last confirmed correction.
+
+        Raises:
+            LogError: no such session.
+            ValueError: the session has ended, or its corrections replayed give another θ̂
+                than the one logged (other code or settings).
+        """
+        row = log.session(session_id)
+        if row.ended is not None:
+            raise ValueError(f"session {session_id}: ended at {row.ended}; start a new one")
+        settings = settings_from_log(row.settings)
+        agent = build_learner(settings, row.learner, row.learner_params)
+        model = build_correction(row.correction)
+        session = cls(
+            settings, row.learner, agent, model, log, session_id, row.seed, planner=planner
+        )
+        session._replay(log.corrections(session_id), log.events(session_id, "skip"))
+        return session
+
+    def _replay(self, rows: list[dict], skips: list[dict]) -> None:
+        draws = [r["draw"] for r in rows] + [e["detail"]["draw"] for e in skips]
+        for row in rows:
+            env_index = int(row["env_index"])
+            plan = self.book.plan(self.belief.theta, self.envs[env_index])
+            step = self._update(env_index, plan, np.asarray(row["phi_h"]))
+            theta = self.belief.theta if step is None else step.belief.theta
+            gap = float(np.max(np.abs(theta - row["theta_after"])))
+            if gap > RESUME_TOLERANCE:
+                raise ValueError(
+                    f"session {self.id}: replaying correction {row['iteration']} gives θ̂ "
+                    f"{np.round(theta, 6).tolist()}, the log has "
+                    f"{np.round(row['theta_after'], 6).tolist()} (other code or settings?)"
+                )
+            if step is not None:
+                self.belief = step.belief
+            self.iteration += 1
+        self.draws = max(draws) + 1 if draws else 0
+
+    @property
+    def correction_name(self) -> str:
+        """The registered name of the model that completes a drag into ξ_h."""
+        return components.name_of(CORRECTIONS, self.correction)
+
+    # --- the steps -------------------------------------------------------------------------
+
+    def _context(self) -> LearnerContext:
+        fixed = self.agent.fixed_rate()
+        return LearnerContext(
+            book=self.book,
+            envs=self.envs,
+            features=self.features,
+            n_waypoints=self.n_waypoints,
+            alphas=None if fixed is None else np.full(self.iteration + 1, fixed),
+            rng=learner_rng(self.seed, self.iteration),
+            noise=self._noise,
+            sigma=self._sigma,
+            iteration=self.iteration,
+        )
+
+    def _check_open(self) -> None:
+        if self.ended:
+            raise Refused(f"session {self.id} has ended")
+
+    def proposal(self) -> Proposal:
+        """ξᵗ in Eᵗ, the plan the person is to correct (the same one until it is submitted or
+        skipped)."""
+        with self._lock:
+            self._check_open()
+            if self._pending is not None:
+                return self._pending
+            for _ in range(MAX_FAILED_DRAWS):
+                draw = self.draws
+                random_index = environment_draw(self.seed, draw, len(self.envs))
+                index = int(self.agent.choose(self._context(), self.belief, random_index))
+                if not 0 <= index < len(self.envs):
+                    raise ValueError(f"learner {self.learner}: chose environment {index}")
+                try:
+                    plan = self.book.plan(self.belief.theta, self.envs[index])
+                except PlanningError as exc:
+                    self._skip(f"planner: {str(exc).splitlines()[0]}", index)
+                    continue
+                self._pending = Proposal(self.iteration, draw, index, self.envs[index], plan, now())
+                return self._pending
+            raise RuntimeError(
+                f"session {self.id}: {MAX_FAILED_DRAWS} draws in a row failed to plan"
+            )
+
+    def _skip(self, reason: str, env_index: int) -> None:
+        self.log.add_event(
+            self.id,
+            self.iteration,
+            "skip",
+            {"draw": self.draws, "env_index": env_index, "reason": reason},
+        )
+        self.draws += 1
+        self._pending = None
+
+    def skip(self, reason: str = "skipped by the person") -> None:
+        """Leave Eᵗ uncorrected; the next proposal is the next draw."""
+        with self._lock:
+            pending = self.proposal()
+            self._skip(reason, pending.env_index)
+
+    def undo(self) -> None:
+        """The person put the handle back (logged; the proposal stays)."""
+        with self._lock:
+            self.log.add_event(self.id, self.iteration, "undo", {})
+
+    def waypoint_cup(self, waypoint: int) -> np.ndarray:
+        """Cup centre (3,) at waypoint ``waypoint`` of the current plan: where its handle goes."""
+        return cup_pose(self.proposal().plan.trajectory[waypoint])[1]
+
+    def drag(self, waypoint: int, cup_position) -> np.ndarray:
+        """ξ_h (T, 7) for the cup at free ``waypoint`` moved to ``cup_position`` (3,), m.
+
+        Raises:
+            Refused: a fixed or unknown waypoint, a position IK cannot reach with the hand's
+                rotation, or a ξ_h that collides; the message says which (and the refusal is
+                logged as an event).
+        """
+        with self._lock:
+            pending = self.proposal()
+            try:
+                return self._drag(pending, waypoint, cup_position)
+            except Refused as exc:
+                detail = {"waypoint": waypoint, "cup": np.asarray(cup_position, float).tolist()}
+                self.log.add_event(
+                    self.id, self.iteration, "refused", {**detail, "reason": str(exc)}
+                )
+                raise
+
+    def _drag(self, pending: Proposal, waypoint, cup_position) -> np.ndarray:
+        robot = pending.plan.trajectory
+        n = robot.shape[0]
+        if isinstance(waypoint, bool) or not isinstance(waypoint, int | np.integer):
+            raise Refused(f"waypoint {waypoint!r}: not a waypoint index")
+        if not 0 < waypoint < n - 1:
+            raise Refused(
+                f"waypoint {waypoint}: only waypoints 1 to {n - 2} move (start and goal are fixed)"
+            )
+        cup = np.asarray(cup_position, dtype=float)
+        if cup.shape != (3,) or not np.all(np.isfinite(cup)):
+            raise Refused(f"cup position {cup_position!r}: expected 3 finite numbers")
+        rotation, _ = cup_pose(robot[waypoint])
+        q = cup_inverse_kinematics(cup, rotation, robot[waypoint])
+        if q is None:
+            raise Refused(
+                f"unreachable: the arm cannot hold the cup level at ({cup[0]:.2f}, {cup[1]:.2f}, "
+                f"{cup[2]:.2f}) m"
+            )
+        intended = robot.copy()
+        intended[waypoint] = q
+        corrected = np.asarray(self.correction.apply(robot, intended), dtype=float)
+        report = self.checker.check_trajectory(corrected, pending.env)
+        if not report.collision_free:
+            pairs = ", ".join(f"{a}-{b}" for a, b in sorted(report.body_pairs()))
+            raise Refused(f"collides: {pairs} (depth {report.max_depth * 100:.1f} cm)")
+        return corrected
+
+    def submit(
+        self,
+        corrected: np.ndarray,
+        *,
+        drag: Mapping | None = None,
+        phi_h: np.ndarray | None = None,
+    ) -> dict:
+        """Update on the correction ξ_h (T, 7) of the current proposal; log it; return the row.
+
+        Args:
+            corrected: ξ_h, same start and goal as ξᵗ.
+            drag: what the page reported (waypoint, handle position, ...), logged as is.
+            phi_h: the features the learner sees (default Φ(ξ_h, Eᵗ); a simulated user with
+                feature noise gives its own).
+        """
+        with self._lock:
+            pending = self.proposal()
+            robot = pending.plan.trajectory
+            corrected = np.asarray(corrected, dtype=float)
+            if corrected.shape != robot.shape or not np.all(np.isfinite(corrected)):
+                raise Refused(
+                    f"correction: expected finite shape {robot.shape}, got {corrected.shape}"
+                )
+            if not (np.allclose(corrected[0], robot[0]) and np.allclose(corrected[-1], robot[-1])):
+                raise Refused("correction: the start and the goal must stay where they are")
+            if phi_h is None:
+                phi_h = feature_counts(corrected, pending.env, self.features)
+            phi_h = np.asarray(phi_h, dtype=float)
+            before = self.belief
+            skipped = ""
+            try:
+                step = self._update(pending.env_index, pending.plan, phi_h)
+            except PlanningError as exc:
+                step, skipped = None, str(exc).splitlines()[0]
+            after = before if step is None else step.belief
+            row = {
+                "iteration": self.iteration,
+                "draw": pending.draw,
+                "env_index": pending.env_index,
+                "env_name": pending.env.name,
+                "xi_robot": robot,
+                "xi_h": corrected,
+                "phi_robot": pending.plan.features,
+                "phi_h": phi_h,
+                "theta_before": before.theta,
+                "cov_before": before.cov,
+                "theta_after": after.theta,
+                "cov_after": after.cov,
+                "noise_after": None if after.noise is None else after.noise.estimate(),
+                "nis": (
+                    nis(step.innovation, step.innovation_cov)
+                    if step is not None and step.innovation_cov is not None
+                    else None
+                ),
+                "drag": dict(drag or {}),
+                "shown_at": pending.shown_at,
+                "submitted_at": now(),
+                "seconds": time.monotonic() - pending.monotonic,
+                "update_skipped": skipped,
+            }
+            self.log.add_correction(self.id, row)  # committed before anyone sees the update
+            self.belief = after
+            self.iteration += 1
+            self.draws = pending.draw + 1
+            self._pending = None
+            return row
+
+    def _update(self, env_index: int, plan: Plan, phi_h: np.ndarray):
+        return self.agent.update(self._context(), self.belief, self.envs[env_index], plan, phi_h)
+
+    def state(self, theta) -> np.ndarray:
+        """Log the person's stated preference θ (k,) as the session's reference."""
+        theta = np.asarray(theta, dtype=float)
+        if theta.shape != (len(self.features),) or not np.all(np.isfinite(theta)):
+            raise Refused(f"stated θ: expected {len(self.features)} finite numbers")
+        with self._lock:
+            self.log.state_theta(self.id, theta)
+        return theta
+
+    def finish(self) -> Deployment | None:
+        """End the session: the plain and the risk-averse (A4) plan in the last Eᵗ shown
+        (None if no plan could be made), logged as a ``done`` event."""
+        with self._lock:
+            pending = self._pending
+            if pending is None and not self.ended:
+                try:
+                    pending = self.proposal()
+                except RuntimeError:
+                    pending = None
+            deployment = None
+            detail: dict = {"iteration": self.iteration}
+            if pending is not None and self.has_covariance:
+                try:
+                    a4 = plan_a4(self.planner, self.belief, pending.env)
+                    index = a4.index("averse")
+                    deployment = Deployment(
+                        pending.env, pending.plan, a4.plans[index], a4.gammas[index]
+                    )
+                    detail |= {"env_index": pending.env_index, "gamma": a4.gammas[index].tolist()}
+                except PlanningError as exc:
+                    detail["a4_failed"] = str(exc).splitlines()[0]
+            self.log.add_event(self.id, self.iteration, "done", detail)
+            self.log.end_session(self.id)
+            self.ended = True
+            return deployment
+
+
+def settings_from_log(recorded: Mapping) -> FigureSettings:
+    """A study's settings from the dictionary a session logged (``FigureSettings.as_dict``)."""
+    values = dict(recorded)
+    values.pop("plugins", None)  # plug-ins are loaded by their files (see the session's study)
+    return parse_study(values, name="interact")
+
+
+def simulate(session: Session, user: User, theta_star, corrections: int) -> list[dict]:
+    """``corrections`` corrections of ``session`` by the simulated ``user`` whose preference is
+    ``theta_star``, through the same steps as a person's (the user's noise from its own
+    seeded generator); returns the logged rows."""
+    theta_star = np.asarray(theta_star, dtype=float)
+    session.state(theta_star)
+    rng = np.random.default_rng(np.random.SeedSequence([session.seed, 22]))
+    rows = []
+    while len(rows) < corrections:
+        pending = session.proposal()
+        try:
+            intended = session.book.plan(theta_star, pending.env).trajectory
+        except PlanningError as exc:
+            session.skip(f"the user's plan failed: {str(exc).splitlines()[0]}")
+            continue
+        situation = Situation(
+            robot=pending.plan.trajectory,
+            intended=intended,
+            env=pending.env,
+            features=session.features,
+            theta_star=theta_star,
+        )
+        corrected = user.correct(situation, rng)
+        phi_h = user.correction_features(situation, rng)
+        rows.append(session.submit(corrected, drag={"simulated": True}, phi_h=phi_h))
+    return rows

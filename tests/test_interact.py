@@ -1,0 +1,151 @@
+"""The correction session, its SQLite log and the replay, without a browser."""
+
+from __future__ import annotations
+
+import sqlite3
+
+import numpy as np
+import pytest
+
+from corrections_sim.interact.log import SCHEMA_VERSION, LogError, StudyLog
+from corrections_sim.interact.replay import replay
+from corrections_sim.interact.session import Refused, Session, simulate
+from corrections_sim.people.users import make_user
+from corrections_sim.scene.geometry import TABLE_TOP_Z
+from corrections_sim.study.schema import parse_study
+
+ENVIRONMENTS = ["s0-t0-l1", "s0-t0-l2", "s1-t1-l0", "s2-t0-l1"]
+
+
+@pytest.fixture(scope="module")
+def settings():
+    return parse_study(
+        {
+            "environments": ENVIRONMENTS,
+            "theta_star": [1.0, -1.0],
+            "learners": ["KF", "KF-C", "BP"],
+            "seed": 7,
+            "iterations": 3,
+        },
+        name="test",
+    )
+
+
+def test_a_simulated_session_is_logged_resumed_and_replayed_to_the_same_numbers(tmp_path, settings):
+    with StudyLog(tmp_path / "s.sqlite") as log:
+        session = Session.start(settings, log, learner="KF-C", participant="sim-1")
+        rows = simulate(session, make_user("biased"), (1.0, -1.0), 3)
+        assert [r["iteration"] for r in rows] == [0, 1, 2]
+        logged = log.corrections(session.id)
+        assert len(logged) == 3
+        np.testing.assert_array_equal(logged[-1]["theta_after"], session.belief.theta)
+        # Each update moved θ̂ from the logged θ̂ before it, and the chain is unbroken.
+        for a, b in zip(logged, logged[1:], strict=False):
+            np.testing.assert_array_equal(a["theta_after"], b["theta_before"])
+        assert np.linalg.norm(session.belief.theta - (1.0, -1.0)) < np.linalg.norm((1.0, -1.0))
+
+        resumed = Session.resume(log, session.id)
+        assert resumed.iteration == 3 and resumed.draws == session.draws
+        np.testing.assert_array_equal(resumed.belief.theta, session.belief.theta)
+        np.testing.assert_array_equal(resumed.belief.cov, session.belief.cov)
+        # Its next proposal is the one the original would have shown.
+        assert resumed.proposal().env_index == session.proposal().env_index
+
+        replayed, result, facts = replay(log, session.id, ["PP", "KF", "KF-C", "BP"])
+        assert facts["max_gap_to_log"] == 0.0  # KF-C replayed is the session's own learner
+        assert facts["stated_theta"] == [1.0, -1.0]
+        learners = {r["learner"] for r in result.records}
+        assert learners == {"PP", "KF", "KF-C", "BP"}
+        assert list(replayed.study.learners) == ["KF", "PP", "KF-C", "BP"]  # PP's rate: KF's
+        final = facts["final"]
+        assert final["KF-C"]["estimate_error"] < 2.0  # from ‖θ̂⁰ − θ*‖₁ = 2
+        assert all(r["regret"] >= -1e-6 for r in result.records)
+
+
+def test_a_drag_moves_the_cup_and_refusals_are_explained_and_not_recorded(tmp_path, settings):
+    with StudyLog(tmp_path / "s.sqlite") as log:
+        session = Session.start(settings, log, learner="KF-C", correction="waypoint")
+        plan = session.proposal().plan.trajectory
+        i = plan.shape[0] // 2
+        cup = session.waypoint_cup(i)
+        corrected = session.drag(i, cup + (0.0, 0.0, 0.08))
+        changed = np.flatnonzero(np.any(corrected != plan, axis=1))
+        assert changed.tolist() == [i]  # "waypoint": only the dragged one moves
+
+        with pytest.raises(Refused, match="start and goal are fixed"):
+            session.drag(0, cup)
+        with pytest.raises(Refused, match="unreachable"):
+            session.drag(i, cup + (3.0, 0.0, 0.0))
+        with pytest.raises(Refused, match="collides"):
+            session.drag(i, (cup[0], cup[1], TABLE_TOP_Z - 0.06))
+        refused = log.events(session.id, "refused")
+        assert len(refused) == 3 and "unreachable" in refused[1]["detail"]["reason"]
+        assert log.corrections(session.id) == []
+
+        # Lifting the cup away from the table top lowers the table feature, so θ̂_table falls.
+        before = session.belief.theta.copy()
+        row = session.submit(corrected, drag={"waypoint": i})
+        assert row["phi_h"][1] < row["phi_robot"][1]
+        assert session.belief.theta[1] < before[1]
+        with pytest.raises(Refused, match="start and the goal"):
+            moved = session.proposal().plan.trajectory.copy()
+            moved[0] += 0.1
+            session.submit(moved)
+
+
+def test_the_deform_model_moves_the_neighbours_too(tmp_path, settings):
+    with StudyLog(tmp_path / "s.sqlite") as log:
+        session = Session.start(settings, log, learner="KF", correction="deform")
+        plan = session.proposal().plan.trajectory
+        i = plan.shape[0] // 2
+        corrected = session.drag(i, session.waypoint_cup(i) + (0.0, 0.0, 0.05))
+        moved = np.any(np.abs(corrected - plan) > 1e-9, axis=1)
+        assert moved[i - 1] and moved[i + 1] and not moved[0] and not moved[-1]
+
+
+def test_skip_undo_state_and_done_are_logged(tmp_path, settings):
+    with StudyLog(tmp_path / "s.sqlite") as log:
+        session = Session.start(settings, log, learner="KF-C")
+        first = session.proposal()
+        session.skip()
+        assert session.proposal().draw == first.draw + 1
+        session.undo()
+        session.state((0.5, -0.5))
+        deployment = session.finish()
+        kinds = [e["kind"] for e in log.events(session.id)]
+        assert kinds == ["skip", "undo", "stated", "done"]
+        assert log.session(session.id).ended is not None
+        np.testing.assert_array_equal(log.session(session.id).stated_theta, (0.5, -0.5))
+        assert deployment is not None and deployment.gamma.shape == (2,)
+        with pytest.raises(Refused, match="ended"):
+            session.proposal()
+        with pytest.raises(ValueError, match="ended"):
+            Session.resume(log, session.id)
+
+
+def test_a_pp_session_needs_a_fixed_rate(tmp_path, settings):
+    with StudyLog(tmp_path / "s.sqlite") as log, pytest.raises(ValueError, match="fixed_alpha"):
+        Session.start(settings, log, learner="PP")
+
+
+def test_bad_logs_and_participants_are_refused(tmp_path, settings):
+    other = tmp_path / "other.sqlite"
+    with sqlite3.connect(other) as db:
+        db.execute("CREATE TABLE t (x)")
+    with pytest.raises(LogError, match="not a study log"):
+        StudyLog(other)
+    (tmp_path / "text.sqlite").write_text("not a database at all, just some text " * 20)
+    with pytest.raises(LogError, match="not a study log"):
+        StudyLog(tmp_path / "text.sqlite")
+    newer = tmp_path / "newer.sqlite"
+    StudyLog(newer).close()
+    with sqlite3.connect(newer) as db:
+        db.execute("UPDATE meta SET value = ? WHERE key = 'schema_version'", (SCHEMA_VERSION + 1,))
+    with pytest.raises(LogError, match="newer"):
+        StudyLog(newer)
+    with StudyLog(tmp_path / "s.sqlite") as log:
+        with pytest.raises(ValueError, match="pseudonym"):
+            Session.start(settings, log, participant="Jane Doe")
+        with pytest.raises(LogError, match="session 9: not in"):
+            log.session(9)
+        assert log.session_ids() == []  # nothing half-made by the refused start

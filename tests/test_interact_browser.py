@@ -1,0 +1,181 @@
+"""The page in a real chromium (Debian's), driven by Playwright with the mouse.
+
+Few and small: software WebGL on 2 cores is slow. Every wait is on page or server state.
+Marked ``browser``: ``pytest -m 'not browser'`` skips them; CI (which installs chromium in
+.ci/setup) runs them, and there a missing chromium fails instead of skipping.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from corrections_sim.interact import drive
+from corrections_sim.interact.log import StudyLog
+from corrections_sim.interact.page import serve
+from corrections_sim.interact.session import Session
+from corrections_sim.study.schema import parse_study
+
+pytestmark = pytest.mark.browser
+
+STUDY = {
+    "environments": ["s0-t0-l1", "s0-t0-l2", "s1-t1-l0", "s2-t0-l1"],
+    "theta_star": [1.0, -1.0],
+    "learners": ["KF-C"],
+    "seed": 3,
+    "iterations": 3,
+}
+STUDY_TOML = """environments = ["s0-t0-l1", "s0-t0-l2", "s1-t1-l0", "s2-t0-l1"]
+theta_star = [1.0, -1.0]
+learners = ["KF-C"]
+seed = 3
+iterations = 3
+"""
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def playwright_browser():
+    if drive.chromium() is None:
+        if os.environ.get("CI"):
+            pytest.fail("CI needs chromium for the browser tests (.ci/setup installs it)")
+        pytest.skip("no chromium (apt-get install chromium)")
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        browser = drive.launch(p)
+        yield browser
+        browser.close()
+
+
+@pytest.fixture(scope="module")
+def served(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("interact")
+    log = StudyLog(folder / "study.sqlite")
+    session = Session.start(parse_study(STUDY, name="t"), log, learner="KF-C", participant="t1")
+    server, page = serve(session, port=_free_port())
+    yield session, page, f"http://127.0.0.1:{server.get_port()}", folder
+    server.stop()
+    log.close()
+
+
+def test_a_mouse_drag_and_submit_teach_the_learner_and_are_logged(playwright_browser, served):
+    session, page, url, folder = served
+    tab = drive.open_page(playwright_browser, url)
+    try:
+        drive.set_number(tab, 0, 1.0)
+        drive.set_number(tab, 1, -1.0)
+        drive.click(tab, "State my preference")
+        drive.wait_for(lambda: session.log.session(session.id).stated_theta is not None, "stated")
+        np.testing.assert_array_equal(session.log.session(session.id).stated_theta, (1.0, -1.0))
+
+        waypoint, cup = drive.cup_position(tab)
+        before = session.belief.theta.copy()
+        drags = page.drags
+        drive.drag_cup(tab, 60)
+        drive.wait_for(lambda: page.drags > drags, "the drag reaching the server")
+        assert page.corrected is not None, page.last_message
+        moved = np.asarray(page.drag_info["handle"]) - cup
+        assert moved[2] > 0.03 and np.all(np.abs(moved[:2]) < 1e-3)  # up (page: mm)
+
+        drive.click(tab, "Submit correction")
+        drive.wait_for(lambda: page.submitted == 1, "the correction reaching the learner")
+        rows = session.log.corrections(session.id)
+        assert len(rows) == 1 and rows[0]["drag"]["waypoint"] == waypoint
+        # The cup lifted off the table top: Φ_table fell, and so did θ̂_table.
+        assert rows[0]["phi_h"][1] < rows[0]["phi_robot"][1]
+        assert session.belief.theta[1] < before[1]
+        drive.wait_for(lambda: "Correction 2" in drive.status(tab), "the next plan on the page")
+        tab.screenshot(path=str(folder / "after-update.png"))
+        assert (folder / "after-update.png").stat().st_size > 10_000
+    finally:
+        tab.close()
+
+
+def test_a_drag_into_the_table_is_refused_with_the_reason_and_not_logged(
+    playwright_browser, served
+):
+    session, page, url, _ = served
+    tab = drive.open_page(playwright_browser, url)
+    try:
+        rows = len(session.log.corrections(session.id))
+        drags = page.drags
+        drive.drag_cup(tab, -400)  # far down, through the table top
+        drive.wait_for(lambda: page.drags > drags, "the drag reaching the server")
+        assert page.corrected is None
+        drive.wait_for(lambda: "Refused" in drive.status(tab), "the refusal on the page")
+        text = drive.status(tab)
+        assert "collides" in text or "unreachable" in text
+        assert len(session.log.corrections(session.id)) == rows
+        assert session.log.events(session.id, "refused")
+    finally:
+        tab.close()
+
+
+def test_a_second_tab_is_told_the_server_is_busy_and_garbage_is_refused(playwright_browser, served):
+    import websockets.sync.client as ws
+
+    session, page, url, _ = served
+    first = drive.open_page(playwright_browser, url)
+    second = playwright_browser.new_page()
+    try:
+        second.goto(url)
+        second.get_by_text("The server is busy").wait_for(timeout=60_000)
+        assert page.owner is not None
+        # Malformed messages on the websocket: the server drops them and goes on serving.
+        with ws.connect(url.replace("http", "ws"), subprotocols=["viser-v1.1.1"]) as sock:
+            sock.send(b"\x00\x01 not msgpack")
+            sock.send("{not json")
+        with urllib.request.urlopen(url, timeout=30) as answer:
+            assert answer.status == 200
+        assert session.proposal() is not None
+        assert "Submit correction" in drive.status(first)
+    finally:
+        second.close()
+        first.close()
+
+
+def test_killing_the_server_loses_no_confirmed_correction(playwright_browser, tmp_path):
+    study = tmp_path / "small.toml"
+    study.write_text(STUDY_TOML)
+    db = tmp_path / "study.sqlite"
+    port = _free_port()
+    command = [sys.executable, "-m", "corrections_sim.run", "interact", str(study)]
+    command += ["--learner", "KF-C", "--db", str(db), "--port", str(port)]
+    command += ["--participant", "p-kill"]
+    server = subprocess.Popen(command, stderr=subprocess.PIPE, text=True, cwd=Path.cwd())
+    try:
+        line = server.stderr.readline()
+        while "open http" not in line:
+            assert line, "the server ended before serving"
+            line = server.stderr.readline()
+        tab = drive.open_page(playwright_browser, f"http://127.0.0.1:{port}")
+        drive.drag_cup(tab, 50)
+        drive.wait_for(lambda: "orange path" in drive.status(tab), "the accepted drag")
+        drive.click(tab, "Submit correction")
+        drive.wait_for(lambda: "Correction 2" in drive.status(tab), "the next plan")
+        server.send_signal(signal.SIGKILL)  # no chance to clean up
+        server.wait(timeout=30)
+        tab.close()
+    finally:
+        if server.poll() is None:
+            server.kill()
+    with StudyLog(db) as log:
+        rows = log.corrections(1)
+        assert len(rows) == 1 and log.session(1).ended is None
+        resumed = Session.resume(log, 1)
+        assert resumed.iteration == 1
+        np.testing.assert_array_equal(resumed.belief.theta, rows[0]["theta_after"])
