@@ -14,6 +14,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import partial
+from pathlib import Path
 
 import numpy as np
 
@@ -359,9 +360,28 @@ def main(argv: Sequence[str] | None = None) -> None:
         description="Benchmarks of corrections_sim. 'planner': solve times, iterations, "
         "failures and optimality of the trajectory optimizer over seeded (theta, E) problems. "
         "'fig4': wall time of paper-scale fig. 4, solves per second, 1 -> 2 worker speed-up, "
-        "Dask against the process pool, peak memory per worker.",
+        "Dask against the process pool, peak memory per worker. 'interact': the page's "
+        "latency from submit to the next plan, driven in chromium by Playwright.",
     )
-    parser.add_argument("what", choices=["planner", "fig4"], help="which benchmark to run")
+    parser.add_argument(
+        "what", choices=["planner", "fig4", "interact"], help="which benchmark to run"
+    )
+    parser.add_argument(
+        "--learners",
+        default="KF-CL,KF-C,BP",
+        help="interact: the learners, one session each (default KF-CL,KF-C,BP)",
+    )
+    parser.add_argument(
+        "--corrections", type=int, default=10, help="interact: corrections per session"
+    )
+    parser.add_argument(
+        "--db",
+        default="results/interact/bench.sqlite",
+        help="interact: the sessions' log (default results/interact/bench.sqlite)",
+    )
+    parser.add_argument(
+        "--screenshot", help="interact: save the page after the first session's last update"
+    )
     parser.add_argument(
         "--slice-runs",
         type=int,
@@ -412,6 +432,15 @@ def main(argv: Sequence[str] | None = None) -> None:
         help="fig4: the solver of the paper-scale run (default: the planner's default)",
     )
     args = parser.parse_args(argv)
+    if args.what == "interact":
+        from benchmarks.bench_interact import run_bench as run_interact
+
+        if args.corrections < 1:
+            parser.error("--corrections must be >= 1")
+        shot = Path(args.screenshot) if args.screenshot else None
+        learners = [n.strip() for n in args.learners.split(",") if n.strip()]
+        print("\n".join(run_interact(learners, args.corrections, Path(args.db), shot)))
+        return
     if args.what == "fig4":
         from benchmarks.bench_batch import run_bench
 

@@ -149,3 +149,38 @@ def test_bad_logs_and_participants_are_refused(tmp_path, settings):
         with pytest.raises(LogError, match="session 9: not in"):
             log.session(9)
         assert log.session_ids() == []  # nothing half-made by the refused start
+
+
+def test_the_command_line_runs_a_headless_session_and_replays_it(tmp_path, capsys):
+    from corrections_sim.cli.main import main
+
+    study = tmp_path / "small.toml"
+    study.write_text(
+        'environments = ["s0-t0-l1", "s0-t0-l2", "s1-t1-l0"]\n'
+        'theta_star = [1.0, -1.0]\nlearners = ["KF", "KF-C"]\nseed = 5\n'
+    )
+    db = tmp_path / "log.sqlite"
+    argv = ["interact", str(study), "--headless", "--iterations", "2", "--db", str(db)]
+    assert main([*argv, "--learner", "KF-C"]) == 0
+    with StudyLog(db) as log:
+        assert len(log.corrections(1)) == 2
+        assert log.session(1).corrector["name"] == "biased"
+    out = tmp_path / "out"
+    assert main(["replay", str(db), "--learners", "KF,KF-C", "--out", str(out)]) == 0
+    assert (out / "replay-1" / "curves.csv").is_file()
+    assert (out / "replay-1" / "session-1.png").is_file()
+    capsys.readouterr()
+
+    # Bad input: one line naming what was wrong, exit status 2, nothing overwritten.
+    assert main(["replay", str(tmp_path / "missing.sqlite")]) == 2
+    assert "no such database" in capsys.readouterr().err
+    assert main(["replay", str(db), "--session", "4", "--out", str(out)]) == 2
+    assert "session 4: not in" in capsys.readouterr().err
+    assert main(["interact", "--resume", "3", "--db", str(db)]) == 2
+    assert "session 3: not in" in capsys.readouterr().err
+    assert main(["interact", "--db", str(db), "--learner", "NOPE", "--headless"]) == 2
+    assert "NOPE" in capsys.readouterr().err
+    assert main(["interact", "--db", str(db), "--participant", "Jane Doe"]) == 2
+    assert "pseudonym" in capsys.readouterr().err
+    assert main(["fig4", "--db", str(db)]) == 2
+    assert "--db: does not apply to fig4" in capsys.readouterr().err

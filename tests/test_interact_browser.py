@@ -85,8 +85,7 @@ def test_a_mouse_drag_and_submit_teach_the_learner_and_are_logged(playwright_bro
         waypoint, cup = drive.cup_position(tab)
         before = session.belief.theta.copy()
         drags = page.drags
-        drive.drag_cup(tab, 60)
-        drive.wait_for(lambda: page.drags > drags, "the drag reaching the server")
+        drive.until_landed(lambda: drive.drag_cup(tab, 60), lambda: page.drags > drags)
         assert page.corrected is not None, page.last_message
         moved = np.asarray(page.drag_info["handle"]) - cup
         assert moved[2] > 0.03 and np.all(np.abs(moved[:2]) < 1e-3)  # up (page: mm)
@@ -113,8 +112,8 @@ def test_a_drag_into_the_table_is_refused_with_the_reason_and_not_logged(
     try:
         rows = len(session.log.corrections(session.id))
         drags = page.drags
-        drive.drag_cup(tab, -400)  # far down, through the table top
-        drive.wait_for(lambda: page.drags > drags, "the drag reaching the server")
+        # Far down, through the table top.
+        drive.until_landed(lambda: drive.drag_cup(tab, -400), lambda: page.drags > drags)
         assert page.corrected is None
         drive.wait_for(lambda: "Refused" in drive.status(tab), "the refusal on the page")
         text = drive.status(tab)
@@ -163,8 +162,9 @@ def test_killing_the_server_loses_no_confirmed_correction(playwright_browser, tm
             assert line, "the server ended before serving"
             line = server.stderr.readline()
         tab = drive.open_page(playwright_browser, f"http://127.0.0.1:{port}")
-        drive.drag_cup(tab, 50)
-        drive.wait_for(lambda: "orange path" in drive.status(tab), "the accepted drag")
+        drive.until_landed(
+            lambda: drive.drag_cup(tab, 50), lambda: "orange path" in drive.status(tab)
+        )
         drive.click(tab, "Submit correction")
         drive.wait_for(lambda: "Correction 2" in drive.status(tab), "the next plan")
         server.send_signal(signal.SIGKILL)  # no chance to clean up

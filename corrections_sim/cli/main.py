@@ -455,7 +455,7 @@ def run_interact(args: argparse.Namespace) -> list[Path]:
                 settings,
                 log,
                 learner=args.learner or "KF-CL",
-                correction=args.drag_model or "deform",
+                correction=args.drag_model or "waypoint",
                 participant=args.participant or ("simulated" if args.headless else "anonymous"),
                 corrector=corrector,
             )
@@ -519,7 +519,7 @@ def run_replay(args: argparse.Namespace) -> list[Path]:
         settings, result, facts = replay(log, session, args.learners)
     except (LogError, ValueError) as exc:
         raise UsageError(str(exc).splitlines()[0]) from None
-    out = _out(args)
+    out = _writable_dir(_out(args))
     final = out / f"replay-{session}"
     with _staging(final) as staging:
         fields = write(settings, result, facts, staging)
@@ -749,8 +749,9 @@ def parser() -> argparse.ArgumentParser:
     i.add_argument("--resume", type=int, metavar="SESSION", help="continue a logged session")
     i.add_argument(
         "--drag-model",
-        help="how a dragged waypoint becomes the corrected path: deform (default, the "
-        "minimum-jerk deformation), waypoint (only that waypoint), or a plug-in's",
+        help="how a dragged waypoint becomes the corrected path: waypoint (default: only "
+        "that waypoint, as the learners' default model of a correction), deform (the "
+        "minimum-jerk deformation of the path), or a plug-in's",
     )
     i.add_argument(
         "--headless",

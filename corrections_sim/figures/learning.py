@@ -50,21 +50,23 @@ def _vector(values) -> str:
     return "(" + ", ".join(f"{v:g}" for v in values) + ")"
 
 
-def describe(settings: FigureSettings) -> str:
-    """One line of the settings a reader needs: θ*, θ̂⁰, P⁰ as given, and the user."""
+def describe(settings: FigureSettings, user: str | None = None) -> str:
+    """One line of the settings a reader needs: θ*, θ̂⁰, P⁰ as given, and the user (or
+    ``user``, who corrected instead of the study's simulated user)."""
     s = settings.study
     cov = np.array(s.cov0)
     if np.count_nonzero(cov - np.diag(np.diag(cov))) == 0:
         prior = f"diag{_vector(np.diag(cov))}"
     else:
         prior = "[" + "; ".join(", ".join(f"{v:g}" for v in row) for row in cov) + "]"
-    user = f"{s.user_name} user"
+    corrector, user = user, f"{s.user_name} user"
     shown = ", ".join(
         f"{k} {v:g}" if isinstance(v, float) else f"{k} {v['name'] if isinstance(v, dict) else v}"
         for k, v in components.params(s.user).items()
     )
     if shown:
         user += f" ({shown})"
+    user = user if corrector is None else corrector
     return f"θ* = {_vector(s.theta_star)}, θ̂⁰ = {_vector(s.theta0)}, P⁰ = {prior}; {user}"
 
 
@@ -107,7 +109,14 @@ def shown_curves(settings: FigureSettings, result: FigureResult) -> dict:
     return shown
 
 
-def write(settings: FigureSettings, result: FigureResult, folder: Path, name: str) -> dict:
+def write(
+    settings: FigureSettings,
+    result: FigureResult,
+    folder: Path,
+    name: str,
+    *,
+    user: str | None = None,
+) -> dict:
     """curves.csv, mean_estimate.csv and the plot (PNG, PDF) in ``folder``; returns the
     summary's fields (statistics, provenance of the numbers, the curves drawn)."""
     from corrections_sim.figures.plotting import plot_learning_curves
@@ -116,9 +125,9 @@ def write(settings: FigureSettings, result: FigureResult, folder: Path, name: st
     write_records(folder / "mean_estimate.csv", result.mean_estimate)
     stats = summarize(settings, result)
     data = curves(settings, result.records)
-    title = f"{name}: {describe(settings)}"
+    title = f"{name}: {describe(settings, user)}"
     if settings.description:
-        title = f"{name}: {settings.description}\n{describe(settings)}"
+        title = f"{name}: {settings.description}\n{describe(settings, user)}"
     plot_learning_curves(
         data,
         title,

@@ -78,15 +78,57 @@ def status(tab) -> str:
 def drag_cup(tab, pixels_up: float, *, steps: int = 10) -> None:
     """Drag the handle's vertical (z) arrow ``pixels_up`` pixels up (down if negative) with
     the mouse, in the page's initial view."""
+    grab, box = _grab(tab, 2)
+    x, y = grab
+    _mouse_drag(tab, (x, y), (x, y - pixels_up), steps)
+
+
+def move_cup(tab, axis: int, metres: float, *, steps: int = 10) -> None:
+    """Drag the handle's arrow along world ``axis`` (0 x, 1 y, 2 z) by ``metres``: the mouse
+    moves from the arrow to where that point would be after the move."""
+    _, cup = cup_position(tab)
+    (x, y), box = _grab(tab, axis)
+    direction = np.eye(3)[axis]
+    end = cup + (0.7 * HANDLE_SCALE + metres) * direction
+    ex, ey = project(end, box["width"], box["height"])
+    _mouse_drag(tab, (x, y), (box["x"] + ex, box["y"] + ey), steps)
+
+
+def _grab(tab, axis: int):
     _, cup = cup_position(tab)
     box = tab.locator("canvas").first.bounding_box()
-    x, y = project(cup + (0.0, 0.0, 0.7 * HANDLE_SCALE), box["width"], box["height"])
-    x, y = box["x"] + x, box["y"] + y
-    tab.mouse.move(x, y)
+    point = cup + 0.7 * HANDLE_SCALE * np.eye(3)[axis]
+    x, y = project(point, box["width"], box["height"])
+    return (box["x"] + x, box["y"] + y), box
+
+
+def _mouse_drag(tab, start, end, steps: int) -> None:
+    tab.mouse.move(*start)
     tab.mouse.down()
     for i in range(1, steps + 1):
-        tab.mouse.move(x, y - pixels_up * i / steps)
+        f = i / steps
+        tab.mouse.move(start[0] + f * (end[0] - start[0]), start[1] + f * (end[1] - start[1]))
     tab.mouse.up()
+
+
+def until_landed(
+    drag: Callable[[], None],
+    landed: Callable[[], object],
+    *,
+    attempts: int = 3,
+    timeout: float = 20.0,
+) -> None:
+    """Run the mouse ``drag`` until ``landed()`` (e.g. the server counted a drag): a drag
+    made while software WebGL has not yet drawn the handle where the page says misses it,
+    and is made again."""
+    for attempt in range(1, attempts + 1):
+        drag()
+        try:
+            wait_for(landed, "the drag reaching the server", timeout)
+            return
+        except TimeoutError:
+            if attempt == attempts:
+                raise
 
 
 def click(tab, label: str) -> None:

@@ -125,6 +125,7 @@ class Page:
         self.stated: np.ndarray | None = None
         self.submitted = 0  # corrections submitted through this page (tests wait on it)
         self.drags = 0  # drags handled, accepted or refused
+        self.last_submit = (float("nan"), float("nan"))
         self.last_message = ""
         self._playing = False
         server.initial_camera.position = CAMERA_POSITION
@@ -326,7 +327,7 @@ class Page:
             self._pose_arm(corrected[i])
             self.submit_button.disabled = False
             self.where.content = (
-                f"Cup at waypoint {i} moved to ({position[0]:.3f}, {position[1]:.3f}, "
+                f"Cup at waypoint {i} moved to: ({position[0]:.3f}, {position[1]:.3f}, "
                 f"{position[2]:.3f}) m"
             )
             self._say("Your correction is the orange path. Submit it, or drag again.")
@@ -348,15 +349,17 @@ class Page:
             if self.corrected is None:
                 self._say("Drag the cup first.")
                 return
+            t0 = time.perf_counter()
             self.submit_button.disabled = True
             self.state_button.disabled = True
-            t0 = time.perf_counter()
             try:
                 row = self.session.submit(self.corrected, drag=self.drag_info)
             except Refused as exc:
                 self._say(f"**Refused**: {exc}")
                 return
             self._new_proposal()
+            # perf_counter() when the click arrived and when the next plan was sent.
+            self.last_submit = (t0, time.perf_counter())
             self.submitted += 1
             skipped = f" (update skipped: {row['update_skipped']})" if row["update_skipped"] else ""
             self._say(

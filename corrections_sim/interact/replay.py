@@ -199,6 +199,7 @@ def replay(
         "session": session_id,
         "participant": row.participant,
         "session_learner": row.learner,
+        "corrector": row.corrector,
         "correction_model": row.correction,
         "corrections": n,
         "stated_theta": None if stated is None else stated.tolist(),
@@ -238,7 +239,13 @@ def write(settings: FigureSettings, result: FigureResult, facts: dict, folder) -
 
     folder = Path(folder)
     if facts["stated_theta"] is not None and "regret" in result.records[0]:
-        fields = write_study(settings, result, folder, settings.name)
+        corrector = facts["corrector"]
+        who = (
+            f"corrected by a person ({facts['participant']}), θ* = the stated θ"
+            if corrector == "person"
+            else f"corrected by the simulated {corrector.get('name', corrector)} user"
+        )
+        fields = write_study(settings, result, folder, settings.name, user=who)
         (folder / "mean_estimate.csv").unlink(missing_ok=True)  # no mean over one run
     else:
         write_records(folder / "curves.csv", result.records)

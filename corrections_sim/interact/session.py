@@ -186,7 +186,7 @@ class Session:
         *,
         learner: str = "KF-CL",
         params: Mapping | None = None,
-        correction: str | Mapping = "deform",
+        correction: str | Mapping = "waypoint",
         participant: str = "anonymous",
         corrector: Any = "person",
         seed: int | None = None,
