@@ -184,3 +184,30 @@ def test_the_command_line_runs_a_headless_session_and_replays_it(tmp_path, capsy
     assert "pseudonym" in capsys.readouterr().err
     assert main(["fig4", "--db", str(db)]) == 2
     assert "--db: does not apply to fig4" in capsys.readouterr().err
+
+
+def test_an_active_warm_started_session_resumes_exactly_after_skips(tmp_path):
+    settings = parse_study(
+        {
+            "environments": ENVIRONMENTS,
+            "theta_star": [1.0, -1.0],
+            "learners": ["AL-C"],
+            "seed": 11,
+            "warm_start": True,
+        },
+        name="warm",
+    )
+    with StudyLog(tmp_path / "s.sqlite") as log:
+        session = Session.start(settings, log, learner="AL-C")
+        simulate(session, make_user("biased"), (1.0, -1.0), 2)
+        session.skip()
+        simulate(session, make_user("biased"), (1.0, -1.0), 1)
+        resumed = Session.resume(log, session.id)
+        assert (resumed.iteration, resumed.draws) == (3, session.draws) == (3, 4)
+        np.testing.assert_array_equal(resumed.belief.theta, session.belief.theta)
+        np.testing.assert_array_equal(resumed.belief.cov, session.belief.cov)
+        # The same next choice (eq. A1) from the same warm-start history.
+        assert resumed.proposal().env_index == session.proposal().env_index
+        np.testing.assert_array_equal(
+            resumed.proposal().plan.trajectory, session.proposal().plan.trajectory
+        )

@@ -168,7 +168,10 @@ class Session:
         s = settings.study
         self._noise, self._sigma = s.noise(), s.sigma()
         self.belief = agent.initial(s.prior(), self._noise)
-        self.book = PlanBook(self.planner)
+        # With the study's warm_start, each plan starts from the nearest solved θ in its
+        # environment (eq. (A1)'s 48 × (2k + 1) predictions for AL in well under a second);
+        # --resume then repeats the very same solves in the same order.
+        self.book = PlanBook(self.planner, warm_start=s.warm_start)
         self.checker = CollisionChecker()
         self.iteration = 0
         self.draws = 0
@@ -230,11 +233,35 @@ class Session:
         return session
 
     def _replay(self, rows: list[dict], skips: list[dict]) -> None:
-        draws = [r["draw"] for r in rows] + [e["detail"]["draw"] for e in skips]
-        for row in rows:
-            env_index = int(row["env_index"])
-            plan = self.book.plan(self.belief.theta, self.envs[env_index])
-            step = self._update(env_index, plan, np.asarray(row["phi_h"]))
+        """Repeat the session's steps (each draw's choice and plan, each update) as they were
+        made, so the plans solved, and with warm starts their history, are the same."""
+        by_draw = {int(r["draw"]): r for r in rows}
+        skipped = {int(e["detail"]["draw"]) for e in skips}
+        last = max([*by_draw, *skipped], default=-1)
+        for draw in range(last + 1):
+            random_index = environment_draw(self.seed, draw, len(self.envs))
+            index = int(self.agent.choose(self._context(), self.belief, random_index))
+            try:
+                plan = self.book.plan(self.belief.theta, self.envs[index])
+            except PlanningError:
+                continue  # logged as a skip when it happened
+            row = by_draw.get(draw)
+            if row is None:
+                if draw not in skipped:
+                    raise ValueError(
+                        f"session {self.id}: draw {draw} is neither a correction "
+                        "nor a skip in the log"
+                    )
+                continue
+            if index != int(row["env_index"]):
+                raise ValueError(
+                    f"session {self.id}: correction {row['iteration']} was in environment "
+                    f"{row['env_index']}, the learner now chooses {index} (other code or settings?)"
+                )
+            try:
+                step = self._update(index, plan, np.asarray(row["phi_h"]))
+            except PlanningError:
+                step = None  # the update was skipped then too (update_skipped)
             theta = self.belief.theta if step is None else step.belief.theta
             gap = float(np.max(np.abs(theta - row["theta_after"])))
             if gap > RESUME_TOLERANCE:
@@ -246,7 +273,7 @@ class Session:
             if step is not None:
                 self.belief = step.belief
             self.iteration += 1
-        self.draws = max(draws) + 1 if draws else 0
+        self.draws = last + 1
 
     @property
     def correction_name(self) -> str:
@@ -490,11 +517,12 @@ def simulate(session: Session, user: User, theta_star, corrections: int) -> list
     theta_star = np.asarray(theta_star, dtype=float)
     session.state(theta_star)
     rng = np.random.default_rng(np.random.SeedSequence([session.seed, 22]))
+    own = PlanBook(session.planner)  # the user's plans stay out of the session's history
     rows = []
     while len(rows) < corrections:
         pending = session.proposal()
         try:
-            intended = session.book.plan(theta_star, pending.env).trajectory
+            intended = own.plan(theta_star, pending.env).trajectory
         except PlanningError as exc:
             session.skip(f"the user's plan failed: {str(exc).splitlines()[0]}")
             continue
