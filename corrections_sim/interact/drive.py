@@ -78,8 +78,7 @@ def status(tab) -> str:
 def drag_cup(tab, pixels_up: float, *, steps: int = 10) -> None:
     """Drag the handle's vertical (z) arrow ``pixels_up`` pixels up (down if negative) with
     the mouse, in the page's initial view."""
-    grab, box = _grab(tab, 2)
-    x, y = grab
+    (x, y), _ = _grab(tab, 2)
     _mouse_drag(tab, (x, y), (x, y - pixels_up), steps)
 
 

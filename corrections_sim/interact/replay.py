@@ -19,7 +19,6 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from corrections_sim import calibration
 from corrections_sim.interact.log import StudyLog
 from corrections_sim.interact.session import build_learner, learner_rng, settings_from_log
 from corrections_sim.learning.base import LEARNERS, LearnerContext
@@ -27,6 +26,7 @@ from corrections_sim.learning.perceptron import learning_rate_schedule
 from corrections_sim.metrics import estimate_error
 from corrections_sim.planning.planner import Plan, PlanningError, shared_planner
 from corrections_sim.planning.plans import PlanBook, Target, evaluate
+from corrections_sim.study.loop import belief_columns
 from corrections_sim.study.runner import FigureResult
 from corrections_sim.study.settings import FigureSettings
 
@@ -45,24 +45,6 @@ def logged_plan(row: dict) -> Plan:
         solve_time=0.0,
         starts=0,
     )
-
-
-def _order_learners(names: Sequence[str], study) -> list[str]:
-    """Names with each rate source before the learner that needs it."""
-    out: list[str] = []
-
-    def add(name: str) -> None:
-        if name in out:
-            return
-        agent = study[name]
-        source = agent.rate_source()
-        if source is not None:
-            add(source)
-        out.append(name)
-
-    for name in names:
-        add(name)
-    return out
 
 
 def replay(
@@ -93,14 +75,21 @@ def replay(
     for name in names:
         if name not in LEARNERS:
             raise ValueError(f"learner {name!r}: unknown; choose from {', '.join(LEARNERS)}")
-    agents = {}
-    for name in dict.fromkeys(names):
-        params = row.learner_params if name == row.learner else None
-        agents[name] = build_learner(settings, name, params)
-    # Rate sources the asked-for learners need, with the study's parameters.
-    order = _order_learners(list(agents), _Agents(agents, settings))
-    for name in order:
-        agents.setdefault(name, build_learner(settings, name))
+    # Each rate source before the learner that needs it (added if not asked for); the
+    # session's own learner with its logged parameters, the others with the study's.
+    agents: dict = {}
+
+    def add(name: str) -> None:
+        if name not in agents:
+            params = row.learner_params if name == row.learner else None
+            agent = build_learner(settings, name, params)
+            if agent.rate_source() is not None:
+                add(agent.rate_source())
+            agents[name] = agent
+
+    for name in names:
+        add(name)
+    order = list(agents)
 
     stated = row.stated_theta
     s = settings.study
@@ -126,7 +115,7 @@ def replay(
         belief = agent.initial(s.prior(), s.noise())
         gains = np.full((n, k, k), np.nan)
 
-        def record(t: int, env_name: str, skipped: str, step, belief=None, name=name, cls=cls):
+        def record(t: int, env_name: str, skipped: str, step, belief, name=name, cls=cls):
             rec = {"learner": name, "run": 0, "iteration": t, "environment": env_name}
             if stated is not None:
                 rec["estimate_error"] = estimate_error(belief.theta, stated)
@@ -134,26 +123,7 @@ def replay(
                     full, paper, failed = evaluate(book, target, envs, belief.theta)
                     rec |= {"regret": full, "regret_paper": paper, "regret_failures": failed}
             rec["update_skipped"] = skipped
-            for i in range(k):
-                rec[f"theta_{i}"] = float(belief.theta[i])
-            for i in range(k):
-                for j in range(i, k):
-                    rec[f"cov_{i}{j}"] = float(belief.cov[i, j])
-            if belief.noise is not None:
-                estimate = belief.noise.estimate()
-                for i in range(k):
-                    for j in range(i, k):
-                        rec[f"noise_{i}{j}"] = float(estimate[i, j])
-            rec["nees"] = (
-                calibration.nees(belief.theta, belief.cov, stated)
-                if cls.has_covariance and stated is not None
-                else None
-            )
-            rec["nis"] = (
-                calibration.nis(step.innovation, step.innovation_cov)
-                if step is not None and step.innovation_cov is not None
-                else None
-            )
+            rec |= belief_columns(belief, step, stated, cls.has_covariance)
             records.append(rec)
 
         record(0, "", "", None, belief)
@@ -214,19 +184,6 @@ def replay(
         },
     }
     return replayed, result, facts
-
-
-class _Agents(dict):
-    """Learners by name for :func:`_order_learners`; a missing rate source is built with the
-    study's parameters."""
-
-    def __init__(self, agents: dict, settings: FigureSettings) -> None:
-        super().__init__(agents)
-        self.settings = settings
-
-    def __missing__(self, name: str):
-        self[name] = build_learner(self.settings, name)
-        return self[name]
 
 
 def write(settings: FigureSettings, result: FigureResult, facts: dict, folder) -> dict:

@@ -99,28 +99,7 @@ def run_learner(
             "regret_failures": failed,
             "update_skipped": skipped,
         }
-        for i in range(k):
-            rec[f"theta_{i}"] = float(belief.theta[i])
-        for i in range(k):
-            for j in range(i, k):
-                rec[f"cov_{i}{j}"] = float(belief.cov[i, j])
-        if belief.noise is not None:  # a learner that learns N: its estimate N̂
-            estimate = belief.noise.estimate()
-            for i in range(k):
-                for j in range(i, k):
-                    rec[f"noise_{i}{j}"] = float(estimate[i, j])
-        # None (an empty CSV cell) where there is nothing to normalize by: a learner without
-        # a covariance (the perceptron), and the prior no innovation.
-        rec["nees"] = (
-            calibration.nees(belief.theta, belief.cov, target.theta_star)
-            if cls.has_covariance
-            else None
-        )
-        rec["nis"] = (
-            calibration.nis(step.innovation, step.innovation_cov)
-            if step is not None and step.innovation_cov is not None
-            else None
-        )
+        rec |= belief_columns(belief, step, target.theta_star, cls.has_covariance)
         records.append(rec)
 
     record(0, "", "", None)
@@ -158,6 +137,33 @@ def run_learner(
             skipped = str(exc).splitlines()[0]
         record(t + 1, env.name, skipped, step)
     return RunResult(records=tuple(records), gains=gains, solves=book.solves)
+
+
+def belief_columns(
+    belief, step: Step | None, reference: np.ndarray | None, has_covariance: bool
+) -> dict:
+    """A record's belief and calibration columns: θ̂ (``theta_i``), P (``cov_ij``, i ≤ j), N̂
+    (``noise_ij``) for a learner that learns N, NEES against ``reference`` and the NIS of
+    ``step``. None (an empty CSV cell) where there is nothing to normalize by: no covariance
+    (the perceptron), no reference, and for the prior no innovation."""
+    k = len(belief.theta)
+    rec: dict = {f"theta_{i}": float(belief.theta[i]) for i in range(k)}
+    upper = [(i, j) for i in range(k) for j in range(i, k)]
+    rec |= {f"cov_{i}{j}": float(belief.cov[i, j]) for i, j in upper}
+    if belief.noise is not None:  # a learner that learns N: its estimate N̂
+        estimate = belief.noise.estimate()
+        rec |= {f"noise_{i}{j}": float(estimate[i, j]) for i, j in upper}
+    rec["nees"] = (
+        calibration.nees(belief.theta, belief.cov, reference)
+        if has_covariance and reference is not None
+        else None
+    )
+    rec["nis"] = (
+        calibration.nis(step.innovation, step.innovation_cov)
+        if step is not None and step.innovation_cov is not None
+        else None
+    )
+    return rec
 
 
 def _index(learner: str, idx, n: int) -> int:
