@@ -139,3 +139,19 @@ def test_quick_fig4_learnt_noise_raises_nis_lowers_the_noise_and_learns_no_worse
     assert (
         final["KF-CL"]["estimate_error"]["mean"] <= final["KF-C"]["estimate_error"]["mean"] + 0.02
     )
+
+
+def test_a_learners_override_given_as_a_table_keeps_its_parameters():
+    """Python callers may name learners with parameters: they reach the learner (they were
+    dropped silently before), on top of the study file's, and a non-table is refused."""
+    from corrections_sim.figures import learning
+
+    table = {"KF-CL": {"noise_dof": 1.5}, "KF": {"noise": "learnt"}}
+    s = learning.load_settings("fig4", quick=True, overrides={"learners": table}).study
+    assert list(s.learners) == ["KF-CL", "KF"]
+    assert s.learners["KF"].noise == "learnt"
+    assert (s.learners["KF-CL"].noise, s.learners["KF-CL"].noise_dof) == ("learnt", 1.5)
+    listed = learning.load_settings("fig4", quick=True, overrides={"learners": ["KF"]}).study
+    assert listed.learners["KF"].noise == "fixed"
+    with pytest.raises(ValueError, match="learners.KF: expected a table of parameters"):
+        learning.load_settings("fig4", quick=True, overrides={"learners": {"KF": "learnt"}})

@@ -598,7 +598,8 @@ def apply_overrides(values: Mapping[str, Any], overrides: Mapping[str, Any]) -> 
     """``values`` with the command line's overrides: its options (:data:`OPTION_PATHS`) and
     ``set`` (a list of "PATH=VALUE"). Flat (legacy) keys are translated first, so an option
     always wins over the file. ``--learners`` keeps the file's parameters of the learners it
-    names; ``--user`` replaces the user."""
+    names (given as a table ``{name: {param: value}}``, its parameters are added to the
+    file's); ``--user`` replaces the user."""
     values = dict(values)
     given = {k: v for k, v in overrides.items() if v is not None and k != "set"}
     plugins = values.pop("plugins", None)
@@ -609,7 +610,13 @@ def apply_overrides(values: Mapping[str, Any], overrides: Mapping[str, Any]) -> 
     if "learners" in given:
         old = values.get("learners", [])
         old = old if isinstance(old, dict) else {n: {} for n in old}
-        values["learners"] = {n: old.get(n, {}) for n in given.pop("learners")}
+        named = given.pop("learners")
+        # A table {name: {param: value}} (from Python) adds its parameters to the file's.
+        params = named if isinstance(named, Mapping) else dict.fromkeys(named, {})
+        for n, p in params.items():
+            if not isinstance(p, Mapping):
+                raise ValueError(f"learners.{n}: expected a table of parameters, got {p!r}")
+        values["learners"] = {n: {**old.get(n, {}), **p} for n, p in params.items()}
     if "user" in given:
         values["user"] = given.pop("user")
     for key, value in given.items():
