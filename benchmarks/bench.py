@@ -361,10 +361,11 @@ def main(argv: Sequence[str] | None = None) -> None:
         "failures and optimality of the trajectory optimizer over seeded (theta, E) problems. "
         "'fig4': wall time of paper-scale fig. 4, solves per second, 1 -> 2 worker speed-up, "
         "Dask against the process pool, peak memory per worker. 'interact': the page's "
-        "latency from submit to the next plan, driven in chromium by Playwright.",
+        "latency from submit to the next plan, driven in chromium by Playwright. 'warm': "
+        "warm re-solves captured from fig. 4 runs, in each warm mode (Newton, solver).",
     )
     parser.add_argument(
-        "what", choices=["planner", "fig4", "interact"], help="which benchmark to run"
+        "what", choices=["planner", "fig4", "interact", "warm"], help="which benchmark to run"
     )
     parser.add_argument(
         "--learners",
@@ -395,9 +396,13 @@ def main(argv: Sequence[str] | None = None) -> None:
         "--skip-full", action="store_true", help="fig4: only the slice, not the paper-scale run"
     )
     parser.add_argument(
-        "--problems", type=int, default=60, help="number of (theta, E) problems (default 60)"
+        "--problems",
+        type=int,
+        help="number of (theta, E) problems (default 60; warm: 300 of those captured)",
     )
-    parser.add_argument("--seed", type=int, default=0, help="seed of the problem set (default 0)")
+    parser.add_argument(
+        "--seed", type=int, help="seed of the problem set (default 0; warm: of fig. 4's runs, 7)"
+    )
     parser.add_argument(
         "--restarts",
         type=int,
@@ -432,6 +437,21 @@ def main(argv: Sequence[str] | None = None) -> None:
         help="fig4: the solver of the paper-scale run (default: the planner's default)",
     )
     args = parser.parse_args(argv)
+    if args.what == "warm":
+        from benchmarks.bench_warm import capture
+        from benchmarks.bench_warm import run_bench as run_warm
+
+        n = 300 if args.problems is None else args.problems
+        if n < 1:
+            parser.error("--problems must be >= 1")
+        seed = 7 if args.seed is None else args.seed
+        found = capture(runs=2, seed=seed)
+        rng = np.random.default_rng(seed)
+        chosen = sorted(rng.choice(len(found), min(n, len(found)), replace=False))
+        print("\n".join(run_warm([found[i] for i in chosen])))
+        return
+    args.problems = 60 if args.problems is None else args.problems
+    args.seed = 0 if args.seed is None else args.seed
     if args.what == "interact":
         from benchmarks.bench_interact import run_bench as run_interact
 

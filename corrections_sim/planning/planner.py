@@ -18,6 +18,11 @@ no start of it converges collision-free, IPOPT gets the same starts (the fallbac
 ``"ipopt"`` solves the waypoint form with IPOPT only (the original path). Both stop after
 ``max_iter`` iterations; no limit depends on wall time, so a result never depends on how
 loaded the machine is.
+
+A warm start (one initial trajectory, e.g. the run's plan at a nearby θ) is first re-solved
+by Newton steps on its active set (``PlannerConfig.warm = "newton"``,
+:mod:`~corrections_sim.planning.newton`): about three steps, accepted only as a certified
+strict local minimum that MuJoCo finds collision-free, otherwise the solver runs as above.
 """
 
 from __future__ import annotations
@@ -43,6 +48,8 @@ from corrections_sim.planning.features import (
     feature_counts,
     symbolic_features,
 )
+from corrections_sim.planning.newton import NewtonPath
+from corrections_sim.planning.newton import library_key as newton_library_key
 from corrections_sim.scene import geometry as g
 from corrections_sim.scene.environments import Environment, env_index, n_env_params
 from corrections_sim.scene.robot import (
@@ -59,6 +66,12 @@ _CONVERGED = {"Solve_Succeeded", "Solved_To_Acceptable_Level"}
 
 #: The solvers a :class:`PlannerConfig` may name (see the module docstring).
 SOLVERS = ("fatrop", "ipopt")
+
+#: How a warm start is re-solved (``PlannerConfig.warm``): ``"newton"`` takes Newton steps on
+#: the warm start's active set (:mod:`~corrections_sim.planning.newton`) and calls the solver
+#: only when they cannot certify a strict local minimum; ``"solver"`` calls the solver from
+#: the warm start (the reference path).
+WARM_MODES = ("newton", "solver")
 
 
 #: Sharpness (1/m) of the log-sum-exp soft minimum over the arm's spheres. The soft minimum
@@ -130,6 +143,8 @@ class PlannerConfig:
             machine and setting; the library is cached on disk, see :func:`cache_dir`).
         solver: ``"fatrop"`` (stage form, IPOPT as fallback) or ``"ipopt"`` (see the module
             docstring).
+        warm: how a warm start (one initial trajectory) is re-solved, one of
+            :data:`WARM_MODES`; not part of the build.
     """
 
     features: tuple[str, ...] = ("laptop", "table")
@@ -140,6 +155,7 @@ class PlannerConfig:
     tol: float = 1e-6
     jit: bool = True
     solver: str = "fatrop"
+    warm: str = "solver"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "features", check_feature_names(self.features))
@@ -157,6 +173,8 @@ class PlannerConfig:
             raise ValueError("max_iter and tol must be positive")
         if self.solver not in SOLVERS:
             raise ValueError(f"solver = {self.solver!r} must be one of {', '.join(SOLVERS)}")
+        if self.warm not in WARM_MODES:
+            raise ValueError(f"warm = {self.warm!r} must be one of {', '.join(WARM_MODES)}")
         if self.solver == "fatrop" and self.n_waypoints < 4:
             raise ValueError(
                 f"n_waypoints = {self.n_waypoints}: solver 'fatrop' needs >= 4 (two free "
@@ -487,6 +505,7 @@ class Planner:
         self._ubx = np.tile(hi, n)
         self._checker = CollisionChecker()
         self._ipopt: ca.Function | None = None
+        self._newton: NewtonPath | None = None
         if self.config.solver == "ipopt":
             self._ipopt_solver()
             return
@@ -510,6 +529,41 @@ class Planner:
             nlp, opts = self._nlp(cfg)
             self._ipopt = _load_solver("trajopt", "ipopt", nlp, opts, cfg)
         return self._ipopt
+
+    def _newton_path(self) -> NewtonPath:
+        """The Newton re-solve, built (or its compiled library loaded) at the first warm start;
+        it is the waypoint form's, so every solver of a config shares one library."""
+        if self._newton is None:
+            cfg = self.config
+            library = None
+            if cfg.jit:
+                key = newton_library_key(build_key(dataclasses.replace(cfg, solver="ipopt")))
+                library = cache_dir() / f"newton-{key}.so"
+            self._newton = NewtonPath(
+                trajectory_terms(cfg), cfg.smoothness, cfg.features, self._lbx, self._ubx, library
+            )
+        return self._newton
+
+    def _newton_solve(self, theta: np.ndarray, env: Environment, start: np.ndarray, p, t0):
+        """The warm start re-solved by :class:`NewtonPath`, checked by MuJoCo like every
+        plan; None when Newton cannot certify a minimum or the path collides."""
+        found = self._newton_path().solve(start, p)
+        if found is None:
+            return None
+        traj = self._trajectory(found.x, env)
+        if not self._checker.check_trajectory(traj, env).collision_free:
+            return None
+        phi = found.features
+        return Plan(
+            trajectory=traj,
+            features=phi,
+            reward=float(theta @ phi - self.config.smoothness * smoothness_cost(traj)),
+            status="Newton_Converged",
+            iterations=found.steps,
+            solve_time=time.perf_counter() - t0,
+            starts=1,
+            solver="newton",
+        )
 
     @staticmethod
     def _nlp(cfg: PlannerConfig) -> tuple[dict, dict]:
@@ -580,8 +634,9 @@ class Planner:
         Args:
             theta: feature weights (k,).
             env: the environment.
-            inits: initial trajectories (T, 7) to start from (a warm start); by default the
-                first ``config.n_starts`` deterministic guesses.
+            inits: initial trajectories (T, 7) to start from; by default the first
+                ``config.n_starts`` deterministic guesses. One trajectory is a warm start:
+                with ``config.warm = "newton"`` Newton steps re-solve it first.
 
         Raises:
             PlanningError: no start converged; the message names the statuses.
@@ -592,6 +647,10 @@ class Planner:
         starts = [init[1:-1].ravel() for init in check_inits(inits, T)]
         p = self._params(theta, env)
         t0 = time.perf_counter()
+        if len(starts) == 1 and inits is not None and self.config.warm == "newton":
+            plan = self._newton_solve(theta, env, starts[0], p, t0)
+            if plan is not None:
+                return plan
         best, statuses, solver = None, [], self.config.solver
         if solver == "fatrop":
             best, statuses = self._fatrop_starts(starts, p, env)

@@ -37,6 +37,7 @@ from corrections_sim.learning.base import LEARNERS, make_learner
 from corrections_sim.people.corrections import CORRECTIONS
 from corrections_sim.people.users import USERS, make_user
 from corrections_sim.planning.features import FEATURES, check_feature_names
+from corrections_sim.planning.planner import SOLVERS, WARM_MODES
 from corrections_sim.registry import Registry
 from corrections_sim.scene.environments import (
     CUP_WORKSPACE,
@@ -63,7 +64,7 @@ from corrections_sim.study.settings import (
 
 #: The planner's settings a study takes (the ``[planner]`` table), with their defaults; passed
 #: to :class:`~corrections_sim.planning.planner.PlannerConfig` by name (which checks them).
-PLANNER_SETTINGS: dict[str, Any] = {"n_starts": 1, "solver": "fatrop"}
+PLANNER_SETTINGS: dict[str, Any] = {"n_starts": 1, "solver": "fatrop", "warm": "solver"}
 #: Every key of a study, with its default (None: required, or computed) and meaning: the one
 #: list the parser, the error messages and the reference page read.
 STUDY_KEYS: dict[str, tuple[Any, str]] = {
@@ -106,7 +107,8 @@ STUDY_KEYS: dict[str, tuple[Any, str]] = {
     ),
     "planner": (
         dict(PLANNER_SETTINGS),
-        "the planner: n_starts (cold starts per solve), solver (fatrop or ipopt)",
+        "the planner: n_starts (cold starts per solve), solver (fatrop or ipopt), warm (how a "
+        "warm start is re-solved: solver, or newton: Newton steps on its active set first)",
     ),
     "warm_start": (False, "start each solve from the run's nearest solved θ̂ (faster)"),
 }
@@ -480,6 +482,9 @@ def _planner(value) -> tuple[tuple[str, Any], ...]:
     n_starts = value.get("n_starts", PLANNER_SETTINGS["n_starts"])
     if isinstance(n_starts, bool) or not isinstance(n_starts, int) or not 1 <= n_starts <= 1000:
         raise ValueError(f"planner.n_starts = {n_starts!r}: expected an integer in [1, 1,000]")
+    for key, choices in (("solver", SOLVERS), ("warm", WARM_MODES)):
+        if key in value and value[key] not in choices:
+            raise ValueError(f"planner.{key} = {value[key]!r}: choose one of {', '.join(choices)}")
     return tuple((k, value.get(k, v)) for k, v in PLANNER_SETTINGS.items())
 
 

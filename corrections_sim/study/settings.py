@@ -218,7 +218,7 @@ class FigureSettings:
     Attributes:
         study: learners, user, prior, counts (see :class:`StudySettings`).
         planner: planner settings as (name, value) pairs, passed to ``PlannerConfig``
-            (``n_starts``, the multi-start count, and ``solver``).
+            (``n_starts``, the multi-start count, ``solver`` and ``warm``).
         features: the features θ weighs, in order (k of them).
         environments: "paper" (the 48), or paper environment names and specs of the user's own
             (see :mod:`corrections_sim.study.schema`).
@@ -228,7 +228,11 @@ class FigureSettings:
     """
 
     study: StudySettings
-    planner: tuple[tuple[str, Any], ...] = (("n_starts", 1), ("solver", "fatrop"))
+    planner: tuple[tuple[str, Any], ...] = (
+        ("n_starts", 1),
+        ("solver", "fatrop"),
+        ("warm", "solver"),
+    )
     features: tuple[str, ...] = ("laptop", "table")
     environments: Environments = "paper"
     plugins: tuple = ()

@@ -1,0 +1,187 @@
+"""The Newton warm re-solve (``PlannerConfig.warm = "newton"``) against the reference path.
+
+The fixture ``data/warm_problems.csv`` holds 300 warm problems captured from fig. 4 runs by
+``python -m benchmarks.bench_warm --fixture tests/data/warm_problems.csv`` (θ it starts from,
+θ, environment); each start is the planner's plan at the first θ.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from corrections_sim.planning import newton
+from corrections_sim.planning.planner import Planner, PlannerConfig, feature_counts
+from corrections_sim.scene.environments import paper_environments
+from corrections_sim.scene.world import Contact
+
+FIXTURE = Path(__file__).parent / "data" / "warm_problems.csv"
+
+
+def _read_fixture():
+    import csv
+
+    with FIXTURE.open() as f:
+        rows = list(csv.DictReader(f))
+    return [
+        (
+            np.array([float(r["theta_from_0"]), float(r["theta_from_1"])]),
+            np.array([float(r["theta_0"]), float(r["theta_1"])]),
+            int(r["env"]),
+        )
+        for r in rows
+    ]
+
+
+@pytest.fixture(scope="module")
+def planners() -> dict[str, Planner]:
+    return {w: Planner(PlannerConfig(n_starts=1, warm=w)) for w in ("solver", "newton")}
+
+
+@pytest.fixture(scope="module")
+def solved(planners):
+    """Per fixture problem: (θ, env, start, the reference path's plan, Newton's answer)."""
+    envs = paper_environments()
+    reference, path = planners["solver"], planners["newton"]._newton_path()
+    out = []
+    for theta_from, theta, e in _read_fixture():
+        env = envs[e]
+        start = reference.solve(theta_from, env).trajectory
+        plan = reference.solve(theta, env, inits=[start])
+        found = path.solve(start[1:-1].ravel(), reference._params(theta, env))
+        out.append((theta, env, start, plan, found))
+    return out
+
+
+def test_the_fixture_is_a_few_hundred_warm_problems_of_fig4():
+    problems = _read_fixture()
+    assert len(problems) == 300
+    steps = [np.linalg.norm(t - f) for f, t, _ in problems]
+    assert 0 < np.median(steps) < 0.2 and max(steps) > 0.5  # small steps and some big ones
+    assert {e for _, _, e in problems} <= set(range(48))
+
+
+def test_newtons_answers_are_the_reference_optimum_or_better(solved, planners):
+    reference = planners["solver"]
+    accepted = [(t, env, plan, found) for t, env, _, plan, found in solved if found is not None]
+    # Measured: 245 of 300 certified (the rest are mostly |Δθ| > 0.3). A path that stops
+    # certifying (or certifies nothing) fails here rather than only getting slower.
+    assert len(accepted) >= 200
+    for theta, env, plan, found in accepted:
+        traj = np.vstack([env.q_start, found.x.reshape(-1, 7), env.q_goal])
+        reward = reference.reward(theta, traj, env)
+        assert reward >= plan.reward - 1e-6  # the same optimum (within the solver's tolerance)
+        assert reward <= plan.reward + 1e-5  # ... and not another basin
+        assert np.max(np.abs(traj - plan.trajectory)) < 1e-3
+        # The NLP's objective counts the free waypoints' features (the ends are fixed).
+        ends = feature_counts(traj[[0, -1]], env.params(), ("laptop", "table"))
+        assert found.objective == pytest.approx(-(reward - theta @ ends), abs=1e-9)
+        assert np.allclose(found.features, feature_counts(traj, env.params(), ("laptop", "table")))
+
+
+def test_every_certified_answer_is_a_strict_local_minimum_of_the_nlp(solved, planners):
+    """Checked again from scratch at the answer: feasible, stationary with multipliers >= 0
+    on the tight clearances, and no feasible descent along their null space."""
+    path = planners["newton"]._newton_path()
+    checked = 0
+    for theta, env, _, _, found in solved[::10]:
+        if found is None:
+            continue
+        p = planners["newton"]._params(theta, env)
+        grad, c, jac_nz = path._first(found.x, p)
+        assert np.all(c >= -1e-9)
+        assert np.all(found.x >= path.lower) and np.all(found.x <= path.upper)
+        tight = np.flatnonzero(c < 1e-7)
+        jac = path._jacobian(jac_nz)[tight]
+        mu = np.linalg.lstsq(jac.T, grad, rcond=None)[0] if tight.size else np.zeros(0)
+        assert np.all(mu >= -1e-9)
+        assert np.max(np.abs(grad - jac.T @ mu)) < 1e-6
+        _, _, _, _, hess_nz = path.terms(found.x, p, np.bincount(tight, mu, minlength=c.size))
+        w = path.hessian(hess_nz)
+        if tight.size:
+            q, _ = np.linalg.qr(jac.T, mode="complete")
+            w = q[:, tight.size :].T @ w @ q[:, tight.size :]
+        assert np.linalg.eigvalsh(w).min() > 0
+        checked += 1
+    assert checked >= 20
+
+
+def test_the_planner_answers_small_steps_by_newton_and_big_ones_by_the_solver(solved, planners):
+    planner = planners["newton"]
+    by = {"newton": 0, "fatrop": 0}
+    for theta, env, start, plan, found in solved[:40]:
+        got = planner.solve(theta, env, inits=[start])
+        assert got.solver == ("newton" if found is not None else "fatrop")
+        by[got.solver] += 1
+        assert got.reward >= plan.reward - 1e-6
+        if got.solver == "newton":
+            assert got.status == "Newton_Converged" and got.starts == 1
+            assert np.allclose(got.trajectory[[0, -1]], [env.q_start, env.q_goal])
+    assert by["newton"] > 0 and by["fatrop"] > 0
+    # A cold solve never takes the Newton path.
+    cold = planner.solve(solved[0][0], solved[0][1])
+    assert cold.solver != "newton"
+
+
+def test_a_newton_answer_that_collides_goes_to_the_solver(solved, planners, monkeypatch):
+    planner = Planner(PlannerConfig(n_starts=1, warm="newton"))
+    theta, env, start, plan, found = next(s for s in solved if s[4] is not None)
+    report = planner._checker.check_trajectory(plan.trajectory, env)
+    calls = []
+
+    def colliding(trajectory, environment):
+        calls.append(trajectory)
+        if len(calls) == 1:  # the Newton answer: pretend MuJoCo found a contact
+            hit = Contact(sample=3, time=1.0, body_a="hand", body_b="laptop", depth=1e-3)
+            return dataclasses.replace(report, contacts=(hit,))
+        return report
+
+    monkeypatch.setattr(planner._checker, "check_trajectory", colliding)
+    got = planner.solve(theta, env, inits=[start])
+    assert got.solver == "fatrop" and len(calls) >= 2
+    assert got.reward == pytest.approx(plan.reward, abs=1e-9)
+
+
+def test_the_gate_and_a_far_start_leave_the_solve_to_the_solver(planners):
+    envs = paper_environments()
+    env = envs[5]
+    reference = planners["solver"]
+    start = reference.solve(np.array([1.0, -1.0]), env).trajectory
+    path = planners["newton"]._newton_path()
+    far = path.solve(start[1:-1].ravel(), reference._params(np.array([-3.0, 3.0]), env))
+    assert far is None
+    got = planners["newton"].solve(np.array([-3.0, 3.0]), env, inits=[start])
+    assert got.solver == "fatrop"
+    assert got.reward == pytest.approx(reference.solve([-3.0, 3.0], env, inits=[start]).reward)
+
+
+def test_the_warm_mode_is_checked_and_named_in_a_study():
+    from corrections_sim.figures import learning
+
+    with pytest.raises(ValueError, match="warm"):
+        PlannerConfig(warm="fast")
+    s = learning.load_settings("fig4", quick=True, overrides={"set": ["planner.warm=newton"]})
+    assert s.planner_config().warm == "newton"
+    assert learning.load_settings("fig4", quick=True).planner_config().warm == "solver"
+    with pytest.raises(ValueError, match="planner.warm"):
+        learning.load_settings("fig4", quick=True, overrides={"set": ["planner.warm=fast"]})
+
+
+def test_the_band_holds_the_whole_hessian():
+    """The Hessian's half-bandwidth in the waypoint ordering is 7 (the banded Cholesky relies
+    on it; the constructor refuses a wider one)."""
+    planner = Planner(PlannerConfig(n_starts=1, warm="newton"))
+    path = planner._newton_path()
+    env = paper_environments()[0]
+    start = planner.solve(np.array([1.0, -1.0]), env).trajectory
+    p = planner._params(np.array([1.0, -1.0]), env)
+    _, _, _, _, hess_nz = path.terms(start[1:-1].ravel(), p, np.ones(path.n_c))
+    w = path.hessian(hess_nz)
+    rows, cols = np.nonzero(w)
+    assert np.max(np.abs(rows - cols)) == newton.BANDWIDTH
+    band = path._band(hess_nz, np.arange(path.n))
+    for d in range(newton.BANDWIDTH + 1):
+        assert np.array_equal(band[d, : path.n - d], np.diagonal(w, -d))
