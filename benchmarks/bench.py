@@ -56,9 +56,11 @@ class Outcome:
     error: str | None = None
 
 
-def make_problems(n: int, k: int, n_envs: int, rng: np.random.Generator) -> list[Problem]:
-    """``n`` problems: θ uniform in ``THETA_RANGE``^k, environment index uniform."""
-    thetas = rng.uniform(*THETA_RANGE, size=(n, k))
+def make_problems(
+    n: int, k: int, n_envs: int, rng: np.random.Generator, theta_range=THETA_RANGE
+) -> list[Problem]:
+    """``n`` problems: θ uniform in ``theta_range``^k, environment index uniform."""
+    thetas = rng.uniform(*theta_range, size=(n, k))
     indices = rng.integers(0, n_envs, size=n)
     return [Problem(t, int(i)) for t, i in zip(thetas, indices, strict=True)]
 
@@ -185,6 +187,7 @@ class PlannerBench:
     restart_errors: int  # problems where no random restart converged
     slsqp: list[SlsqpResult]
     slsqp_default: list[Outcome]  # the first solver's default solves of the SLSQP subset
+    problems: tuple[Problem, ...] = ()
 
 
 def run_planner_bench(
@@ -231,7 +234,7 @@ def run_planner_bench(
         slsqp_default.append(timed(partial(first.solve, prob.theta, env))[0])
         slsqp.append(solve_slsqp(prob.theta, env, first.config, random_restarts(env, T, 1, rng)[0]))
         progress(f"  SLSQP {n + 1}/{n_slsqp}: {slsqp[-1].time:.2f} s")
-    return PlannerBench(runs, best_restart, restart_errors, slsqp, slsqp_default)
+    return PlannerBench(runs, best_restart, restart_errors, slsqp, slsqp_default, tuple(problems))
 
 
 def _failures(outcomes: Sequence[Outcome]) -> tuple[int, int]:
@@ -256,6 +259,29 @@ def optimality(bench: PlannerBench, outcomes: Sequence[Outcome]) -> tuple[np.nda
     known = np.isfinite(best)
     within = float(np.mean(np.nan_to_num(gaps[known], nan=np.inf) <= 0.01))
     return gaps[known & np.isfinite(gaps)], within
+
+
+def by_quadrant(bench: PlannerBench, outcomes: Sequence[Outcome]) -> list[str]:
+    """Table rows: per sign quadrant of (θ_0, θ_1), the share of problems within 1% of the
+    best known reward (as :func:`optimality`) and the worst gap."""
+    best = np.array(bench.best_restart, float)
+    for modes in bench.runs.values():
+        for mode in ("cold", "default"):
+            best = np.fmax(best, [o.reward for o in modes[mode]])
+    gaps = np.array([relative_gap(b, o.reward) for b, o in zip(best, outcomes, strict=True)])
+    gaps = np.nan_to_num(gaps, nan=np.inf)
+    signs = np.array([np.sign(p.theta[:2]) for p in bench.problems])
+    rows = []
+    for s0 in (1, -1):
+        for s1 in (1, -1):
+            mask = (signs[:, 0] == s0) & (signs[:, 1] == s1) & np.isfinite(best)
+            if not mask.any():
+                continue
+            rows.append(
+                f"| {'+' if s0 > 0 else '−'} | {'+' if s1 > 0 else '−'} | {mask.sum()} | "
+                f"{100 * np.mean(gaps[mask] <= 0.01):.1f}% | {100 * gaps[mask].max():.2f}% |"
+            )
+    return rows
 
 
 def report_planner_bench(bench: PlannerBench) -> list[str]:
@@ -296,6 +322,14 @@ def report_planner_bench(bench: PlannerBench) -> list[str]:
     ]
 
     default = names[0]
+    if bench.problems:
+        lines += [
+            f"{default} default solve by sign quadrant of (theta_0, theta_1):",
+            "| theta_0 | theta_1 | problems | within 1% | worst gap |",
+            "|---|---|---|---|---|",
+            *by_quadrant(bench, bench.runs[default]["default"]),
+            "",
+        ]
     if bench.slsqp:
         slsqp_t = [r.time for r in bench.slsqp]
         planner_t = [o.time for o in bench.slsqp_default if o.error is None]
@@ -404,6 +438,13 @@ def main(argv: Sequence[str] | None = None) -> None:
         "--seed", type=int, help="seed of the problem set (default 0; warm: of fig. 4's runs, 7)"
     )
     parser.add_argument(
+        "--theta-range",
+        type=float,
+        default=THETA_RANGE[1],
+        help=f"planner: theta uniform in [-R, R]^k (default {THETA_RANGE[1]}; users' studies "
+        "meet every sign quadrant, e.g. 2)",
+    )
+    parser.add_argument(
         "--restarts",
         type=int,
         default=30,
@@ -477,8 +518,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         print("\n".join(lines))
         print(f"\ntotal {time.perf_counter() - t0:.0f} s")
         return
-    if args.problems < 1 or args.restarts < 1 or args.slsqp < 0:
-        parser.error("--problems and --restarts must be >= 1, --slsqp >= 0")
+    if args.problems < 1 or args.restarts < 1 or args.slsqp < 0 or not args.theta_range > 0:
+        parser.error("--problems and --restarts must be >= 1, --slsqp >= 0, --theta-range > 0")
 
     t0 = time.perf_counter()
     try:
@@ -496,10 +537,11 @@ def main(argv: Sequence[str] | None = None) -> None:
     envs = paper_environments()
     rng = np.random.default_rng(args.seed)
     cfg = next(iter(configs.values()))
-    problems = make_problems(args.problems, cfg.k, len(envs), rng)
+    theta_range = (-args.theta_range, args.theta_range)
+    problems = make_problems(args.problems, cfg.k, len(envs), rng, theta_range)
     print(
         f"planner benchmark: {args.problems} problems (seed {args.seed}), theta uniform in "
-        f"{list(THETA_RANGE)}^{cfg.k}, {len(envs)} environments; features {cfg.features}, "
+        f"{list(theta_range)}^{cfg.k}, {len(envs)} environments; features {cfg.features}, "
         f"T={cfg.n_waypoints}, lambda={cfg.smoothness}, n_starts={cfg.n_starts}, jit={cfg.jit}"
         f", solvers {list(planners)}, {args.restarts} random restarts; planners ready in "
         f"{time.perf_counter() - t0:.2f} s",

@@ -305,3 +305,39 @@ def test_a_failure_names_both_solvers_statuses_on_one_line(envs):
     message = str(info.value)
     assert "\n" not in message
     assert "fatrop:" in message and "Maximum_Iterations_Exceeded" in message
+
+
+def _random_bends(env, count: int, rng: np.random.Generator) -> list[np.ndarray]:
+    """The straight line and ``count - 1`` smooth random bends of it (3 sine modes per
+    joint, 0.4 rad std for the first), clipped to the limits: the restarts that judge a
+    cold solve."""
+    s = np.linspace(0.0, 1.0, 12)[:, None]
+    line = (1 - s) * env.q_start + s * env.q_goal
+    lo, hi = robot.joint_limits()
+    modes = np.arange(1, 4)
+    bends = [line]
+    for _ in range(count - 1):
+        coeffs = rng.normal(0.0, 0.4 / modes[:, None], (3, robot.N_ARM_JOINTS))
+        bends.append(np.clip(line + np.sin(np.pi * s * modes) @ coeffs, lo, hi))
+    return bends
+
+
+@pytest.mark.parametrize(
+    ("theta", "name"),
+    [((-1.61, 0.98), "s3-t2-l1"), ((-1.47, 1.19, -0.79), "s3-t1-l1")],
+)
+def test_seven_starts_reach_the_restarts_best_where_theta_laptop_is_below_zero_below_theta_table(
+    envs, theta, name
+):
+    """Two of the misses of the first four guesses (θ_laptop < 0 < θ_table, k = 2 and 3):
+    the three deep bumps reach the best of 30 random restarts within 1%."""
+    features = ("laptop", "table", "coffee")[: len(theta)]
+    env = next(e for e in envs if e.name == name)
+    one = Planner(PlannerConfig(features=features, n_starts=1))
+    best = one.solve(theta, env, inits=_random_bends(env, 30, np.random.default_rng(3))).reward
+    four = Planner(PlannerConfig(features=features, n_starts=4)).solve(theta, env).reward
+    seven = Planner(PlannerConfig(features=features, n_starts=7)).solve(theta, env).reward
+    assert four < best - 0.01 * abs(best)  # the miss the deep bumps were added for
+    assert seven >= best - 0.01 * abs(best)
+    assert len(initial_guesses(env, 12, 7)) == 7
+    np.testing.assert_array_equal(initial_guesses(env, 12, 7)[:4], initial_guesses(env, 12, 4))
