@@ -107,7 +107,8 @@ STUDY_KEYS: dict[str, tuple[Any, str]] = {
     ),
     "planner": (
         dict(PLANNER_SETTINGS),
-        "the planner: n_starts (cold starts per solve), solver (fatrop or ipopt), warm (how a "
+        "the planner: n_starts (cold starts per solve, 1-10; 10 where θ may take any sign), "
+        "solver (fatrop or ipopt), warm (how a "
         "warm start is re-solved: solver, or newton: Newton steps on its active set first)",
     ),
     "warm_start": (False, "start each solve from the run's nearest solved θ̂ (faster)"),
