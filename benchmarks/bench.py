@@ -21,6 +21,7 @@ import numpy as np
 from corrections_sim.planning.features import feature_counts
 from corrections_sim.planning.planner import (
     SOLVERS,
+    WARM_MODES,
     Plan,
     Planner,
     PlannerConfig,
@@ -477,6 +478,12 @@ def main(argv: Sequence[str] | None = None) -> None:
         "--solver",
         help="fig4: the solver of the paper-scale run (default: the planner's default)",
     )
+    parser.add_argument(
+        "--warm",
+        choices=WARM_MODES,
+        help="fig4: how warm starts are re-solved (default: the planner's, solver); newton "
+        "also times the slice with solver, side by side",
+    )
     args = parser.parse_args(argv)
     if args.what == "warm":
         from benchmarks.bench_warm import capture
@@ -513,6 +520,7 @@ def main(argv: Sequence[str] | None = None) -> None:
             slice_runs=args.slice_runs,
             iterations=args.iterations,
             solver=args.solver or PlannerConfig().solver,
+            warm=args.warm or PlannerConfig().warm,
         )
         print()
         print("\n".join(lines))

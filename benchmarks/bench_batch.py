@@ -113,10 +113,16 @@ def _verdict(ok: bool) -> str:
 
 
 def run_bench(
-    *, full: bool, slice_runs: int, iterations: int | None, solver: str = "fatrop"
+    *,
+    full: bool,
+    slice_runs: int,
+    iterations: int | None,
+    solver: str = "fatrop",
+    warm: str = "solver",
 ) -> list[str]:
     """Measure and return the report's lines (printed as they come, too); ``solver`` is the
-    planner's solver of every run but the slice's IPOPT comparison."""
+    planner's solver of every run but the slice's IPOPT comparison, ``warm`` its warm mode
+    (with ``"newton"`` the slice also runs with ``"solver"``, side by side)."""
 
     def say(line: str) -> None:
         print(line, flush=True)
@@ -124,7 +130,7 @@ def run_bench(
     lines: list[str] = []
     rows: list[tuple[str, str, str]] = []
     common = ["--iterations", str(iterations)] if iterations else []
-    extra = [*common, "--solver", solver]
+    extra = [*common, "--solver", solver, "--set", f"planner.warm={warm}"]
 
     def report(m: Measurement, label: str) -> None:
         lines.append(
@@ -134,7 +140,10 @@ def run_bench(
         say(lines[-1])
 
     if full:
-        say(f"paper-scale fig. 4 ({solver}) on the default process pool (this takes minutes) ...")
+        say(
+            f"paper-scale fig. 4 ({solver}, warm {warm}) on the default process pool (this "
+            "takes minutes) ..."
+        )
         m = m_full = measure("paper fig4", ["fig4", *extra])
         lines.append(
             f"paper-scale fig4: {m.runs_wall:.1f} s for the runs ({m.command_wall:.1f} s "
@@ -150,9 +159,17 @@ def run_bench(
         )
         say(lines[-1])
     slice_base = ["fig4", "--runs", str(slice_runs), "--learners", "PP,KF", *common]
-    slice_argv = [*slice_base, "--solver", solver]
+    slice_argv = [*slice_base, "--solver", solver, "--set", f"planner.warm={warm}"]
     say(f"slice: {slice_runs} runs each of PP and KF: {solver} and ipopt on 2 workers ...")
     two = measure("2 workers", [*slice_argv, "--workers", "2"])
+    if warm != "solver":
+        reference = measure(
+            "warm solver",
+            [*slice_base, "--solver", solver, "--set", "planner.warm=solver", "--workers", "2"],
+        )
+        report(reference, f"{solver}, warm solver (the reference path)")
+        warm_ratio = reference.runs_wall / two.runs_wall
+        rows.append((f"warm {warm} faster than warm solver", f"{warm_ratio:.2f}x", "-"))
     ipopt = measure("ipopt", [*slice_base, "--solver", "ipopt", "--workers", "2"])
     solver_ratio = ipopt.runs_wall / two.runs_wall
     for m, label in ((two, solver), (ipopt, "ipopt")):
