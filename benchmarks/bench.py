@@ -486,17 +486,13 @@ def main(argv: Sequence[str] | None = None) -> None:
     )
     args = parser.parse_args(argv)
     if args.what == "warm":
-        from benchmarks.bench_warm import capture
         from benchmarks.bench_warm import run_bench as run_warm
+        from benchmarks.bench_warm import sample
 
         n = 300 if args.problems is None else args.problems
         if n < 1:
             parser.error("--problems must be >= 1")
-        seed = 7 if args.seed is None else args.seed
-        found = capture(runs=2, seed=seed)
-        rng = np.random.default_rng(seed)
-        chosen = sorted(rng.choice(len(found), min(n, len(found)), replace=False))
-        print("\n".join(run_warm([found[i] for i in chosen])))
+        print("\n".join(run_warm(sample(n, seed=7 if args.seed is None else args.seed))))
         return
     args.problems = 60 if args.problems is None else args.problems
     args.seed = 0 if args.seed is None else args.seed

@@ -76,9 +76,17 @@ def capture(runs: int, seed: int, learners: Sequence[str] = LEARNERS) -> list[Wa
     return found
 
 
+def sample(n: int, runs: int = 2, seed: int = 7) -> list[WarmProblem]:
+    """``n`` of the warm problems of :func:`capture` (``runs``, ``seed``), drawn with
+    ``seed``, in the order they were met."""
+    found = capture(runs, seed)
+    rng = np.random.default_rng(seed)
+    return [found[i] for i in sorted(rng.choice(len(found), min(n, len(found)), replace=False))]
+
+
 def write_fixture(problems: Sequence[WarmProblem], path: Path) -> None:
-    """θ_from, θ and the environment of each problem as CSV (the start is re-solved from
-    θ_from by the test: a few numbers a problem instead of 84)."""
+    """θ_from, θ and the environment of each problem as CSV (``tests/test_newton.py``
+    reads it and re-solves the start from θ_from: 5 numbers a problem instead of 89)."""
     k = problems[0].theta.size
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("w", newline="") as f:
@@ -94,21 +102,6 @@ def write_fixture(problems: Sequence[WarmProblem], path: Path) -> None:
                     p.env_index,
                 ]
             )
-
-
-def read_fixture(path: Path) -> list[tuple[np.ndarray, np.ndarray, int]]:
-    """(θ_from, θ, environment index) per row of a fixture written by :func:`write_fixture`."""
-    with path.open() as f:
-        rows = list(csv.DictReader(f))
-    k = sum(1 for name in rows[0] if name.startswith("theta_from_"))
-    return [
-        (
-            np.array([float(r[f"theta_from_{i}"]) for i in range(k)]),
-            np.array([float(r[f"theta_{i}"]) for i in range(k)]),
-            int(r["env"]),
-        )
-        for r in rows
-    ]
 
 
 def run_bench(problems: Sequence[WarmProblem], repeats: int = 2) -> list[str]:
@@ -174,11 +167,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--runs", type=int, default=2)
     parser.add_argument("--seed", type=int, default=7)
     args = parser.parse_args(argv)
-    found = capture(args.runs, args.seed)
-    rng = np.random.default_rng(args.seed)
-    chosen = sorted(rng.choice(len(found), min(args.problems, len(found)), replace=False))
-    write_fixture([found[i] for i in chosen], args.fixture)
-    print(f"{len(chosen)} of {len(found)} captured warm problems -> {args.fixture}")
+    chosen = sample(args.problems, args.runs, args.seed)
+    write_fixture(chosen, args.fixture)
+    print(f"{len(chosen)} captured warm problems -> {args.fixture}")
 
 
 if __name__ == "__main__":

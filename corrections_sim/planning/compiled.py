@@ -75,10 +75,16 @@ def compile_library(functions: list[ca.Function], library: Path) -> None:
         for fn in functions:
             generator.add(fn)
         generator.generate(f"{scratch}{os.sep}")
-        tmp = Path(scratch) / library.name
-        subprocess.run(
-            ["gcc", "-O1", "-fPIC", "-shared", str(source), "-o", str(tmp), "-lm"],
-            check=True,
-            capture_output=True,
-        )
-        os.replace(tmp, library)
+        build_shared_library(source, library)
+
+
+def build_shared_library(source: Path, library: Path) -> None:
+    """gcc ``source`` (C) into ``library``: built beside ``source`` and moved into place at
+    once, so a process that finds the library never loads half a file."""
+    tmp = source.parent / library.name
+    subprocess.run(
+        ["gcc", "-O1", "-fPIC", "-shared", str(source), "-o", str(tmp), "-lm"],
+        check=True,
+        capture_output=True,
+    )
+    os.replace(tmp, library)

@@ -33,7 +33,6 @@ import hashlib
 import inspect
 import json
 import os
-import subprocess
 import tempfile
 import time
 from collections.abc import Callable, Sequence
@@ -43,6 +42,8 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from corrections_sim.planning import compiled
+from corrections_sim.planning.compiled import build_shared_library
 from corrections_sim.planning.features import (
     check_feature_names,
     feature_counts,
@@ -285,7 +286,7 @@ def build_key(config: PlannerConfig) -> str:
     shaping = {name: value for name, value in asdict(config).items() if name in _BUILD_FIELDS}
     h.update(json.dumps(shaping, sort_keys=True).encode())
     h.update(ca.__version__.encode())
-    for module in (geometry, robot, features, sys.modules[__name__]):
+    for module in (geometry, robot, features, compiled, sys.modules[__name__]):
         h.update(inspect.getsource(module).encode())
     h.update(features.fingerprint(config.features).encode())  # plug-in features, env params
     return h.hexdigest()[:20]
@@ -313,13 +314,7 @@ def _compile_library(solver: ca.Function, library: Path) -> None:
             solver.generate_dependencies(source.name)
         finally:
             os.chdir(cwd)
-        tmp = Path(scratch) / library.name
-        subprocess.run(
-            ["gcc", "-O1", "-fPIC", "-shared", str(source), "-o", str(tmp), "-lm"],
-            check=True,
-            capture_output=True,
-        )
-        os.replace(tmp, library)
+        build_shared_library(source, library)
 
 
 @dataclass(frozen=True, eq=False)

@@ -37,7 +37,7 @@ from corrections_sim.learning.base import LEARNERS, make_learner
 from corrections_sim.people.corrections import CORRECTIONS
 from corrections_sim.people.users import USERS, make_user
 from corrections_sim.planning.features import FEATURES, check_feature_names
-from corrections_sim.planning.planner import SOLVERS, WARM_MODES
+from corrections_sim.planning.planner import PlannerConfig
 from corrections_sim.registry import Registry
 from corrections_sim.scene.environments import (
     CUP_WORKSPACE,
@@ -483,10 +483,12 @@ def _planner(value) -> tuple[tuple[str, Any], ...]:
     n_starts = value.get("n_starts", PLANNER_SETTINGS["n_starts"])
     if isinstance(n_starts, bool) or not isinstance(n_starts, int) or not 1 <= n_starts <= 1000:
         raise ValueError(f"planner.n_starts = {n_starts!r}: expected an integer in [1, 1,000]")
-    for key, choices in (("solver", SOLVERS), ("warm", WARM_MODES)):
-        if key in value and value[key] not in choices:
-            raise ValueError(f"planner.{key} = {value[key]!r}: choose one of {', '.join(choices)}")
-    return tuple((k, value.get(k, v)) for k, v in PLANNER_SETTINGS.items())
+    settings = tuple((k, value.get(k, v)) for k, v in PLANNER_SETTINGS.items())
+    try:  # PlannerConfig checks its own fields; the study names where they came from
+        PlannerConfig(**dict(settings))
+    except ValueError as exc:
+        raise ValueError(f"planner.{exc}") from None
+    return settings
 
 
 def parse_study(
