@@ -43,6 +43,8 @@ import casadi as ca
 import numpy as np
 
 from corrections_sim.planning import compiled
+from corrections_sim.planning.clearance import CertifiedChecker
+from corrections_sim.planning.clearance import library_key as clearance_library_key
 from corrections_sim.planning.compiled import build_shared_library
 from corrections_sim.planning.features import (
     check_feature_names,
@@ -147,6 +149,9 @@ class PlannerConfig:
             docstring).
         warm: how a warm start (one initial trajectory) is re-solved, one of
             :data:`WARM_MODES`; not part of the build.
+        certificate: skip MuJoCo's collision check of a plan where the compiled clearance
+            certificate proves it would find no contact (:mod:`.clearance`; never changes an
+            answer; needs ``jit``); not part of the build.
     """
 
     features: tuple[str, ...] = ("laptop", "table")
@@ -158,6 +163,7 @@ class PlannerConfig:
     jit: bool = True
     solver: str = "fatrop"
     warm: str = "solver"
+    certificate: bool = True
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "features", check_feature_names(self.features))
@@ -175,6 +181,8 @@ class PlannerConfig:
             raise ValueError("max_iter and tol must be positive")
         if self.solver not in SOLVERS:
             raise ValueError(f"solver = {self.solver!r} must be one of {', '.join(SOLVERS)}")
+        if not isinstance(self.certificate, bool | np.bool_):
+            raise ValueError(f"certificate = {self.certificate!r} must be true or false")
         if self.warm not in WARM_MODES:
             raise ValueError(f"warm = {self.warm!r} must be one of {', '.join(WARM_MODES)}")
         if self.solver == "fatrop" and self.n_waypoints < 4:
@@ -408,7 +416,7 @@ def best_start(
     starts: Sequence[np.ndarray],
     arguments: dict,
     trajectory: Callable[[np.ndarray], np.ndarray],
-    checker: CollisionChecker,
+    checker: CollisionChecker | CertifiedChecker,
     env: Environment,
 ) -> tuple[tuple[float, np.ndarray, str, int] | None, list[str]]:
     """Solve from each start ``x0``; keep the lowest objective that converged and that
@@ -512,6 +520,9 @@ class Planner:
         self._lbx = np.tile(lo, n)
         self._ubx = np.tile(hi, n)
         self._checker = CollisionChecker()
+        if self.config.certificate and self.config.jit:
+            library = cache_dir() / f"clearance-{clearance_library_key()}.so"
+            self._checker = CertifiedChecker(self._checker, library)
         self._ipopt: ca.Function | None = None
         self._newton: NewtonPath | None = None
         if self.config.solver == "ipopt":

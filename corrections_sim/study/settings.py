@@ -218,7 +218,7 @@ class FigureSettings:
     Attributes:
         study: learners, user, prior, counts (see :class:`StudySettings`).
         planner: planner settings as (name, value) pairs, passed to ``PlannerConfig``
-            (``n_starts``, the multi-start count, ``solver`` and ``warm``).
+            (``n_starts``, the multi-start count, ``solver``, ``warm`` and ``certificate``).
         features: the features θ weighs, in order (k of them).
         environments: "paper" (the 48), or paper environment names and specs of the user's own
             (see :mod:`corrections_sim.study.schema`).
@@ -232,6 +232,7 @@ class FigureSettings:
         ("n_starts", 1),
         ("solver", "fatrop"),
         ("warm", "solver"),
+        ("certificate", True),
     )
     features: tuple[str, ...] = ("laptop", "table")
     environments: Environments = "paper"
