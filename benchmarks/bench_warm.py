@@ -148,7 +148,7 @@ def run_bench(problems: Sequence[WarmProblem], repeats: int = 2) -> list[str]:
         "|---|---|---|---|---|---|",
     ]
     reference = PATHS[0][0]
-    for label, planner in planners.items():
+    for label in planners:
         t = times[label] * 1e3
         by = (
             f"Newton {newton.sum()}, solver {len(problems) - newton.sum()}"
