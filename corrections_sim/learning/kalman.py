@@ -316,7 +316,10 @@ def vb_ukf_update(
 
     Args:
         belief: prior belief N(θ̂ᵗ, Pᵗ) with ``belief.noise`` the posterior over N so far.
-        observe, phi_human, sigma, reference: as in :func:`ukf_update`.
+        observe: as in :func:`ukf_update`.
+        phi_human: as in :func:`ukf_update`.
+        sigma: as in :func:`ukf_update`.
+        reference: as in :func:`ukf_update`.
         noise: the process noise M (``noise.process``).
         iterations: fixed-point iterations (≥ 1).
 

@@ -86,7 +86,8 @@ class NewtonPath:
         terms: the planner's :class:`~.planner.TrajectoryTerms`.
         smoothness: λ.
         names: the features θ weighs.
-        lower, upper: joint limits of the free waypoints, (7 (T − 2),) each.
+        lower: lower joint limits of the free waypoints, (7 (T − 2),).
+        upper: upper joint limits of the free waypoints, (7 (T − 2),).
         library: where the compiled function lives (None: do not compile).
     """
 
