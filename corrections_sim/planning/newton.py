@@ -38,7 +38,7 @@ from pathlib import Path
 
 import casadi as ca
 import numpy as np
-from scipy.linalg.lapack import dpbtrf, dpbtrs
+from scipy.linalg.lapack import dpbtrf, dpbtrs, dposv
 
 from corrections_sim.planning import compiled
 from corrections_sim.planning.compiled import Compiled, compile_library
@@ -173,8 +173,9 @@ class NewtonPath:
         if active.size == 1:  # multipliers at x0 for the new θ (least squares)
             row = ja[0]
             mu[active] = row @ g / (row @ row) if row @ row > 0 else 0.0
-        elif active.size:
-            mu[active] = np.linalg.lstsq(ja.T, g, rcond=None)[0]
+        elif active.size:  # normal equations (a few rows), least squares if singular
+            _, solved, info = dposv(ja @ ja.T, ja @ g)
+            mu[active] = solved if info == 0 else np.linalg.lstsq(ja.T, g, rcond=None)[0]
         if _inf_norm(g - ja.T @ mu[active]) > GATE:
             return None  # θ moved too far for a few Newton steps (measured: 7% would pass)
         f, grad, c, jac, hess_nz = self.terms(x, p, mu)
@@ -288,10 +289,17 @@ def _kkt_step(band, dense, ja, grad, c_active):
                 return None
             mu = np.array([(ja[0] @ wg - c_active[0]) / schur])
             d = y[:, 0] * mu[0] - wg
-        elif m:
-            try:
-                mu = np.linalg.solve(ja @ y, ja @ wg - c_active)
-            except np.linalg.LinAlgError:
+        elif m == 2:  # two: Cramer's rule on the 2 × 2 Schur complement (positive definite)
+            (a, b), (c, e) = ja @ y
+            r = ja @ wg - c_active
+            det = a * e - b * c
+            if not (a > 0 and det > 0):
+                return None
+            mu = np.array([e * r[0] - b * r[1], a * r[1] - c * r[0]]) / det
+            d = y @ mu - wg
+        elif m:  # the Schur complement is positive definite: LAPACK's Cholesky solve
+            _, mu, info = dposv(ja @ y, ja @ wg - c_active)
+            if info != 0:
                 return None
             d = y @ mu - wg
         else:
