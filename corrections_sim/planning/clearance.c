@@ -117,25 +117,6 @@ static int tables(const int *mi, const double *md, Tables *t)
     return 0;
 }
 
-/* World poses of the frames at q, and each capsule's ends and each frame's sphere centre. */
-static void place(const Tables *t, const double *q, Pose *frames, double *ends, double *centres)
-{
-    int f, c;
-    Pose base;
-    for (f = 0; f < 9; ++f) base.R[f] = t->base[f];
-    for (f = 0; f < 3; ++f) base.p[f] = t->base[9 + f];
-    for (f = 0; f < t->n_frames; ++f) {
-        compose(f == 0 ? &base : &frames[f - 1], t->offsets + 12 * f, q[f], &frames[f]);
-        to_world(&frames[f], t->spheres + 4 * f, centres + 3 * f);
-    }
-    for (c = 0; c < t->n_caps; ++c) {
-        const double *cap = t->capsules + 7 * c;
-        const Pose *fr = &frames[t->cap_frame[c]];
-        to_world(fr, cap, ends + 6 * c);
-        to_world(fr, cap + 3, ends + 6 * c + 3);
-    }
-}
-
 /* The least bound of one pair of capsules: each covered by two spheres of radius r + L/4. */
 static double capsule_capsule(const Tables *t, const double *ends, int i, int j)
 {
@@ -332,9 +313,12 @@ int clearance_details(const int *mi, const double *md, const double *statics, co
     Tables t;
     Pose frames[MAX_FRAMES];
     double ends[6 * MAX_CAPSULES], centres[3 * MAX_FRAMES];
+    char placed[MAX_CAPSULES];
     int i, k, m = 0;
     if (tables(mi, md, &t) != 0) return 1;
-    place(&t, q, frames, ends, centres);
+    place_frames(&t, q, frames, centres);
+    memset(placed, 0, sizeof placed);
+    for (i = 0; i < t.n_caps; ++i) capsule_ends(&t, frames, ends, placed, i);
     for (i = 0; i < t.n_frames; ++i) {
         for (k = 0; k < 9; ++k) poses[12 * i + k] = frames[i].R[k];
         for (k = 0; k < 3; ++k) poses[12 * i + 9 + k] = frames[i].p[k];

@@ -184,6 +184,24 @@ def _covering_sphere(capsules: list[_Capsule]) -> tuple[np.ndarray, float]:
     return centre, radius * (1 + 1e-12) + 1e-12
 
 
+def _group_pairs(pairs, capsules):
+    """The geom pairs by arm frame: {(frame, static geom): capsules} and
+    {(frame, frame): capsule pairs}, lower frame first."""
+    owner = {g: i for i, c in enumerate(capsules) for g in c.geoms}
+    static_pairs: dict[tuple[int, int], set[int]] = {}
+    moving_pairs: dict[tuple[int, int], set[tuple[int, int]]] = {}
+    for g1, g2 in pairs:
+        if g1 in owner and g2 in owner:
+            i, j = sorted((owner[g1], owner[g2]))
+            fi, fj = capsules[i].frame, capsules[j].frame
+            key = (fi, fj) if fi < fj else (fj, fi)
+            moving_pairs.setdefault(key, set()).add((i, j) if fi < fj else (j, i))
+        else:
+            cap, other = (owner[g1], g2) if g1 in owner else (owner[g2], g1)
+            static_pairs.setdefault((capsules[cap].frame, other), set()).add(cap)
+    return static_pairs, moving_pairs
+
+
 class ClearanceCertificate:
     """The certificate for one :class:`CollisionChecker`'s model (see the module docstring).
 
@@ -196,6 +214,13 @@ class ClearanceCertificate:
     Raises:
         CertificateError: the model is not a chain of z hinges with sphere, capsule and
             cylinder geoms against boxes, cylinders, spheres, capsules and horizontal planes.
+
+    Attributes:
+        pairs: the geom pairs MuJoCo tests (:func:`geom_pairs`).
+        capsules: the moving geoms as capsules, each with the geoms it covers.
+        statics: the static geoms some pair meets.
+        entries: what :meth:`details` bounds, in order: ("static", capsule, geom) and
+            ("moving", capsule, capsule).
     """
 
     def __init__(self, checker: CollisionChecker, library: Path) -> None:
@@ -204,22 +229,30 @@ class ClearanceCertificate:
         data = mujoco.MjData(model)
         mujoco.mj_kinematics(model, data)
         chain = _chain(model)
-        self.nq = model.nq
+        self.nq, self.n_frames = model.nq, len(chain)
         self.capsules = _capsules(model, data, chain)
-        owner = {g: i for i, c in enumerate(self.capsules) for g in c.geoms}
         self.pairs = geom_pairs(model)
-        static_pairs: dict[tuple[int, int], set[int]] = {}
-        moving_pairs: dict[tuple[int, int], set[tuple[int, int]]] = {}
-        for g1, g2 in self.pairs:
-            if g1 in owner and g2 in owner:
-                i, j = sorted((owner[g1], owner[g2]))
-                fi, fj = self.capsules[i].frame, self.capsules[j].frame
-                key = (fi, fj) if fi < fj else (fj, fi)
-                moving_pairs.setdefault(key, set()).add((i, j) if fi < fj else (j, i))
-            else:
-                cap, other = (owner[g1], g2) if g1 in owner else (owner[g2], g1)
-                static_pairs.setdefault((self.capsules[cap].frame, other), set()).add(cap)
+        static_pairs, moving_pairs = _group_pairs(self.pairs, self.capsules)
         self.statics = sorted({s for _, s in static_pairs})
+        self._mi, self.entries = self._integer_tables(model, data, static_pairs, moving_pairs)
+        self._md = self._double_tables(model, data, chain)
+        self._placed: dict[bytes, np.ndarray] = {}
+        library = Path(library)
+        if not library.is_file():
+            build_library(library)
+        lib = ctypes.CDLL(str(library))
+        p, i, d = ctypes.c_void_p, ctypes.c_int, ctypes.c_double
+        self._bound = lib.clearance_bound
+        self._bound.restype = d
+        self._bound.argtypes = [p, p, p, p, i, i, i, d, d]
+        self._details = lib.clearance_details
+        self._details.restype = i
+        self._details.argtypes = [p, p, p, p, p, p, p]
+
+    def _integer_tables(self, model, data, static_pairs, moving_pairs):
+        """``clearance.c``'s integer table (its layout is in the C file's opening comment),
+        and the entries :meth:`details` reports, in order: ("static", capsule, geom) and
+        ("moving", capsule, capsule)."""
         kinds = []
         for g in self.statics:
             kind = int(model.geom_type[g])
@@ -231,26 +264,26 @@ class ClearanceCertificate:
                 raise CertificateError(f"static geom {g}: type {kind} has no bounding box here")
             kinds.append(1 if kind == _PLANE else 0)
         column = {g: i for i, g in enumerate(self.statics)}
-        #: The entries :meth:`details` reports, in order: ("static", capsule, geom) and
-        #: ("moving", capsule, capsule).
-        self.entries: list[tuple[str, int, int]] = []
+        entries: list[tuple[str, int, int]] = []
         fs, caps = [], []
         for (frame, geom), members in sorted(static_pairs.items()):
             fs += [frame, column[geom], len(caps), len(members)]
             caps += sorted(members)
-            self.entries += [("static", c, geom) for c in sorted(members)]
+            entries += [("static", c, geom) for c in sorted(members)]
         ff, cap_pairs = [], []
         for (f1, f2), members in sorted(moving_pairs.items()):
             ff += [f1, f2, len(cap_pairs) // 2, len(members)]
             for i, j in sorted(members):
                 cap_pairs += [i, j]
-                self.entries.append(("moving", i, j))
-        self.n_frames = len(chain)
+                entries.append(("moving", i, j))
         header = [self.n_frames, len(self.capsules), len(self.statics), len(fs) // 4, len(ff) // 4]
-        self._mi = np.array(
-            header + kinds + [c.frame for c in self.capsules] + fs + ff + caps + cap_pairs,
-            dtype=np.intc,
-        )
+        frames = [c.frame for c in self.capsules]
+        table = np.array(header + kinds + frames + fs + ff + caps + cap_pairs, dtype=np.intc)
+        return table, entries
+
+    def _double_tables(self, model, data, chain) -> np.ndarray:
+        """``clearance.c``'s table of doubles: the base frame, each frame's offset, sphere
+        and reach, each capsule."""
         base = int(model.body_weldid[model.body_parentid[chain[0]]])
         doubles = [np.array(data.xmat[base]), np.array(data.xpos[base])]
         for body in chain:
@@ -273,20 +306,7 @@ class ClearanceCertificate:
             for j in range(f + 1):
                 reach[f, j] = sum(links[j + 1 : f + 1]) + np.linalg.norm(centre) + radius
         doubles.append(reach)
-        self._md = np.concatenate([np.ravel(d) for d in doubles]).astype(float)
-        self._placed: dict[bytes, np.ndarray] = {}
-        library = Path(library)
-        if not library.is_file():
-            build_library(library)
-        lib = ctypes.CDLL(str(library))
-        p = ctypes.c_void_p
-        self._bound = lib.clearance_bound
-        self._bound.restype = ctypes.c_double
-        i, d = ctypes.c_int, ctypes.c_double
-        self._bound.argtypes = [p, p, p, p, i, i, i, d, d]
-        self._details = lib.clearance_details
-        self._details.restype = ctypes.c_int
-        self._details.argtypes = [p, p, p, p, p, p, p]
+        return np.concatenate([np.ravel(d) for d in doubles]).astype(float)
 
     def _place(self, env: Environment) -> np.ndarray:
         """The static geoms (centre, axes, half-sizes; a plane's height) in ``env``,
