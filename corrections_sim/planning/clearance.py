@@ -56,7 +56,7 @@ import numpy as np
 from corrections_sim.planning import compiled
 from corrections_sim.planning.compiled import build_shared_library
 from corrections_sim.scene.environments import Environment
-from corrections_sim.scene.world import CollisionChecker, CollisionReport
+from corrections_sim.scene.world import CollisionChecker, CollisionReport, check_waypoints
 
 #: A trajectory is certified when every bound exceeds this (metres): far above MuJoCo's
 #: narrow-phase error and the two forward kinematics' difference (≈ 1e-15 m).
@@ -229,7 +229,7 @@ class ClearanceCertificate:
         data = mujoco.MjData(model)
         mujoco.mj_kinematics(model, data)
         chain = _chain(model)
-        self.nq, self.n_frames = model.nq, len(chain)
+        self.n_frames = len(chain)
         self.capsules = _capsules(model, data, chain)
         self.pairs = geom_pairs(model)
         static_pairs, moving_pairs = _group_pairs(self.pairs, self.capsules)
@@ -344,13 +344,7 @@ class ClearanceCertificate:
         whose frames' spheres come within ``stop`` are bounded capsule by capsule, and the
         first capsule bound at or below ``stop`` is returned at once: the answer is above
         ``stop`` exactly when every pair's is."""
-        waypoints = np.ascontiguousarray(waypoints, dtype=float)
-        if waypoints.ndim != 2 or waypoints.shape[0] < 1 or waypoints.shape[1] != self.nq:
-            raise ValueError(f"waypoints: expected shape (T, {self.nq}), got {waypoints.shape}")
-        if not np.all(np.isfinite(waypoints)):
-            raise ValueError("waypoints: all values must be finite")
-        if int(substeps) != substeps or substeps < 1:
-            raise ValueError(f"substeps: expected an integer >= 1, got {substeps}")
+        waypoints, substeps = check_waypoints(waypoints, substeps)
         statics = self._place(env)
         value = self._bound(
             self._mi.ctypes.data,
@@ -358,8 +352,8 @@ class ClearanceCertificate:
             statics.ctypes.data,
             waypoints.ctypes.data,
             waypoints.shape[0],
-            self.nq,
-            int(substeps),
+            waypoints.shape[1],
+            substeps,
             np.inf if stop is None else float(stop),
             -np.inf if stop is None else float(stop),
         )

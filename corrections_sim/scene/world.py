@@ -357,6 +357,19 @@ class CollisionReport:
         return frozenset((c.body_a, c.body_b) for c in self.contacts)
 
 
+def check_waypoints(waypoints: np.ndarray, substeps: int) -> tuple[np.ndarray, int]:
+    """``waypoints`` as a C-contiguous float array (T, 7), T >= 1, all finite, and
+    ``substeps`` as an int >= 1; a ValueError names what is wrong."""
+    waypoints = np.ascontiguousarray(waypoints, dtype=float)
+    if waypoints.ndim != 2 or waypoints.shape[0] < 1 or waypoints.shape[1] != robot.N_ARM_JOINTS:
+        raise ValueError(f"waypoints: expected shape (T, 7) with T >= 1, got {waypoints.shape}")
+    if not np.all(np.isfinite(waypoints)):
+        raise ValueError("waypoints: all values must be finite")
+    if int(substeps) != substeps or substeps < 1:
+        raise ValueError(f"substeps: expected an integer >= 1, got {substeps}")
+    return waypoints, int(substeps)
+
+
 def interpolate(waypoints: np.ndarray, substeps: int) -> np.ndarray:
     """Linear joint-space interpolation of a trajectory.
 
@@ -367,14 +380,7 @@ def interpolate(waypoints: np.ndarray, substeps: int) -> np.ndarray:
     Returns:
         (S, 7) samples with ``S = (T - 1) * substeps + 1``.
     """
-    waypoints = np.asarray(waypoints, dtype=float)
-    if waypoints.ndim != 2 or waypoints.shape[0] < 1 or waypoints.shape[1] != robot.N_ARM_JOINTS:
-        raise ValueError(f"waypoints: expected shape (T, 7) with T >= 1, got {waypoints.shape}")
-    if not np.all(np.isfinite(waypoints)):
-        raise ValueError("waypoints: all values must be finite")
-    if int(substeps) != substeps or substeps < 1:
-        raise ValueError(f"substeps: expected an integer >= 1, got {substeps}")
-    substeps = int(substeps)
+    waypoints, substeps = check_waypoints(waypoints, substeps)
     if waypoints.shape[0] == 1:
         return waypoints.copy()
     s = np.arange(substeps) / substeps  # (substeps,)
