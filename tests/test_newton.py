@@ -158,6 +158,26 @@ def test_the_gate_and_a_far_start_leave_the_solve_to_the_solver(planners):
     assert got.reward == pytest.approx(reference.solve([-3.0, 3.0], env, inits=[start]).reward)
 
 
+def test_the_start_residual_is_the_gate(solved, planners):
+    """``residual`` is small at the reference plan of the same θ, grows with the θ step, and
+    Newton is never tried above the gate (the small-step benchmark gates on it too).
+    Measured at the plans: median 9e-6, at most 0.037 where fatrop leaves a clearance with
+    a multiplier above ACTIVE (its barrier's slack), so not guessed active."""
+    path, reference = planners["newton"]._newton_path(), planners["solver"]
+    at_plan, steps, residuals = [], [], []
+    for (theta_from, _, _), (theta, env, start, plan, found) in list(
+        zip(_read_fixture(), solved, strict=True)
+    )[::5]:
+        p = reference._params(theta, env)
+        at_plan.append(path.residual(plan.trajectory[1:-1].ravel(), p))
+        residuals.append(path.residual(start[1:-1].ravel(), p))
+        steps.append(np.linalg.norm(theta - theta_from))
+        if residuals[-1] > newton.GATE:
+            assert found is None
+    assert np.median(at_plan) < 1e-4 and max(at_plan) < 0.1 * newton.GATE
+    assert np.corrcoef(steps, residuals)[0, 1] > 0.9  # measured 0.98
+
+
 def test_the_warm_mode_is_checked_and_named_in_a_study():
     from corrections_sim.figures import learning
 

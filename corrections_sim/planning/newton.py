@@ -35,6 +35,7 @@ import inspect
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
+from typing import NamedTuple
 
 import casadi as ca
 import numpy as np
@@ -66,6 +67,20 @@ SLOW_AFTER, SLOW = 3, 1e-1
 #: 600 warm problems from fig. 4, 7% of those above it were accepted (35 problems, median
 #: |Δθ| 0.7), 99% of those below 0.1.
 GATE = 1.0
+
+
+class _Start(NamedTuple):
+    """:meth:`NewtonPath._start`: x with held joints on their limits, which joints sit on a
+    lower limit and which on any, the free ones, the guessed active set, its multipliers and
+    the stationarity residual."""
+
+    x: np.ndarray
+    on_lower: np.ndarray
+    held: np.ndarray
+    free: np.ndarray
+    active: np.ndarray
+    mu: np.ndarray
+    residual: float
 
 
 @dataclass(frozen=True)
@@ -153,9 +168,9 @@ class NewtonPath:
             band[d, : free.size - d] = np.diagonal(w, -d)
         return band
 
-    def solve(self, x0: np.ndarray, p: np.ndarray) -> NewtonSolution | None:
-        """Newton from the free waypoints ``x0`` for parameters ``p`` = (θ, e, q_start,
-        q_goal); None when the answer cannot be certified as a strict local minimum."""
+    def _start(self, x0: np.ndarray, p: np.ndarray) -> _Start:
+        """The start of a re-solve: joints on a limit held there, the guessed active set, its
+        multipliers for the new θ (least squares) and the stationarity residual they leave."""
         x = np.array(x0, dtype=float)
         lower, upper = self.lower, self.upper
         on_lower = x - lower < AT_BOUND
@@ -163,20 +178,33 @@ class NewtonPath:
         held = on_lower | on_upper
         x[on_lower], x[on_upper] = lower[on_lower], upper[on_upper]
         free = np.flatnonzero(~held)
-        all_free = free.size == self.n
         mu = np.zeros(self.n_c)
         grad, c, jac_nz = self._first(x, p)
         active = np.flatnonzero(c < ACTIVE)
         jac = self._jacobian(jac_nz)
-        ja = jac[active] if all_free else jac[np.ix_(active, free)]
-        g = grad if all_free else grad[free]
+        ja = jac[active] if free.size == self.n else jac[np.ix_(active, free)]
+        g = grad if free.size == self.n else grad[free]
         if active.size == 1:  # multipliers at x0 for the new θ (least squares)
             row = ja[0]
             mu[active] = row @ g / (row @ row) if row @ row > 0 else 0.0
         elif active.size:  # normal equations (a few rows), least squares if singular
             _, solved, info = dposv(ja @ ja.T, ja @ g)
             mu[active] = solved if info == 0 else np.linalg.lstsq(ja.T, g, rcond=None)[0]
-        if _inf_norm(g - ja.T @ mu[active]) > GATE:
+        residual = _inf_norm(g - ja.T @ mu[active])
+        return _Start(x, on_lower, held, free, active, mu, residual)
+
+    def residual(self, x0: np.ndarray, p: np.ndarray) -> float:
+        """How far the start ``x0`` is from stationary for parameters ``p``: the gate's
+        ‖∇f − J_𝒜ᵀμ‖∞ with the least-squares multipliers of its guessed active set (near 0 at
+        the plan of the same θ; above :data:`GATE`, Newton is not tried)."""
+        return self._start(x0, p).residual
+
+    def solve(self, x0: np.ndarray, p: np.ndarray) -> NewtonSolution | None:
+        """Newton from the free waypoints ``x0`` for parameters ``p`` = (θ, e, q_start,
+        q_goal); None when the answer cannot be certified as a strict local minimum."""
+        x, on_lower, held, free, active, mu, residual = self._start(x0, p)
+        all_free = free.size == self.n
+        if residual > GATE:
             return None  # θ moved too far for a few Newton steps (measured: 7% would pass)
         f, grad, c, jac, hess_nz = self.terms(x, p, mu)
         since_change = 0
