@@ -479,6 +479,18 @@ def main(argv: Sequence[str] | None = None) -> None:
         help="fig4: the solver of the paper-scale run (default: the planner's default)",
     )
     parser.add_argument(
+        "--breakdown",
+        action="store_true",
+        help="warm: where a fig. 4 run's time goes in each warm mode (--slice-runs runs of "
+        "every learner at paper settings, one worker): solves by kind, the rest",
+    )
+    parser.add_argument(
+        "--small-step",
+        action="store_true",
+        help="warm: time fatrop's small-step options (issue 22) against its defaults, gated "
+        "by the start's stationarity residual, instead of the warm paths",
+    )
+    parser.add_argument(
         "--warm",
         choices=WARM_MODES,
         help="fig4: how warm starts are re-solved (default: the planner's, solver); newton "
@@ -492,7 +504,18 @@ def main(argv: Sequence[str] | None = None) -> None:
         n = 300 if args.problems is None else args.problems
         if n < 1:
             parser.error("--problems must be >= 1")
-        print("\n".join(run_warm(sample(n, seed=7 if args.seed is None else args.seed))))
+        if args.breakdown:
+            from benchmarks.bench_warm import run_breakdown
+
+            print("\n".join(run_breakdown(args.slice_runs, 0 if args.seed is None else args.seed)))
+            return
+        problems = sample(n, seed=7 if args.seed is None else args.seed)
+        if args.small_step:
+            from benchmarks.bench_warm import run_small_step
+
+            print("\n".join(run_small_step(problems)))
+        else:
+            print("\n".join(run_warm(problems)))
         return
     args.problems = 60 if args.problems is None else args.problems
     args.seed = 0 if args.seed is None else args.seed

@@ -11,6 +11,11 @@ the solver and MuJoCo's check; the solver with the clearance certificate; Newton
 interleaved problem by problem so that all see the same machine, and prints the times, how
 often the Newton path certified its answer and the certificate spared MuJoCo's check, and
 each path's reward against the reference path's from the same start. It never asserts.
+
+``bench warm --small-step`` measures instead the small-step fatrop options that issue 22
+proposed for small θ steps (:data:`SMALL_STEP`), gated by the start's stationarity residual
+(:meth:`~corrections_sim.planning.newton.NewtonPath.residual`): iterations, fatrop's time
+and the answers against fatrop's default options from the same start.
 """
 
 from __future__ import annotations
@@ -26,7 +31,14 @@ from pathlib import Path
 import numpy as np
 
 from corrections_sim.planning import plans
-from corrections_sim.planning.planner import Planner, PlannerConfig, PlanningError
+from corrections_sim.planning.planner import (
+    Planner,
+    PlannerConfig,
+    PlanningError,
+    _fatrop_options,
+    _load_solver,
+    stage_nlp,
+)
 from corrections_sim.scene.environments import paper_environments
 
 #: The learners whose runs the problems come from (fig. 4's filters and BP: every kind of
@@ -184,6 +196,129 @@ def run_bench(problems: Sequence[WarmProblem], repeats: int = 2) -> list[str]:
         f"Newton-answered problems: {times[newton_label][newton].mean() * 1e3:.3f} ms against "
         f"{times[reference][newton].mean() * 1e3:.3f} ms by the reference path",
     ]
+    return lines
+
+
+def run_breakdown(runs: int, seed: int, modes: Sequence[str] = ("solver", "newton")) -> list[str]:
+    """Where a fig. 4 run's time goes, per warm mode: ``runs`` runs of every learner at paper
+    settings on one worker thread, every planner solve timed by how it started (cold: the
+    planner's guesses; warm: one start) and what answered it; the rest is outside the
+    planner (learners, users, records)."""
+    from corrections_sim.figures import learning
+    from corrections_sim.planning import planner as planner_module
+    from corrections_sim.study import runner
+
+    lines = [
+        f"fig. 4 at paper settings, {runs} runs of every learner (seed {seed}), one worker",
+        "",
+        "| warm mode | solves by kind and answer: count, total, each | outside the planner "
+        "| wall |",
+        "|---|---|---|---|",
+    ]
+    original = planner_module.Planner.solve
+    for mode in modes:
+        tally: dict[tuple[str, str], list[float]] = {}
+
+        def timed(self, theta, env, inits=None, _tally=tally):
+            t0 = time.perf_counter()
+            answer = "failed"
+            try:
+                plan = original(self, theta, env, inits)
+                answer = plan.solver
+                return plan
+            finally:
+                kind = "cold" if inits is None else ("warm" if len(inits) == 1 else "starts")
+                entry = _tally.setdefault((kind, answer), [0, 0.0])
+                entry[0] += 1
+                entry[1] += time.perf_counter() - t0
+
+        overrides = {"runs": runs, "seed": seed, "set": [f"planner.warm={mode}"]}
+        settings = learning.load_settings("fig4", quick=False, overrides=overrides)
+        planner_module.Planner.solve = timed
+        t0 = time.perf_counter()
+        try:
+            with ThreadPoolExecutor(max_workers=1) as executor:
+                runner.run(settings, executor, mean_estimate=False)
+        finally:
+            planner_module.Planner.solve = original
+        wall = time.perf_counter() - t0
+        kinds = "; ".join(
+            f"{kind} by {answer}: {n}, {t:.1f} s, {t / n * 1e3:.2f} ms"
+            for (kind, answer), (n, t) in sorted(tally.items())
+        )
+        inside = sum(t for _, t in tally.values())
+        lines.append(f"| {mode} | {kinds} | {wall - inside:.1f} s | {wall:.1f} s |")
+    return lines
+
+
+#: fatrop options for a warm start near the optimum (issue 22): start the barrier small and the
+#: slacks where the start puts them.
+SMALL_STEP = {"mu_init": 1e-7, "bound_push": 1e-8, "bound_frac": 1e-8}
+#: Gates on the start's stationarity residual below which the options are tried.
+SMALL_STEP_GATES = (0.1, 0.3, 1.0)
+
+
+def run_small_step(problems: Sequence[WarmProblem], repeats: int = 2) -> list[str]:
+    """fatrop with :data:`SMALL_STEP` against its default options, from each problem's start,
+    per gate of :data:`SMALL_STEP_GATES` (the last of ``repeats`` passes is timed). A gated
+    solve uses the options where the start's residual is at most the gate and falls back to
+    the defaults when they fail; "worse" counts answers more than 1e-6 above the defaults'
+    objective, the issue's bar for a fast path."""
+    envs = paper_environments()
+    cfg = PlannerConfig(n_starts=1)
+    planner = Planner(cfg)
+    newton = Planner(PlannerConfig(n_starts=1, warm="newton"))._newton_path()
+    n_free = cfg.n_waypoints - 2
+    solvers = {"default": planner._fatrop}
+    options = _fatrop_options(cfg, n_free)
+    options["fatrop"].update(SMALL_STEP)
+    nlp = stage_nlp(cfg)
+    solvers["small-step"] = _load_solver("trajopt_small_step", "fatrop", nlp, options, cfg)
+    starts = [planner._to_stages(p.start[1:-1].ravel()) for p in problems]
+    params = [planner._params(p.theta, envs[p.env_index]) for p in problems]
+    residual = np.array(
+        [newton.residual(p.start[1:-1].ravel(), q) for p, q in zip(problems, params, strict=True)]
+    )
+    out = {}
+    for name, solver in solvers.items():
+        for _ in range(repeats):
+            rows = []
+            for w0, q in zip(starts, params, strict=True):
+                t0 = time.perf_counter()
+                sol = solver(x0=w0, p=q, **planner._stage_bounds)
+                elapsed = time.perf_counter() - t0
+                stats = solver.stats()
+                rows.append((stats["iter_count"], stats["success"], float(sol["f"]), elapsed))
+        out[name] = np.array(rows, dtype=float)
+    d, s = out["default"], out["small-step"]
+    steps = np.array([np.linalg.norm(p.theta - p.theta_from) for p in problems])
+    lines = [
+        f"{len(problems)} warm problems; fatrop's default options: {d[:, 0].mean():.1f} "
+        f"iterations, {d[:, 3].mean() * 1e3:.3f} ms mean; small-step options {SMALL_STEP}",
+        "",
+        "| gate: residual <= | problems gated | iterations there (default -> small-step) "
+        "| small-step failures | worse by > 1e-6 | fatrop mean, all problems (ms) |",
+        "|---|---|---|---|---|---|",
+    ]
+    ok = (d[:, 1] > 0) & (s[:, 1] > 0)
+    gap = np.where(ok, s[:, 2] - d[:, 2], 0.0)
+    for gate in SMALL_STEP_GATES:
+        m = residual <= gate
+        failed = m & (s[:, 1] == 0)
+        gated = np.where(m, s[:, 3] + np.where(failed, d[:, 3], 0.0), d[:, 3])
+        lines.append(
+            f"| {gate} | {m.sum()} | {d[m, 0].mean():.1f} -> {s[m, 0].mean():.1f} | "
+            f"{failed.sum()} | {(m & (gap > 1e-6)).sum()} | {d[:, 3].mean() * 1e3:.3f} -> "
+            f"{gated.mean() * 1e3:.3f} |"
+        )
+    lines.append("")
+    for i in np.flatnonzero(gap > 1e-6):
+        answer = newton.solve(problems[i].start[1:-1].ravel(), params[i])
+        by_newton = "rejected" if answer is None else f"{answer.objective - d[i, 2]:+.2e}"
+        lines.append(
+            f"problem {i}: residual {residual[i]:.3f}, |Δθ| {steps[i]:.3f}: small-step "
+            f"{gap[i]:+.2e} against the defaults' objective; the Newton path: {by_newton}"
+        )
     return lines
 
 
