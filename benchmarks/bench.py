@@ -504,8 +504,13 @@ def main(argv: Sequence[str] | None = None) -> None:
         n = 300 if args.problems is None else args.problems
         if n < 1:
             parser.error("--problems must be >= 1")
+        if args.breakdown and args.small_step:
+            parser.error("--breakdown and --small-step are two benchmarks: give one")
         if args.breakdown:
             from benchmarks.bench_warm import run_breakdown
+
+            if args.slice_runs < 1:
+                parser.error("--slice-runs must be >= 1")
 
             print("\n".join(run_breakdown(args.slice_runs, 0 if args.seed is None else args.seed)))
             return
