@@ -507,10 +507,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         if args.breakdown and args.small_step:
             parser.error("--breakdown and --small-step are two benchmarks: give one")
         if args.breakdown:
-            from benchmarks.bench_warm import run_breakdown
-
             if args.slice_runs < 1:
                 parser.error("--slice-runs must be >= 1")
+            from benchmarks.bench_warm import run_breakdown
 
             print("\n".join(run_breakdown(args.slice_runs, 0 if args.seed is None else args.seed)))
             return
