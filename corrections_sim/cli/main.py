@@ -723,6 +723,13 @@ def parser() -> argparse.ArgumentParser:
         help="start each solve from the run's nearest solved θ (faster; results move at the "
         "solver's tolerance, see README)",
     )
+    g.add_argument(
+        "--online",
+        action="store_true",
+        default=None,
+        help="learn during the motion: a physical user's push updates the learner and the robot "
+        "replans the rest of the motion (= --set online=true)",
+    )
     v = p.add_argument_group("video (reads OUT/<figure>/curves.csv of a finished fig4/fig5)")
     v.add_argument("--from", dest="source", metavar="FIG", help="fig4 or fig5 (default fig4)")
     v.add_argument(

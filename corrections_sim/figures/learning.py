@@ -91,6 +91,7 @@ OPTIONS = (
     "correction_waypoints",
     "fixed_alpha",
     "warm_start",
+    "online",
     "solver",
 )
 

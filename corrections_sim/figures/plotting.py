@@ -654,3 +654,93 @@ def plot_robustness_matrix(rows: Sequence[dict], title: str, paths) -> None:
     )
     fig.suptitle(title, fontsize=11)
     _save_and_close(fig, paths, dpi=150)
+
+
+def plot_physical(curves: dict, tasks: dict, k: int, title: str, paths) -> None:
+    """The physical-corrections figure: estimate error and regret against corrections per
+    learner (solid: the physical person, dashed: the other columns' users), the regret of
+    the motion the person got per correction (solid: online replanning, dotted: the plan kept
+    after the push, same pushes) and the mean NEES (log, calibrated band shaded).
+
+    Args:
+        curves: user label -> ``analysis.curves`` (learner -> metric -> (runs, T + 1)).
+        tasks: user label -> learner -> per-task column -> (runs, T).
+        k: θ's dimension (NEES's calibrated mean).
+    """
+    from corrections_sim.calibration import mean_band
+
+    users = list(curves)
+    physical = [
+        u
+        for u in users
+        if any(
+            np.isfinite(v["executed_regret"]).any()
+            for v in tasks[u].values()
+            if v["executed_regret"].size
+        )
+    ]
+    learners = list(dict.fromkeys(n for u in users for n in curves[u]))
+    # One colour per learner (learner_style gives KF-C KF's colour, dashed; here dashes mark
+    # the user).
+    palette = {n: plt.cm.tab10(i % 10) for i, n in enumerate(learners)}
+    fig, axes = plt.subplots(2, 2, figsize=(13, 8.6))
+    panels = (
+        (axes[0, 0], "estimate_error", "estimate error ‖θ̂ − θ*‖₁"),
+        (axes[0, 1], "regret", "regret of the next plans, Σ over environments"),
+    )
+    for ax, key, label in panels:
+        for user in users:
+            dashes = "-" if user in physical else "--"
+            for learner, values in curves[user].items():
+                colour = palette[learner]
+                mean, sem = mean_sem(values[key])
+                x = np.arange(mean.size)
+                ax.plot(
+                    x, mean, dashes, color=colour, lw=1.8, label=f"{learner_label(learner)}, {user}"
+                )
+                ax.fill_between(x, mean - sem, mean + sem, color=colour, alpha=0.15, lw=0)
+        ax.set_xlabel("corrections")
+        ax.set_title(label, fontsize=10)
+        ax.grid(alpha=0.3)
+    axes[0, 0].legend(fontsize=7, ncol=2)
+    ax = axes[1, 0]
+    for user in physical:
+        for learner, columns in tasks[user].items():
+            colour = palette[learner]
+            for key, style, what in (
+                ("executed_regret", "-", "online"),
+                ("executed_regret_kept", ":", "plan kept"),
+            ):
+                values = columns[key]
+                if values.size == 0 or not np.isfinite(values).any():
+                    continue
+                mean, sem = mean_sem(values)
+                x = np.arange(1, mean.size + 1)
+                ax.plot(
+                    x, mean, style, color=colour, lw=1.8, label=f"{learner_label(learner)}, {what}"
+                )
+                ax.fill_between(x, mean - sem, mean + sem, color=colour, alpha=0.12, lw=0)
+    ax.set_xlabel("correction (task)")
+    ax.set_title("regret of the executed motion in the task's environment", fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, ncol=2)
+    ax = axes[1, 1]
+    for user in users:
+        dashes = "-" if user in physical else "--"
+        for learner, values in curves[user].items():
+            nees = values["nees"]
+            if not np.isfinite(nees).any():
+                continue
+            colour = palette[learner]
+            mean = np.nanmean(nees, axis=0)
+            ax.plot(np.arange(mean.size), mean, dashes, color=colour, lw=1.8)
+        runs = next(iter(curves[user].values()))["nees"].shape[0]
+    low, high = mean_band(k, runs)
+    ax.axhspan(low, high, color="0.6", alpha=0.25, lw=0, label="calibrated band (95%)")
+    ax.set_yscale("log")
+    ax.set_xlabel("corrections")
+    ax.set_title("mean NEES (solid: physical person, dashed: kinematic user)", fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.suptitle(title, fontsize=11)
+    _save_and_close(fig, paths, dpi=110)

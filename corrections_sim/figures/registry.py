@@ -32,6 +32,7 @@ BUILT_IN = (
     "corrections_sim.figures.deployment",
     "corrections_sim.figures.learning",
     "corrections_sim.figures.robustness",
+    "corrections_sim.figures.physical",
 )
 
 #: Options every figure takes (the command line's own: where, how big, which executor).

@@ -36,7 +36,7 @@ from corrections_sim.study.settings import FigureSettings
 
 FIGURE = "fig6"
 #: Keys a column may set; everything else is shared by all columns.
-COLUMN_KEYS = ("label", "user")
+COLUMN_KEYS = ("label", "user", "online")
 #: Options that set the user: refused, the columns are the users.
 USER_OPTIONS = ("user", "user_step", "user_waypoints")
 
@@ -63,26 +63,31 @@ class RobustnessSettings:
         return {c.label: c.settings.as_dict() for c in self.columns}
 
 
-def load_settings(*, quick: bool, overrides: dict | None = None) -> RobustnessSettings:
-    """Settings of fig. 6 from ``experiments/fig6.toml``; ``overrides`` apply to every column
-    (the user cannot be overridden: the columns are the users).
+def load_settings(
+    *, quick: bool, overrides: dict | None = None, figure: str = FIGURE
+) -> RobustnessSettings:
+    """Settings of fig. 6 from ``experiments/fig6.toml`` (or of another matrix of users,
+    ``experiments/<figure>.toml``); ``overrides`` apply to every column (the user cannot be
+    overridden: the columns are the users).
 
     Raises:
         ValueError: a bad value, named as ``columns[i].key`` or by its key path.
     """
     keys = (*schema.STUDY_KEYS, *schema.LEGACY_KEYS, "columns")
-    values = schema.read(EXPERIMENTS_DIR / f"{FIGURE}.toml", quick=quick, keys=keys)
+    values = schema.read(EXPERIMENTS_DIR / f"{figure}.toml", quick=quick, keys=keys)
     columns = values.pop("columns", None)
     if not isinstance(columns, list) or not columns:
         raise ValueError("columns: expected a non-empty list of [[columns]] tables")
     given = {k: v for k, v in (overrides or {}).items() if v is not None}
     for key in USER_OPTIONS:
         if key in given:
-            raise ValueError(f"{key}: fig6's columns are its users; set them in fig6.toml")
+            raise ValueError(f"{key}: {figure}'s columns are its users; set them in {figure}.toml")
     if any(item.partition("=")[0].strip().startswith("user") for item in given.get("set", ())):
-        raise ValueError("--set user…: fig6's columns are its users; set them in fig6.toml")
+        raise ValueError(
+            f"--set user…: {figure}'s columns are its users; set them in {figure}.toml"
+        )
     if "user" in values:
-        raise ValueError("user: fig6's columns are its users; give each [[columns]] its user")
+        raise ValueError(f"user: {figure}'s columns are its users; give each [[columns]] its user")
     values = schema.apply_overrides(values, given)
     out, labels = [], set()
     for i, column in enumerate(columns):
@@ -90,7 +95,9 @@ def load_settings(*, quick: bool, overrides: dict | None = None) -> RobustnessSe
             raise ValueError(f"columns[{i}]: expected a table with label and user")
         unknown = sorted(set(column) - set(COLUMN_KEYS))
         if unknown:
-            raise ValueError(f"columns[{i}].{unknown[0]}: unknown key (a column takes label, user)")
+            raise ValueError(
+                f"columns[{i}].{unknown[0]}: unknown key (a column takes {', '.join(COLUMN_KEYS)})"
+            )
         label = column.get("label")
         if not isinstance(label, str) or not label or label in labels:
             raise ValueError(f"columns[{i}].label: expected a distinct non-empty name")
@@ -98,7 +105,8 @@ def load_settings(*, quick: bool, overrides: dict | None = None) -> RobustnessSe
             raise ValueError(f"columns[{i}].user: missing (a name or a table with its parameters)")
         labels.add(label)
         try:
-            settings = schema.parse_study({**values, "user": column["user"]})
+            extra = {"online": column["online"]} if "online" in column else {}
+            settings = schema.parse_study({**values, "user": column["user"], **extra})
         except ValueError as exc:
             raise ValueError(f"columns[{i}] ({label}): {exc}") from None
         out.append(Column(label=label, settings=settings))

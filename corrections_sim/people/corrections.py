@@ -84,6 +84,21 @@ def waypoint_correction(
 
 
 @functools.cache
+def jerk_inverse(n_waypoints: int) -> np.ndarray:
+    """A⁻¹ (T, T) of the minimum-jerk deformation, zero in the rows and columns of the fixed
+    start and goal: A = KᵀK over the T − 2 free waypoints, K the full-convolution third
+    difference [−1, 3, −3, 1] (T + 1 rows), so A is symmetric positive definite."""
+    free = n_waypoints - 2
+    k = np.zeros((free + 3, free))
+    for j in range(free):
+        k[j : j + 4, j] = (-1.0, 3.0, -3.0, 1.0)
+    out = np.zeros((n_waypoints, n_waypoints))
+    out[1:-1, 1:-1] = np.linalg.inv(k.T @ k)
+    out.setflags(write=False)
+    return out
+
+
+@functools.cache
 def deformation_shapes(n_waypoints: int) -> np.ndarray:
     """Columns A⁻¹eᵢ / (A⁻¹)ᵢᵢ of the minimum-jerk deformation, shape (T, T).
 
@@ -92,13 +107,10 @@ def deformation_shapes(n_waypoints: int) -> np.ndarray:
     A = KᵀK over the T − 2 free waypoints, K the full-convolution third difference
     [−1, 3, −3, 1] (T + 1 rows), so A is symmetric positive definite.
     """
-    free = n_waypoints - 2
-    k = np.zeros((free + 3, free))
-    for j in range(free):
-        k[j : j + 4, j] = (-1.0, 3.0, -3.0, 1.0)
-    inverse = np.linalg.inv(k.T @ k)
-    shapes = np.zeros((n_waypoints, n_waypoints))
-    shapes[1:-1, 1:-1] = inverse / np.diag(inverse)[None, :]
+    inverse = jerk_inverse(n_waypoints)
+    diagonal = np.diag(inverse).copy()
+    diagonal[[0, -1]] = 1.0  # start and goal columns are zero
+    shapes = inverse / diagonal[None, :]
     shapes.setflags(write=False)
     return shapes
 
@@ -119,6 +131,33 @@ def deformation_correction(
     i = int(worst_waypoints(robot, intended, 1)[0])
     shape = deformation_shapes(robot.shape[0])[:, i]
     return robot + step * np.outer(shape, intended[i] - robot[i])
+
+
+def held_deformation(robot: np.ndarray, held: np.ndarray) -> np.ndarray:
+    """ξ_H = ξ_R + μ A⁻¹ Ũ (Losey & O'Malley, T-RO 2018), shape (T, n).
+
+    Args:
+        robot: the robot's trajectory ξ_R, (T, n).
+        held: Ũ (T, n): at each waypoint where the person held the arm, where they held it
+            relative to ξ_R (rows of zeros elsewhere; start and goal rows are ignored).
+
+    μ is the least-squares fit of the deformation at the held waypoints to Ũ there, so the
+    trajectory goes where the person held it and the rest follows the minimum-jerk shape of
+    :func:`deformation_shapes`. With one held waypoint i this is
+    :func:`deformation_correction` toward ξ_R + Ũ (μ = 1 / (A⁻¹)ᵢᵢ).
+    """
+    robot = np.asarray(robot, dtype=float)
+    held = np.array(held, dtype=float)
+    if held.shape != robot.shape or robot.ndim != 2 or robot.shape[0] < 3:
+        raise ValueError(f"held {held.shape}: expected the robot trajectory's shape {robot.shape}")
+    held[[0, -1]] = 0.0
+    rows = np.flatnonzero(np.any(held != 0.0, axis=1))
+    if rows.size == 0:
+        return robot.copy()
+    direction = jerk_inverse(robot.shape[0]) @ held
+    scale = float(np.sum(direction[rows] ** 2))
+    mu = float(np.sum(direction[rows] * held[rows])) / scale if scale > 0 else 0.0
+    return robot + mu * direction
 
 
 def _check_count(count: int, n_waypoints: int) -> int:

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import abc
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import numpy as np
@@ -66,6 +66,26 @@ class Situation:
     theta_star: np.ndarray
 
 
+@dataclass(frozen=True, eq=False)
+class TaskOutcome:
+    """What one task of a user gave: the correction's features, and for a user who corrects
+    during the motion (:mod:`corrections_sim.people.physical`) the motion the person got.
+
+    Attributes:
+        phi_h: Φ(ξ_h, E), shape (k,), what the learners see.
+        executed: the executed motion at the plan's waypoint times (T, 7), or None (a user who
+            corrects a plan rather than a motion).
+        executed_kept: with online replanning, the motion the robot would have made had it kept
+            its plan after the push (T, 7), from the same state; else None.
+        extras: per-task numbers for the records (``effort``, ``push_time``, …).
+    """
+
+    phi_h: np.ndarray
+    executed: np.ndarray | None = None
+    executed_kept: np.ndarray | None = None
+    extras: Mapping[str, float] = field(default_factory=dict)
+
+
 class User(abc.ABC):
     """A simulated user: turns the robot's trajectory into a correction.
 
@@ -77,6 +97,9 @@ class User(abc.ABC):
     """
 
     stochastic: ClassVar[bool] = False
+    #: Corrects during the motion (then :meth:`perform` takes ``replan`` and a study may learn
+    #: online), rather than a plan.
+    during_motion: ClassVar[bool] = False
 
     @abc.abstractmethod
     def correct(self, situation: Situation, rng: np.random.Generator) -> np.ndarray:
@@ -85,6 +108,12 @@ class User(abc.ABC):
     def correction_features(self, situation: Situation, rng: np.random.Generator) -> np.ndarray:
         """Φ(ξ_h, E), shape (k,), what the learners see."""
         return feature_counts(self.correct(situation, rng), situation.env, situation.features)
+
+    def perform(self, situation: Situation, rng: np.random.Generator, replan=None) -> TaskOutcome:
+        """The whole task: by default the correction's features alone. A user who corrects
+        during the motion overrides it and calls ``replan`` (online learning) when its
+        correction is over; others ignore ``replan``."""
+        return TaskOutcome(phi_h=self.correction_features(situation, rng))
 
     def check(self, n_waypoints: int) -> None:
         """Refuse parameters that do not fit trajectories of ``n_waypoints`` waypoints."""

@@ -23,6 +23,7 @@ Everything random flows from ``np.random.Generator`` objects made from the study
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -31,9 +32,10 @@ import numpy as np
 
 from corrections_sim import calibration
 from corrections_sim.learning.base import LEARNERS, LearnerContext, Step
-from corrections_sim.metrics import estimate_error
-from corrections_sim.people.users import Situation, User
-from corrections_sim.planning.planner import Planner, PlanningError
+from corrections_sim.metrics import estimate_error, regret_terms
+from corrections_sim.people.users import Situation, TaskOutcome, User
+from corrections_sim.planning.features import feature_counts
+from corrections_sim.planning.planner import Planner, PlanningError, smoothness_cost
 from corrections_sim.planning.plans import PlanBook, PlanEntries, Target, evaluate
 from corrections_sim.scene.environments import Environment
 
@@ -86,7 +88,7 @@ def run_learner(
     gains = np.full((n_iter, k, k), np.nan)
     records = []
 
-    def record(t: int, env_name: str, skipped: str, step: Step | None) -> None:
+    def record(t: int, env_name: str, skipped: str, step: Step | None, task: dict) -> None:
         regret, paper, failed = evaluate(book, target, envs, belief.theta)
         rec = {
             "learner": learner,
@@ -100,9 +102,10 @@ def run_learner(
             "update_skipped": skipped,
         }
         rec |= belief_columns(belief, step, target.theta_star, cls.has_covariance)
+        rec |= task
         records.append(rec)
 
-    record(0, "", "", None)
+    record(0, "", "", None, {})
     for t in range(n_iter):
         ctx = LearnerContext(
             book=book,
@@ -119,6 +122,7 @@ def run_learner(
         env = envs[idx]
         skipped = ""
         step = None
+        task: dict = {}
         try:
             mine = book.plan(belief.theta, env)
             situation = Situation(
@@ -128,14 +132,30 @@ def run_learner(
                 features=names,
                 theta_star=target.theta_star,
             )
-            phi_h = np.asarray(user.correction_features(situation, rng), dtype=float)
-            step = agent.update(ctx, belief, env, mine, phi_h)
+            online: list[Step] = []
+
+            def replan(
+                deformed, q_now, t_now, ctx=ctx, env=env, mine=mine, online=online, prior=belief
+            ):
+                """Online: learn from the push now and plan the rest of the motion."""
+                phi = feature_counts(deformed, env, names)
+                online.append(agent.update(ctx, prior, env, mine, phi))
+                rest = dataclasses.replace(env, q_start=q_now, name=f"{env.name}@{t_now:.2f}s")
+                return planner.solve(online[0].belief.theta, rest).trajectory
+
+            outcome = user.perform(situation, rng, replan if settings.online else None)
+            task = _task_columns(outcome, target, idx, env, planner)
+            step = (
+                online[0]
+                if online
+                else agent.update(ctx, belief, env, mine, np.asarray(outcome.phi_h, dtype=float))
+            )
             belief = step.belief
             if step.gain is not None:
                 gains[t] = step.gain
         except PlanningError as exc:
             skipped = str(exc).splitlines()[0]
-        record(t + 1, env.name, skipped, step)
+        record(t + 1, env.name, skipped, step, task)
     return RunResult(records=tuple(records), gains=gains, solves=book.solves)
 
 
@@ -164,6 +184,34 @@ def belief_columns(
         else None
     )
     return rec
+
+
+def _task_columns(outcome: TaskOutcome, target: Target, idx: int, env, planner: Planner) -> dict:
+    """A task's own columns, for a user who corrects during the motion: the regret of the
+    motion the person got (``executed_regret``, the planner's full objective under θ*, as
+    ``regret``), with online replanning also that of the motion kept on the old plan
+    (``executed_regret_kept``), and the user's numbers (effort, push time, …)."""
+    if outcome.executed is None:
+        return {}
+    star = target.plans[idx]
+    lam = planner.config.smoothness
+    names = planner.config.features
+
+    def regret(motion: np.ndarray) -> float:
+        full, _ = regret_terms(
+            target.theta_star,
+            star.features,
+            smoothness_cost(star.trajectory),
+            feature_counts(motion, env, names),
+            smoothness_cost(motion),
+            lam,
+        )
+        return full
+
+    columns = {"executed_regret": regret(outcome.executed)}
+    if outcome.executed_kept is not None:
+        columns["executed_regret_kept"] = regret(outcome.executed_kept)
+    return columns | {key: float(value) for key, value in outcome.extras.items()}
 
 
 def _index(learner: str, idx, n: int) -> int:

@@ -119,6 +119,11 @@ STUDY_KEYS: dict[str, tuple[Any, str]] = {
         "proves collision-free; never changes a number)",
     ),
     "warm_start": (False, "start each solve from the run's nearest solved θ̂ (faster)"),
+    "online": (
+        False,
+        "learn during the motion: when a physical user's push ends, the learner updates and "
+        "the robot replans the rest of the motion (needs user physical)",
+    ),
 }
 #: Integer keys and their allowed ranges: beyond these a study cannot finish (or fit).
 INTEGER_LIMITS: dict[str, tuple[int, int]] = {
@@ -553,6 +558,9 @@ def parse_study(
     warm_start = values.get("warm_start", False)
     if not isinstance(warm_start, bool):
         raise ValueError(f"warm_start = {warm_start!r}: expected true or false")
+    online = values.get("online", False)
+    if not isinstance(online, bool):
+        raise ValueError(f"online = {online!r}: expected true or false")
     study = StudySettings(
         theta_star=theta_star,
         theta0=theta0,
@@ -565,6 +573,7 @@ def parse_study(
         user_name=user_name,
         filter=_filter(values.get("filter")),
         warm_start=warm_start,
+        online=online,
     )
     return FigureSettings(
         study=study,
@@ -601,6 +610,7 @@ OPTION_PATHS = {
     "user_step": "user.step",
     "user_waypoints": "user.waypoints",
     "warm_start": "warm_start",
+    "online": "online",
     "solver": "planner.solver",
     "fixed_alpha": "fixed_alpha",
     "correction_model": "correction_model",

@@ -98,6 +98,9 @@ class StudySettings:
         warm_start: start each new solve of a run from its nearest solved θ in the same
             environment (see :class:`~corrections_sim.planning.plans.PlanBook`); faster, and
             history-dependent at the level of the solver's tolerance.
+        online: learn during the motion (the IJRR 2022 setting): when the user's correction
+            ends, the learner updates and the robot replans the rest of the motion from its
+            current state. Needs a user who corrects during the motion (``physical``).
     """
 
     theta_star: tuple[float, ...]
@@ -111,6 +114,7 @@ class StudySettings:
     user_name: str = "biased"
     filter: FilterSettings = field(default_factory=FilterSettings)
     warm_start: bool = False
+    online: bool = False
 
     def __post_init__(self) -> None:
         k = len(self.theta_star)
@@ -145,6 +149,13 @@ class StudySettings:
                 )
         if not isinstance(self.user, USERS[self.user_name]):
             raise ValueError(f"user: {self.user!r} is not a {self.user_name} user")
+        if not isinstance(self.online, bool):
+            raise ValueError(f"online = {self.online!r}: expected true or false")
+        if self.online and not self.user.during_motion:
+            raise ValueError(
+                f"online: the {self.user_name} user corrects a plan, not a motion; online "
+                "learning needs a user who corrects during the motion (physical)"
+            )
         # Validates P⁰ (symmetric positive definite) and θ̂⁰ where they enter, under the
         # names the caller used rather than Belief's.
         try:
@@ -205,6 +216,8 @@ class StudySettings:
             "user": self.user_params(),
             "filter": components.params(self.filter),
             "warm_start": self.warm_start,
+            # Only when set, so that the run keys of studies without it stay as they were.
+            **({"online": True} if self.online else {}),
         }
 
 

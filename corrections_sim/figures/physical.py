@@ -1,0 +1,182 @@
+"""Physical corrections (beyond the paper): learners under a person who pushes the moving arm.
+
+The columns of ``experiments/physical.toml`` are users, as in fig. 6 (the same machinery,
+:mod:`corrections_sim.figures.robustness`): the paper's kinematic biased user, and the
+simulated physical person (:mod:`corrections_sim.people.physical`) who pushes the cup while the
+arm runs under impedance control in MuJoCo, with online learning (the robot learns when the
+push ends and replans the rest of the motion). Every physical task also plays the motion the
+robot would have made had it kept its plan after the push, from the same state, so "online"
+and "after the motion" are compared paired on the same pushes; θ̂, and so error and regret,
+are the same either way (the push is the same and the learner gets it once).
+
+Files: ``matrix.csv`` (fig. 6's columns, plus executed regret, effort and sensing error per
+learner and user), ``curves.csv``, ``paired.csv`` (paired 95% intervals: final error of every
+learner pair per user; executed regret online − kept per learner), the plot.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import Executor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from corrections_sim import provenance
+from corrections_sim.figures import learning, robustness
+from corrections_sim.figures.output import write_records
+from corrections_sim.figures.registry import Caches, register
+from corrections_sim.study import analysis, runner
+from corrections_sim.study.runner import FigureResult
+
+FIGURE = "physical"
+#: Per-task columns of a physical user's records, averaged over a run's corrections.
+TASK_COLUMNS = ("executed_regret", "executed_regret_kept", "effort", "push_time", "sense_error")
+
+
+def _task_values(records: Sequence[dict], learner: str, key: str) -> np.ndarray:
+    """(runs, iterations) of a per-task column of ``learner`` (NaN where absent)."""
+    rows = [r for r in records if r["learner"] == learner and r["iteration"] > 0]
+    runs = sorted({r["run"] for r in rows})
+    return np.array(
+        [[analysis._number(r.get(key)) for r in rows if r["run"] == run] for run in runs],
+        dtype=float,
+    )
+
+
+def matrix(settings, results: Sequence[FigureResult]) -> list[dict]:
+    """Fig. 6's rows (final error, regret, calibration) with the tasks' means: executed regret
+    (online and kept) per correction, effort (N·s), push time (s), sensing error (relative RMS
+    of τ_h against Jᵀ F), each the mean over runs of the mean over a run's corrections."""
+    rows = robustness.matrix(settings, results)
+    by_user = {c.label: r for c, r in zip(settings.columns, results, strict=True)}
+    for row in rows:
+        records = by_user[row["user"]].records
+        for key in TASK_COLUMNS:
+            values = _task_values(records, row["learner"], key)
+            finite = values[np.isfinite(values)] if values.size else values
+            row[f"{key}_mean"] = float(np.mean(np.nanmean(values, axis=1))) if finite.size else None
+    return rows
+
+
+def paired(settings, results: Sequence[FigureResult]) -> list[dict]:
+    """Paired 95% t-intervals: for every user, final estimate error a − b of every learner pair
+    that shares runs; for a physical online user, executed regret online − kept per learner
+    (per task, all runs and corrections)."""
+    out = []
+    for column, result in zip(settings.columns, results, strict=True):
+        data = analysis.curves(column.settings, result.records)
+        for entry in analysis.paired_differences(column.settings, data):
+            if entry["metric"] == "estimate_error":
+                out.append(
+                    {
+                        "user": column.label,
+                        "a": entry["a"],
+                        "b": entry["b"],
+                        "metric": "final estimate_error",
+                        **entry["final"],
+                    }
+                )
+        for learner in column.settings.study.learners:
+            online = _task_values(result.records, learner, "executed_regret")
+            kept = _task_values(result.records, learner, "executed_regret_kept")
+            if kept.size == 0 or not np.isfinite(kept).any():
+                continue
+            diff = (online - kept)[np.isfinite(online - kept)]
+            if diff.size > 1:
+                out.append(
+                    {
+                        "user": column.label,
+                        "a": f"{learner} online",
+                        "b": f"{learner} kept",
+                        "metric": "executed_regret per task",
+                        **analysis._mean_ci(diff),
+                    }
+                )
+    return out
+
+
+def write(settings, results: Sequence[FigureResult], folder: Path) -> dict:
+    """matrix.csv, curves.csv, paired.csv and the plot in ``folder``; the summary's fields."""
+    from corrections_sim.figures.plotting import plot_physical
+
+    rows = matrix(settings, results)
+    pairs = paired(settings, results)
+    write_records(folder / "matrix.csv", rows)
+    write_records(folder / "paired.csv", pairs)
+    write_records(
+        folder / "curves.csv",
+        [
+            {"user": c.label, **rec}
+            for c, result in zip(settings.columns, results, strict=True)
+            for rec in result.records
+        ],
+    )
+    first = settings.columns[0].settings
+    title = (
+        f"physical corrections: {first.study.runs} runs × {first.study.iterations} corrections; "
+        + learning.describe(first).rsplit(";", 1)[0]
+    )
+    curves = {
+        c.label: analysis.curves(c.settings, r.records)
+        for c, r in zip(settings.columns, results, strict=True)
+    }
+    tasks = {
+        c.label: {
+            learner: {key: _task_values(r.records, learner, key) for key in TASK_COLUMNS}
+            for learner in c.settings.study.learners
+        }
+        for c, r in zip(settings.columns, results, strict=True)
+    }
+    plot_physical(
+        curves, tasks, first.study.k, title, [folder / f"{FIGURE}.png", folder / f"{FIGURE}.pdf"]
+    )
+    return {
+        "planner_solves": sum(r.solves for r in results),
+        "resumed_runs": sum(r.resumed for r in results),
+        "matrix": rows,
+        "paired": pairs,
+        "planner": provenance.plain(first.planner_config()),
+        "runs_per_learner": {n: first.study.runs_of(n) for n in settings.learners},
+    }
+
+
+@dataclass(frozen=True)
+class PhysicalFigure:
+    """The physical-corrections study as a registered figure; resumable per column."""
+
+    name: str = FIGURE
+    help: str = "beyond the paper: a person pushes the moving arm; learners, online replanning"
+    options: tuple[str, ...] = learning.OPTIONS
+    unit: str = "run"
+    in_all: bool = False
+
+    def load(self, *, quick: bool, overrides: Mapping[str, Any]):
+        return robustness.load_settings(quick=quick, overrides=dict(overrides), figure=FIGURE)
+
+    def folder(self, settings) -> str:
+        return self.name
+
+    def cache_keys(self, settings) -> dict[str, dict]:
+        return {f"column-{i}": runner.run_key(c.settings) for i, c in enumerate(settings.columns)}
+
+    def recorded(self, settings, *, quick: bool) -> dict:
+        return settings.as_dict()
+
+    def run(
+        self,
+        settings,
+        executor: Executor,
+        progress: Callable[[int, int], None] | None,
+        cache: Caches | None,
+    ) -> list[FigureResult]:
+        caches = [(cache or {}).get(f"column-{i}") for i in range(len(settings.columns))]
+        return robustness.run(settings, executor, progress, caches=caches)
+
+    def write(self, settings, result: list[FigureResult], folder: Path) -> dict:
+        return write(settings, result, folder)
+
+
+register(PhysicalFigure())

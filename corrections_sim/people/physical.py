@@ -1,0 +1,407 @@
+"""Physical corrections: a person pushes the cup while the arm moves under impedance control.
+
+The paper's person corrects "using physical human-robot interaction or a virtual interface"
+(§1). Here the physical one (Bajcsy et al., CoRL 2017; Losey & O'Malley, T-RO 2018; Losey et
+al., IJRR 2022), on the dynamics of :mod:`corrections_sim.scene.dynamics`:
+
+1. The robot plays its plan ξ_R, timed over ``duration`` seconds, under joint impedance.
+2. :class:`PhysicalUser` ("physical") watches: where the cup of ξ_R is farthest from where its
+   own plan ξ*(θ*, E) would have it (waypoint i, in metres), it pushes the cup toward its own
+   plan's cup, ``hold`` seconds centred on t_i (no earlier than ``reaction_delay``), through a
+   hand spring of ``stiffness`` N/m whose force is capped at ``force_cap`` N, ramped in and
+   out over ``ramp`` s, with optional force noise; then it lets go. Its effort, ∫‖F‖ dt, and
+   the time in contact are recorded.
+3. The robot senses the interaction torque τ_h from its own model (never the force it was
+   given), finds the push where ‖τ_h‖ exceeds ``detect`` N·m, turns it into where it was held,
+   Ũ_j = K⁻¹ τ̄_h,j at each waypoint j the push overlapped (τ̄ the mean over the push's samples
+   nearest t_j; K⁻¹τ is how far the impedance yields to τ), and deforms its trajectory,
+   ξ_H = ξ_R + μ A⁻¹ Ũ (:func:`~corrections_sim.people.corrections.held_deformation`).
+   Learners see Φ(ξ_H).
+4. Online (the IJRR 2022 setting), when the robot finds the push over it hands ξ_H to a
+   ``replan`` callback (the study loop: the learner updates, the planner plans the rest of the
+   motion from the arm's current state) and plays the new plan; the motion it would have made
+   on the old plan is simulated too, from the same state, so the two are compared paired.
+
+:class:`PhysicalCorrection` ("physical", a correction model) is the robot's model of what such
+a push does, for the correction-aware learners: the same hand spring against the same
+impedance, at equilibrium (quasi-static), at the worst waypoint and the ``span`` waypoints on
+each side, deformed the same way.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+import numpy as np
+
+from corrections_sim.components import ParameterError
+from corrections_sim.people.corrections import (
+    CorrectionModel,
+    held_deformation,
+    register_correction,
+)
+from corrections_sim.people.users import Situation, TaskOutcome, User, register_user
+from corrections_sim.planning.features import feature_counts
+from corrections_sim.scene import dynamics
+from corrections_sim.scene.environments import Environment
+
+#: The person looks and pushes at this rate (their force is held between looks), Hz.
+PERSON_RATE = 100
+#: After the sensed torque falls below the threshold, the robot waits this long before it
+#: takes the push as over, s.
+RELEASE_WAIT = 0.05
+
+#: replan(ξ_H (T, 7), q_now (7,), t_now) -> the rest of the motion (T, 7) from q_now, or None.
+Replan = Callable[[np.ndarray, np.ndarray, float], "np.ndarray | None"]
+
+
+def _positive(name: str, value, *, zero: bool = False) -> float:
+    number = isinstance(value, int | float | np.number) and not isinstance(value, bool)
+    if not (number and np.isfinite(value) and (value >= 0 if zero else value > 0)):
+        raise ParameterError(name, f"must be finite and {'>= 0' if zero else '> 0'}, got {value!r}")
+    return float(value)
+
+
+def worst_cup_waypoint(
+    robot: np.ndarray, intended: np.ndarray
+) -> tuple[int, np.ndarray, np.ndarray]:
+    """The free waypoint where the cups of ``robot`` and ``intended`` (T, 7) are farthest apart
+    (ties to the lower index), and both cup paths (T, 3)."""
+    mine, _ = dynamics.cup_kinematics(robot)
+    theirs, _ = dynamics.cup_kinematics(intended)
+    gaps = np.linalg.norm(theirs - mine, axis=1)
+    gaps[[0, -1]] = -np.inf
+    return int(np.argmax(gaps)), mine, theirs
+
+
+def spring_force(cup: np.ndarray, target: np.ndarray, stiffness: float, cap: float) -> np.ndarray:
+    """The hand spring's force (3,), N: stiffness · (target − cup), its norm capped at ``cap``."""
+    force = stiffness * (np.asarray(target, float) - np.asarray(cup, float))
+    return cap_force(force, cap)
+
+
+def cap_force(force: np.ndarray, cap: float) -> np.ndarray:
+    """``force`` (3,) scaled down to norm ``cap`` if it is larger; a non-finite force is none."""
+    force = np.asarray(force, dtype=float)
+    if not np.all(np.isfinite(force)):
+        return np.zeros(3)
+    norm = float(np.linalg.norm(force))
+    return force * (cap / norm) if norm > cap else force
+
+
+def quasi_static_hold(
+    q: np.ndarray, target: np.ndarray, stiffness: float, cap: float, joint_stiffness: np.ndarray
+) -> np.ndarray:
+    """Where a hand spring toward ``target`` (3,) holds an arm at ``q`` (7,) under joint
+    stiffness K (7,): Δq (7,) with K Δq = Jᵀ F and F = stiffness · (target − x − J Δq),
+    |F| ≤ cap (linearized at q; the cap scales F down and Δq with it)."""
+    (x,), (jac,) = dynamics.cup_kinematics(q[None])
+    compliance = jac / joint_stiffness[None, :]  # J K⁻¹ (3, 7)
+    gap = np.asarray(target, float) - x
+    # (I + s J K⁻¹ Jᵀ) F = s · gap
+    force = np.linalg.solve(np.eye(3) + stiffness * compliance @ jac.T, stiffness * gap)
+    force = cap_force(force, cap)
+    return (jac.T @ force) / joint_stiffness
+
+
+@register_correction("physical")
+@dataclass(frozen=True)
+class PhysicalCorrection(CorrectionModel):
+    """A push at the cup toward ξ*'s cup where the two cups are farthest apart (waypoint i), held
+    at waypoints i − span … i + span, the arm yielding under joint impedance; the trajectory
+    deformed by :func:`~corrections_sim.people.corrections.held_deformation`.
+
+    Attributes:
+        stiffness: the person's hand spring, N/m.
+        force_cap: the largest force the person uses, N.
+        span: waypoints held on each side of the worst one (a push lasts about
+            (2 span + 1) waypoint intervals).
+    """
+
+    stiffness: float = 300.0
+    force_cap: float = 30.0
+    span: int = 1
+
+    def __post_init__(self) -> None:
+        _positive("stiffness", self.stiffness)
+        _positive("force_cap", self.force_cap)
+        if isinstance(self.span, bool) or not isinstance(self.span, int | np.integer):
+            raise ParameterError("span", f"must be an integer, got {self.span!r}")
+        if self.span < 0:
+            raise ParameterError("span", f"must be >= 0, got {self.span}")
+
+    def apply(self, robot: np.ndarray, intended: np.ndarray) -> np.ndarray:
+        robot = np.asarray(robot, dtype=float)
+        i, _, theirs = worst_cup_waypoint(robot, intended)
+        held = np.zeros_like(robot)
+        stiff = dynamics.Impedance().stiffness
+        for j in range(max(1, i - self.span), min(robot.shape[0] - 1, i + self.span + 1)):
+            held[j] = quasi_static_hold(robot[j], theirs[j], self.stiffness, self.force_cap, stiff)
+        return held_deformation(robot, held)
+
+
+@dataclass(frozen=True, eq=False)
+class PushTrace:
+    """A physical task sampled at the person's rate (one row per look).
+
+    Attributes:
+        times: (n,) s. cup: (n, 3) m. force: the person's force (n, 3), N.
+        tau_sensed: the robot's sensed τ_h (n, 7), N·m. tau_applied: Jᵀ F (n, 7), N·m (the truth).
+        q: measured joint positions (n, 7).
+    """
+
+    times: np.ndarray
+    cup: np.ndarray
+    force: np.ndarray
+    tau_sensed: np.ndarray
+    tau_applied: np.ndarray
+    q: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class PhysicalOutcome(TaskOutcome):
+    """:class:`~corrections_sim.people.users.TaskOutcome` of a push, with what it was made of.
+
+    Attributes:
+        held: Ũ (T, 7), where the robot found itself held. deformed: ξ_H (T, 7).
+        trace: the task's trace at the person's rate.
+    """
+
+    held: np.ndarray = field(default_factory=lambda: np.zeros((0, 7)))
+    deformed: np.ndarray = field(default_factory=lambda: np.zeros((0, 7)))
+    trace: PushTrace | None = None
+
+
+@register_user("physical")
+@dataclass(frozen=True)
+class PhysicalUser(User):
+    """Pushes the cup toward its own plan while the arm moves (see the module docstring).
+
+    Attributes:
+        force_cap: the largest force it uses, N (a larger request is clamped to it).
+        stiffness: its hand spring toward its plan's cup, N/m.
+        reaction_delay: it pushes no earlier than this after the motion starts, s.
+        hold: how long it pushes, s (ramps included).
+        ramp: the force ramps in and out over this long (raised cosine), s.
+        force_noise: σ of Gaussian noise on each force component, N, drawn per look.
+        duration: how long the robot's plan takes, s.
+        torque_noise: σ of the robot's joint-torque sensing noise, N·m.
+        detect: the robot takes ‖τ_h‖ above this as a push, N·m.
+    """
+
+    force_cap: float = 30.0
+    stiffness: float = 300.0
+    reaction_delay: float = 0.3
+    hold: float = 1.2
+    ramp: float = 0.15
+    force_noise: float = 0.0
+    duration: float = 5.0
+    torque_noise: float = 0.0
+    detect: float = 1.0
+    during_motion: ClassVar[bool] = True
+
+    def __post_init__(self) -> None:
+        for name in ("force_cap", "stiffness", "hold", "duration", "detect"):
+            _positive(name, getattr(self, name))
+        for name in ("reaction_delay", "ramp", "force_noise", "torque_noise"):
+            _positive(name, getattr(self, name), zero=True)
+        if 2 * self.ramp > self.hold:
+            raise ParameterError(
+                "ramp", f"{self.ramp} s: two ramps must fit in hold = {self.hold} s"
+            )
+        if self.reaction_delay + self.hold >= self.duration:
+            raise ParameterError(
+                "hold",
+                f"reaction_delay + hold = {self.reaction_delay + self.hold} s must be shorter "
+                f"than the motion (duration = {self.duration} s)",
+            )
+
+    @property
+    def stochastic(self) -> bool:  # type: ignore[override]
+        return self.force_noise > 0 or self.torque_noise > 0
+
+    def model(self) -> PhysicalCorrection:
+        """The correction model that describes this person to a learner (quasi-static)."""
+        return PhysicalCorrection(self.stiffness, self.force_cap)
+
+    def correct(self, situation: Situation, rng: np.random.Generator) -> np.ndarray:
+        """ξ_H, (T, 7): the robot's deformation of its plan after the push."""
+        return self.perform(situation, rng).deformed
+
+    def correction_features(self, situation: Situation, rng: np.random.Generator) -> np.ndarray:
+        return self.perform(situation, rng).phi_h
+
+    def window(self, t_worst: float) -> tuple[float, float]:
+        """The push's start and end, s, for the worst waypoint at ``t_worst``."""
+        start = max(t_worst - self.hold / 2, self.reaction_delay)
+        start = min(start, self.duration - self.hold)
+        return start, start + self.hold
+
+    def envelope(self, t: float, start: float, end: float) -> float:
+        """The force's ramp in [0, 1] at time ``t``."""
+        if t < start or t >= end:
+            return 0.0
+        if self.ramp == 0:
+            return 1.0
+        edge = min(t - start, end - t) / self.ramp
+        return 1.0 if edge >= 1 else 0.5 - 0.5 * np.cos(np.pi * edge)
+
+    def perform(
+        self, situation: Situation, rng: np.random.Generator, replan: Replan | None = None
+    ) -> PhysicalOutcome:
+        """Play the robot's plan, push, let go; see the module docstring."""
+        return _perform(self, situation, rng, replan)
+
+
+@functools.cache
+def _simulation(torque_noise: float) -> dynamics.ArmSimulation:
+    """This process's arm (one per sensing noise), moved to each task's environment."""
+    from corrections_sim.scene.environments import paper_environments
+
+    return dynamics.ArmSimulation(paper_environments()[0], torque_noise=torque_noise)
+
+
+def _arm(env: Environment, torque_noise: float) -> dynamics.ArmSimulation:
+    sim = _simulation(torque_noise)
+    sim.move_to(env)
+    return sim
+
+
+def _perform(
+    person: PhysicalUser, situation: Situation, rng: np.random.Generator, replan: Replan | None
+) -> PhysicalOutcome:
+    robot, intended, env = situation.robot, situation.intended, situation.env
+    duration = person.duration
+    reference = plan_timing = dynamics.TimedTrajectory(robot, duration)
+    theirs = dynamics.TimedTrajectory(intended, duration)
+    worst, _, _ = worst_cup_waypoint(robot, intended)
+    start, end = person.window(reference.times[worst])
+    sim = _arm(env, person.torque_noise)
+    sim.reset(robot[0])
+    chunk = int(round(1.0 / (PERSON_RATE * sim.dt)))
+    look = chunk * sim.dt
+    stiffness = sim.impedance.stiffness
+    chunks: list[dynamics.Chunk] = []
+    pushed: list[dynamics.Chunk] = []
+    quiet_since: float | None = None
+    released = False
+    effort = contact_time = 0.0
+    kept = None
+
+    def person_force(t: float, cup: np.ndarray) -> np.ndarray | None:
+        gain = person.envelope(t, start, end)
+        if gain == 0.0:
+            return None
+        (target,), _ = dynamics.cup_kinematics(theirs.at(np.array([t]))[0])
+        force = gain * spring_force(cup, target, person.stiffness, person.force_cap)
+        if person.force_noise > 0:
+            force = force + rng.normal(0.0, person.force_noise, size=3)
+        return cap_force(force, person.force_cap)
+
+    while sim.time < duration - 1e-9:
+        force = person_force(sim.time, sim.cup_position())
+        out = sim.advance(reference, chunk, force, rng)
+        chunks.append(out)
+        if force is not None:
+            effort += float(np.linalg.norm(force)) * look
+            contact_time += look
+        if float(np.linalg.norm(out.tau_sensed[-1])) > person.detect:
+            pushed.append(out)
+            quiet_since = None
+        elif pushed and not released:
+            quiet_since = sim.time if quiet_since is None else quiet_since
+            if sim.time - quiet_since >= RELEASE_WAIT:
+                released = True
+                if replan is not None:
+                    held = _held(pushed, plan_timing.times, stiffness)
+                    rest = replan(held_deformation(robot, held), sim.q(), sim.time)
+                    if rest is not None:
+                        _, velocity, _ = reference.at(np.array([sim.time]))
+                        sim.snapshot()
+                        kept = _finish(sim, reference, rng, chunk)
+                        sim.restore()
+                        reference = dynamics.TimedTrajectory(
+                            rest, duration - sim.time, start_velocity=velocity[0], t0=sim.time
+                        )
+    final = (sim.time, sim.q())
+    held = _held(pushed, plan_timing.times, stiffness)
+    deformed = held_deformation(robot, held)
+    at = plan_timing.times
+    trace = PushTrace(
+        times=np.array([c.times[0] for c in chunks]),
+        cup=np.vstack([c.cup[0] for c in chunks]),
+        force=np.vstack([c.force[0] for c in chunks]),
+        tau_sensed=np.vstack([c.tau_sensed[0] for c in chunks]),
+        tau_applied=np.vstack([c.tau_applied[0] for c in chunks]),
+        q=np.vstack([c.q[0] for c in chunks]),
+    )
+    extras = {
+        "effort": effort,
+        "push_time": contact_time,
+        "sense_error": _relative_rms(pushed),
+        "replanned": float(kept is not None),
+        "contact": float(any(c.contacts for c in chunks)),
+    }
+    return PhysicalOutcome(
+        phi_h=feature_counts(deformed, env, situation.features),
+        executed=_sample(trace.times, trace.q, final, at),
+        executed_kept=None if kept is None else _sample(*_after(trace, kept), at),
+        extras=extras,
+        held=held,
+        deformed=deformed,
+        trace=trace,
+    )
+
+
+def _held(pushed: list[dynamics.Chunk], waypoint_times: np.ndarray, stiffness) -> np.ndarray:
+    """Ũ (T, 7): K⁻¹ times the mean sensed τ_h of the push's samples nearest each waypoint."""
+    T = waypoint_times.shape[0]
+    held = np.zeros((T, stiffness.shape[0]))
+    if not pushed:
+        return held
+    times = np.concatenate([c.times for c in pushed])
+    tau = np.vstack([c.tau_sensed for c in pushed])
+    spacing = waypoint_times[1] - waypoint_times[0]
+    nearest = np.clip(np.round((times - waypoint_times[0]) / spacing).astype(int), 0, T - 1)
+    for j in range(1, T - 1):
+        mask = nearest == j
+        if np.any(mask):
+            held[j] = tau[mask].mean(axis=0) / stiffness
+    return held
+
+
+def _relative_rms(pushed: list[dynamics.Chunk]) -> float:
+    """RMS of (sensed − applied) over RMS of applied, over the push's samples."""
+    if not pushed:
+        return float("nan")
+    sensed = np.vstack([c.tau_sensed for c in pushed])
+    applied = np.vstack([c.tau_applied for c in pushed])
+    scale = float(np.sqrt(np.mean(applied**2)))
+    return float(np.sqrt(np.mean((sensed - applied) ** 2)) / scale) if scale > 0 else float("nan")
+
+
+def _finish(sim, reference, rng, chunk) -> tuple[np.ndarray, np.ndarray, tuple]:
+    """Play ``reference`` to its end, no push: the looks' times and q, and the final state."""
+    times, qs = [], []
+    while sim.time < reference.t_end - 1e-9:
+        out = sim.advance(reference, chunk, None, rng)
+        times.append(out.times[0])
+        qs.append(out.q[0])
+    return np.array(times), np.vstack(qs), (sim.time, sim.q())
+
+
+def _after(trace: PushTrace, kept: tuple) -> tuple[np.ndarray, np.ndarray, tuple]:
+    """The kept branch's looks after the motion's looks up to where it branched off."""
+    times, qs, final = kept
+    before = trace.times < times[0] - 1e-9
+    return np.append(trace.times[before], times), np.vstack([trace.q[before], qs]), final
+
+
+def _sample(times: np.ndarray, qs: np.ndarray, final: tuple, at: np.ndarray) -> np.ndarray:
+    """The executed motion at times ``at`` (T,), linear between looks and the final state."""
+    times = np.append(times, final[0])
+    qs = np.vstack([qs, final[1]])
+    return np.column_stack([np.interp(at, times, qs[:, j]) for j in range(qs.shape[1])])
