@@ -308,10 +308,12 @@ def _perform(
         if force is not None:
             effort += float(np.linalg.norm(force)) * look
             contact_time += look
+        if released:
+            continue  # one push a task: what the robot senses later is not this correction
         if float(np.linalg.norm(out.tau_sensed[-1])) > person.detect:
             pushed.append(out)
             quiet_since = None
-        elif pushed and not released:
+        elif pushed:
             quiet_since = sim.time if quiet_since is None else quiet_since
             if sim.time - quiet_since >= RELEASE_WAIT:
                 released = True

@@ -1,0 +1,167 @@
+"""Physical corrections: the arm under impedance, what it senses, how a push becomes a
+correction, the simulated physical person and online learning (issue 28)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from corrections_sim.components import ParameterError
+from corrections_sim.people import physical
+from corrections_sim.people.corrections import deformation_correction, held_deformation
+from corrections_sim.people.users import Situation, make_user
+from corrections_sim.planning.features import feature_counts
+from corrections_sim.planning.planner import PlannerConfig, shared_planner
+from corrections_sim.scene import dynamics
+from corrections_sim.scene.environments import paper_environments
+
+FEATURES = ("laptop", "table")
+THETA_STAR = np.array([1.0, -1.0])
+
+
+@pytest.fixture(scope="module")
+def planner():
+    return shared_planner(PlannerConfig(n_starts=4))
+
+
+@pytest.fixture(scope="module")
+def task(planner):
+    """The robot's plan at θ̂ = 0 and the person's at θ* in one paper environment."""
+    env = paper_environments()[3]
+    mine = planner.solve(np.zeros(2), env)
+    star = planner.solve(THETA_STAR, env)
+    return Situation(mine.trajectory, star.trajectory, env, FEATURES, THETA_STAR)
+
+
+def test_model_has_the_panda_actuation():
+    model = dynamics.dynamics_model()
+    assert model.nu == 7 and model.opt.timestep == pytest.approx(1e-3)
+    assert np.allclose(model.jnt_actfrcrange[:, 1], dynamics.TORQUE_LIMITS)
+    assert np.allclose(model.dof_armature, dynamics.ARMATURE)
+
+
+def test_tracks_its_plan_within_a_centimetre_without_a_push(task):
+    reference = dynamics.TimedTrajectory(task.robot, 5.0)
+    sim = dynamics.ArmSimulation(task.env)
+    sim.reset(task.robot[0])
+    chunks = [sim.advance(reference, 50) for _ in range(100)]
+    times = np.concatenate([c.times for c in chunks])
+    cup = np.vstack([c.cup for c in chunks])
+    planned, _ = dynamics.cup_kinematics(reference.at(times)[0])
+    gap = np.linalg.norm(cup - planned, axis=1)
+    assert gap.max() < 0.01
+    # Nothing pushes: what the robot senses is small against a push's torques (≥ 5 N·m).
+    assert np.abs(np.vstack([c.tau_sensed for c in chunks])).max() < 0.5
+
+
+def test_sensed_torque_matches_the_applied_push(task):
+    reference = dynamics.TimedTrajectory(task.robot, 5.0)
+    sim = dynamics.ArmSimulation(task.env)
+    sim.reset(task.robot[0])
+    sim.advance(reference, 1000)
+    push = [sim.advance(reference, 10, np.array([0.0, 15.0, -10.0])) for _ in range(80)]
+    sensed = np.vstack([c.tau_sensed for c in push])[100:]  # past the filter's rise
+    applied = np.vstack([c.tau_applied for c in push])[100:]
+    relative = np.sqrt(np.mean((sensed - applied) ** 2)) / np.sqrt(np.mean(applied**2))
+    assert relative < 0.10
+    assert np.abs(applied).max() > 5.0
+
+
+def test_held_deformation_of_one_waypoint_is_the_deform_model(rng):
+    robot = rng.normal(size=(12, 7))
+    held = np.zeros_like(robot)
+    held[5] = rng.normal(size=7) * 0.2
+    intended = robot.copy()
+    intended[5] += held[5]
+    assert np.allclose(held_deformation(robot, held), deformation_correction(robot, intended))
+    # Start and goal never move; several held waypoints are fitted in the least-squares sense.
+    held[6] = held[5]
+    deformed = held_deformation(robot, held)
+    assert np.allclose(deformed[[0, -1]], robot[[0, -1]])
+    assert np.linalg.norm(deformed[5:7] - robot[5:7] - held[5:7]) < np.linalg.norm(held[5:7])
+
+
+def test_a_push_teaches_the_right_direction(task, rng):
+    person = make_user("physical")
+    outcome = person.perform(task, rng)
+    change = outcome.phi_h - feature_counts(task.robot, task.env, FEATURES)
+    # The perceptron's step θ̂ += α (Φ_H − Φ_R) moves toward θ* from θ̂ = 0.
+    assert change @ THETA_STAR > 0
+    assert outcome.extras["sense_error"] < 0.10
+    assert outcome.extras["push_time"] == pytest.approx(person.hold, abs=0.02)
+    assert 0 < outcome.extras["effort"] <= person.force_cap * person.hold + 1e-9
+    # The robot's model of a push predicts a change in the same direction.
+    model = feature_counts(person.model().apply(task.robot, task.intended), task.env, FEATURES)
+    predicted = model - feature_counts(task.robot, task.env, FEATURES)
+    cosine = predicted @ change / np.linalg.norm(predicted) / np.linalg.norm(change)
+    assert cosine > 0.8
+
+
+def test_a_huge_push_is_clamped_and_stays_finite(task, rng):
+    person = make_user("physical", {"stiffness": 1e6, "force_cap": 40.0, "force_noise": 100.0})
+    outcome = person.perform(task, rng)
+    forces = np.linalg.norm(outcome.trace.force, axis=1)
+    assert forces.max() <= 40.0 + 1e-9 and forces.max() > 39.0
+    assert np.all(np.isfinite(outcome.trace.q)) and np.all(np.isfinite(outcome.phi_h))
+    assert np.array_equal(physical.cap_force(np.array([np.nan, 1.0, 0.0]), 30.0), np.zeros(3))
+    assert np.linalg.norm(physical.cap_force(np.array([500.0, 0.0, 0.0]), 30.0)) == 30.0
+
+
+def test_same_seed_same_push(task):
+    person = make_user("physical", {"force_noise": 2.0, "torque_noise": 0.2})
+    a = person.perform(task, np.random.default_rng(7))
+    b = person.perform(task, np.random.default_rng(7))
+    assert np.array_equal(a.phi_h, b.phi_h) and np.array_equal(a.trace.q, b.trace.q)
+    assert person.stochastic
+
+
+def test_online_replans_from_where_the_arm_is(task, planner, rng):
+    calls = []
+
+    def replan(deformed, q_now, t_now):
+        calls.append((deformed, q_now, t_now))
+        rest = dataclasses.replace(task.env, q_start=q_now)
+        return planner.solve(THETA_STAR, rest).trajectory
+
+    outcome = make_user("physical").perform(task, rng, replan)
+    assert len(calls) == 1
+    deformed, q_now, t_now = calls[0]
+    assert np.allclose(deformed, outcome.deformed)  # the push's deformation, as learnt later
+    assert 0 < t_now < 5.0
+    assert outcome.extras["replanned"] == 1.0 and outcome.executed_kept is not None
+    # The two motions agree up to the push's end and part after it.
+    before = np.linspace(0, 5.0, 12) < t_now - 0.05
+    assert np.allclose(outcome.executed[before], outcome.executed_kept[before])
+    assert not np.allclose(outcome.executed, outcome.executed_kept)
+
+
+@pytest.mark.parametrize(
+    ("params", "where"),
+    [
+        ({"hold": 6.0}, "user.hold"),
+        ({"force_cap": -1.0}, "user.force_cap"),
+        ({"ramp": 0.8}, "user.ramp"),
+        ({"torque_noise": float("nan")}, "user.torque_noise"),
+    ],
+)
+def test_bad_parameters_name_their_key(params, where):
+    with pytest.raises(ValueError, match=f"^{where}: ") as info:
+        make_user("physical", params)
+    assert "\n" not in str(info.value)
+
+
+def test_correction_model_refuses_a_bad_span():
+    with pytest.raises(ParameterError, match="span"):
+        physical.PhysicalCorrection(span=-1)
+
+
+def test_online_needs_a_user_who_corrects_during_the_motion():
+    from corrections_sim.study import schema
+
+    values = {"theta_star": [1.0, -1.0], "online": True, "user": "biased"}
+    with pytest.raises(ValueError, match="^online: the biased user corrects a plan"):
+        schema.parse_study(values)
+    with pytest.raises(ValueError, match="^online = 'yes'"):
+        schema.parse_study({**values, "online": "yes", "user": "physical"})
