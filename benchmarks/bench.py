@@ -397,10 +397,14 @@ def main(argv: Sequence[str] | None = None) -> None:
         "'fig4': wall time of paper-scale fig. 4, solves per second, 1 -> 2 worker speed-up, "
         "Dask against the process pool, peak memory per worker. 'interact': the page's "
         "latency from submit to the next plan, driven in chromium by Playwright. 'warm': "
-        "warm re-solves captured from fig. 4 runs, in each warm mode (Newton, solver).",
+        "warm re-solves captured from fig. 4 runs, in each warm mode (Newton, solver). "
+        "'physical': the arm's real-time factor, sensing against the applied push, one "
+        "physical correction end to end.",
     )
     parser.add_argument(
-        "what", choices=["planner", "fig4", "interact", "warm"], help="which benchmark to run"
+        "what",
+        choices=["planner", "fig4", "interact", "warm", "physical"],
+        help="which benchmark to run",
     )
     parser.add_argument(
         "--learners",
@@ -520,6 +524,14 @@ def main(argv: Sequence[str] | None = None) -> None:
             print("\n".join(run_small_step(problems)))
         else:
             print("\n".join(run_warm(problems)))
+        return
+    if args.what == "physical":
+        from benchmarks.bench_physical import run_bench as run_physical
+
+        n = 12 if args.problems is None else args.problems
+        if not 1 <= n <= 48:
+            parser.error("--problems: physical takes 1 to 48 environments (default 12)")
+        print("\n".join(run_physical(n, 0 if args.seed is None else args.seed)))
         return
     args.problems = 60 if args.problems is None else args.problems
     args.seed = 0 if args.seed is None else args.seed

@@ -160,3 +160,24 @@ def test_figs_1_to_3_record_their_provenance_and_what_they_show(tmp_path, monkey
     }
     assert summary["timestamp"] and summary["versions"]["casadi"]
     assert "git" in summary
+
+
+def test_a_port_outside_the_range_is_one_line_and_exit_2(capsys):
+    assert _main(["interact", "--port", "99999"]) == 2
+    _one_line(capsys.readouterr().err, "--port", "99999", "65535")
+
+
+def test_a_command_help_lists_its_own_options_only(capsys):
+    assert _main(["interact", "--help"]) == 0
+    text = capsys.readouterr().out
+    assert "--port" in text and "--resume" in text
+    for other in ("--video-file", "--force", "--runs", "--scheduler"):
+        assert other not in text
+    assert _main(["fig4", "--help"]) == 0
+    text = capsys.readouterr().out
+    assert "--runs" in text and "--online" in text and "--port" not in text
+
+
+def test_an_interrupted_session_speaks_of_the_session():
+    assert "--resume SESSION" in cli._nothing_kept(cli.parser().parse_args(["interact"]))
+    assert "figs. 4-6" in cli._nothing_kept(cli.parser().parse_args(["fig4"]))

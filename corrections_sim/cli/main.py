@@ -190,6 +190,15 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _port(text: str) -> int:
+    """A TCP port to listen on, 1 … 65535 (viser's server thread would die on a larger one and
+    leave the command waiting for ever)."""
+    value = _positive_int(text)
+    if value > 65535:
+        raise argparse.ArgumentTypeError(f"{value}: a port lies in [1, 65535]")
+    return value
+
+
 def _positive_float(option: str) -> Callable[[str], float]:
     def parse(text: str) -> float:
         try:
@@ -583,6 +592,38 @@ def applies(command: str) -> tuple[str, ...]:
     return TOOL_OPTIONS[command]
 
 
+def command_help(command: str) -> str:
+    """``COMMAND --help``: the command's own options only (every option is in ``--help``)."""
+    p = parser()
+    allowed = {"help", "figure", *applies(command)}
+    for group in p._action_groups:
+        group._group_actions = [a for a in group._group_actions if a.dest in allowed]
+    p._action_groups = [g for g in p._action_groups if g._group_actions]
+    p._actions = [a for a in p._actions if a.dest in allowed]
+    figures = _figures()
+    what = figures[command].help if command in figures else TOOLS[command][1]
+    p.prog = f"python -m corrections_sim.run {command}"
+    p.description = f"{command}: {what}. The options below are the ones it takes."
+    for action in p._actions:
+        if action.dest == "figure":
+            action.help = f"{command} (python -m corrections_sim.run --help lists every command)"
+            action.choices = [command]
+    return p.format_help()
+
+
+def _asks_command_help(given: Sequence[str]) -> str | None:
+    """The command of ``COMMAND ... --help`` (None for a bare ``--help``)."""
+    if not any(a in ("-h", "--help") for a in given):
+        return None
+    known = {*_figures(), *TOOLS}
+    for token in given:
+        if token in known:
+            return token
+        if not token.startswith("-"):
+            return None
+    return None
+
+
 def _check_applies(args: argparse.Namespace) -> None:
     """Refuse an option the command does not take (``scene --runs 5``, ``fig4 --env X``)."""
     allowed = applies(args.figure)
@@ -752,7 +793,7 @@ def parser() -> argparse.ArgumentParser:
     i.add_argument("--db", help="the study's SQLite log (default results/interact/study.sqlite)")
     i.add_argument("--participant", help="the participant's pseudonym (never a name)")
     i.add_argument("--host", help="address to serve the page on (default 127.0.0.1)")
-    i.add_argument("--port", type=_positive_int, help="port of the page (default 8080)")
+    i.add_argument("--port", type=_port, help="port of the page, 1-65535 (default 8080)")
     i.add_argument("--resume", type=int, metavar="SESSION", help="continue a logged session")
     i.add_argument(
         "--drag-model",
@@ -780,11 +821,28 @@ def parser() -> argparse.ArgumentParser:
     return p
 
 
+def _nothing_kept(args: argparse.Namespace | None) -> str:
+    """What an interrupted command leaves, said for that command."""
+    command = getattr(args, "figure", None)
+    if command == "interact":
+        return (
+            "every confirmed correction is in the session's log; continue it with "
+            "--resume SESSION (the number printed at the start)"
+        )
+    if command in ("scene", "video", "replay"):
+        return f"{command} wrote nothing; run it again"
+    return "no finished runs to keep (figs. 4-6 resume, figs. 1-3 start over)"
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run one command; 0 on success, 1 on a failure, 2 on bad input, 130 on SIGINT/SIGTERM."""
     with interrupts():  # from the start: the heavy imports happen inside
         try:
             given = list(sys.argv[1:] if argv is None else argv)
+            command = _asks_command_help(given)
+            if command is not None:
+                print(command_help(command), end="")
+                return 0
             args = parser().parse_args(given)
             args.argv = given
             _check_applies(args)
@@ -808,7 +866,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             message = (
                 f"{kept}; run the command again to resume"
                 if kept
-                else "no finished runs to keep (figs. 4-6 resume, figs. 1-3 start over)"
+                else _nothing_kept(locals().get("args"))
             )
             by = f" ({cause})" if isinstance(cause, Interrupted) else ""
             print(f"interrupted: {message}{by}", file=sys.stderr)
