@@ -270,26 +270,161 @@ def _arm(env: Environment, torque_noise: float) -> dynamics.ArmSimulation:
     return sim
 
 
+class PushedMotion:
+    """One task of a physical correction, a look (10 ms, 10 physics steps) at a time: the
+    robot plays ``robot`` (T, 7) over ``duration`` s in ``env``; whoever pushes gives the force
+    at the cup for each look; the robot finds the push in what it senses and, once the push is
+    over (:attr:`released`), knows where it was held (:meth:`deformation`); a replanned rest of
+    the motion is played with :meth:`switch`. The simulated person (:func:`PhysicalUser.perform`)
+    and the page's person (:mod:`corrections_sim.interact`) drive the same object.
+
+    Args:
+        robot: the plan ξ_R (T, 7).
+        env: the environment.
+        duration: how long the plan takes, s.
+        rng: the generator of the sensing noise.
+        torque_noise: σ of the joint-torque sensing noise, N·m.
+        detect: ‖τ_h‖ above this is a push, N·m.
+    """
+
+    def __init__(
+        self,
+        robot: np.ndarray,
+        env: Environment,
+        duration: float,
+        rng: np.random.Generator,
+        *,
+        torque_noise: float = 0.0,
+        detect: float = 1.0,
+    ) -> None:
+        self.robot = np.asarray(robot, dtype=float)
+        self.env = env
+        self.duration = float(duration)
+        self.rng = rng
+        self.detect = float(detect)
+        self.plan_timing = dynamics.TimedTrajectory(self.robot, self.duration)
+        self.reference = self.plan_timing
+        self.sim = _arm(env, torque_noise)
+        self.sim.reset(self.robot[0])
+        self.steps = int(round(1.0 / (PERSON_RATE * self.sim.dt)))
+        self.look_time = self.steps * self.sim.dt
+        self.chunks: list[dynamics.Chunk] = []
+        self.pushed: list[dynamics.Chunk] = []
+        self.effort = 0.0
+        self.push_time = 0.0
+        self.released: float | None = None
+        self.kept: tuple | None = None
+        self.switched = False
+        self._quiet_since: float | None = None
+
+    @property
+    def time(self) -> float:
+        return self.sim.time
+
+    @property
+    def done(self) -> bool:
+        return self.sim.time >= self.duration - 1e-9
+
+    def cup(self) -> np.ndarray:
+        """Where the cup is now (3,), m."""
+        return self.sim.cup_position()
+
+    def q(self) -> np.ndarray:
+        """The arm's joint positions now (7,)."""
+        return self.sim.q()
+
+    def look(self, force: np.ndarray | None) -> bool:
+        """Advance one look with ``force`` (3,), N, at the cup (None: nobody pushes); True when
+        the robot has just found the push over (then :meth:`deformation` is what it learns)."""
+        out = self.sim.advance(self.reference, self.steps, force, self.rng)
+        self.chunks.append(out)
+        if force is not None:
+            self.effort += float(np.linalg.norm(force)) * self.look_time
+            self.push_time += self.look_time
+        if self.released is not None:
+            return False  # one push a task: what the robot senses later is not this correction
+        if float(np.linalg.norm(out.tau_sensed[-1])) > self.detect:
+            self.pushed.append(out)
+            self._quiet_since = None
+        elif self.pushed:
+            if self._quiet_since is None:
+                self._quiet_since = self.sim.time
+            if self.sim.time - self._quiet_since >= RELEASE_WAIT:
+                self.released = self.sim.time
+                return True
+        return False
+
+    def deformation(self) -> tuple[np.ndarray, np.ndarray]:
+        """(Ũ, ξ_H), each (T, 7): where the robot was held, and its plan deformed."""
+        held = _held(self.pushed, self.plan_timing.times, self.sim.impedance.stiffness)
+        return held, held_deformation(self.robot, held)
+
+    def switch(self, rest: np.ndarray, *, keep: bool = True) -> None:
+        """Play ``rest`` (T, 7, from the arm's current q) for the rest of the motion, leaving
+        the current plan's velocity smoothly; with ``keep``, first play the current plan to its
+        end from a snapshot (the motion had the robot not replanned), then come back."""
+        _, velocity, _ = self.reference.at(np.array([self.sim.time]))
+        if keep:
+            self.sim.snapshot()
+            self.kept = _finish(self.sim, self.reference, self.rng, self.steps)
+            self.sim.restore()
+        self.reference = dynamics.TimedTrajectory(
+            rest, self.duration - self.sim.time, start_velocity=velocity[0], t0=self.sim.time
+        )
+        self.switched = True
+
+    def trace(self) -> PushTrace:
+        """The task so far at the person's rate."""
+        chunks = self.chunks
+        return PushTrace(
+            times=np.array([c.times[0] for c in chunks]),
+            cup=np.vstack([c.cup[0] for c in chunks]),
+            force=np.vstack([c.force[0] for c in chunks]),
+            tau_sensed=np.vstack([c.tau_sensed[0] for c in chunks]),
+            tau_applied=np.vstack([c.tau_applied[0] for c in chunks]),
+            q=np.vstack([c.q[0] for c in chunks]),
+        )
+
+    def outcome(self, features: tuple[str, ...]) -> PhysicalOutcome:
+        """What the finished task gave (see :class:`PhysicalOutcome`)."""
+        final = (self.sim.time, self.sim.q())
+        held, deformed = self.deformation()
+        trace = self.trace()
+        at = self.plan_timing.times
+        extras = {
+            "effort": self.effort,
+            "push_time": self.push_time,
+            "sense_error": _relative_rms(self.pushed),
+            "replanned": float(self.switched),
+            "contact": float(any(c.contacts for c in self.chunks)),
+        }
+        kept = None if self.kept is None else _sample(*_after(trace, self.kept), at)
+        return PhysicalOutcome(
+            phi_h=feature_counts(deformed, self.env, features),
+            executed=_sample(trace.times, trace.q, final, at),
+            executed_kept=kept,
+            extras=extras,
+            held=held,
+            deformed=deformed,
+            trace=trace,
+        )
+
+
 def _perform(
     person: PhysicalUser, situation: Situation, rng: np.random.Generator, replan: Replan | None
 ) -> PhysicalOutcome:
-    robot, intended, env = situation.robot, situation.intended, situation.env
-    duration = person.duration
-    reference = plan_timing = dynamics.TimedTrajectory(robot, duration)
-    theirs = dynamics.TimedTrajectory(intended, duration)
+    robot, intended = situation.robot, situation.intended
+    motion = PushedMotion(
+        robot,
+        situation.env,
+        person.duration,
+        rng,
+        torque_noise=person.torque_noise,
+        detect=person.detect,
+    )
+    theirs = dynamics.TimedTrajectory(intended, person.duration)
     worst, _, _ = worst_cup_waypoint(robot, intended)
-    start, end = person.window(reference.times[worst])
-    sim = _arm(env, person.torque_noise)
-    sim.reset(robot[0])
-    chunk = int(round(1.0 / (PERSON_RATE * sim.dt)))
-    look = chunk * sim.dt
-    stiffness = sim.impedance.stiffness
-    chunks: list[dynamics.Chunk] = []
-    pushed: list[dynamics.Chunk] = []
-    quiet_since: float | None = None
-    released = False
-    effort = contact_time = 0.0
-    kept = None
+    start, end = person.window(motion.plan_timing.times[worst])
 
     def person_force(t: float, cup: np.ndarray) -> np.ndarray | None:
         gain = person.envelope(t, start, end)
@@ -301,61 +436,13 @@ def _perform(
             force = force + rng.normal(0.0, person.force_noise, size=3)
         return cap_force(force, person.force_cap)
 
-    while sim.time < duration - 1e-9:
-        force = person_force(sim.time, sim.cup_position())
-        out = sim.advance(reference, chunk, force, rng)
-        chunks.append(out)
-        if force is not None:
-            effort += float(np.linalg.norm(force)) * look
-            contact_time += look
-        if released:
-            continue  # one push a task: what the robot senses later is not this correction
-        if float(np.linalg.norm(out.tau_sensed[-1])) > person.detect:
-            pushed.append(out)
-            quiet_since = None
-        elif pushed:
-            quiet_since = sim.time if quiet_since is None else quiet_since
-            if sim.time - quiet_since >= RELEASE_WAIT:
-                released = True
-                if replan is not None:
-                    held = _held(pushed, plan_timing.times, stiffness)
-                    rest = replan(held_deformation(robot, held), sim.q(), sim.time)
-                    if rest is not None:
-                        _, velocity, _ = reference.at(np.array([sim.time]))
-                        sim.snapshot()
-                        kept = _finish(sim, reference, rng, chunk)
-                        sim.restore()
-                        reference = dynamics.TimedTrajectory(
-                            rest, duration - sim.time, start_velocity=velocity[0], t0=sim.time
-                        )
-    final = (sim.time, sim.q())
-    held = _held(pushed, plan_timing.times, stiffness)
-    deformed = held_deformation(robot, held)
-    at = plan_timing.times
-    trace = PushTrace(
-        times=np.array([c.times[0] for c in chunks]),
-        cup=np.vstack([c.cup[0] for c in chunks]),
-        force=np.vstack([c.force[0] for c in chunks]),
-        tau_sensed=np.vstack([c.tau_sensed[0] for c in chunks]),
-        tau_applied=np.vstack([c.tau_applied[0] for c in chunks]),
-        q=np.vstack([c.q[0] for c in chunks]),
-    )
-    extras = {
-        "effort": effort,
-        "push_time": contact_time,
-        "sense_error": _relative_rms(pushed),
-        "replanned": float(kept is not None),
-        "contact": float(any(c.contacts for c in chunks)),
-    }
-    return PhysicalOutcome(
-        phi_h=feature_counts(deformed, env, situation.features),
-        executed=_sample(trace.times, trace.q, final, at),
-        executed_kept=None if kept is None else _sample(*_after(trace, kept), at),
-        extras=extras,
-        held=held,
-        deformed=deformed,
-        trace=trace,
-    )
+    while not motion.done:
+        if motion.look(person_force(motion.time, motion.cup())) and replan is not None:
+            _, deformed = motion.deformation()
+            rest = replan(deformed, motion.q(), motion.time)
+            if rest is not None:
+                motion.switch(rest)
+    return motion.outcome(situation.features)
 
 
 def _held(pushed: list[dynamics.Chunk], waypoint_times: np.ndarray, stiffness) -> np.ndarray:
