@@ -483,6 +483,17 @@ def main(argv: Sequence[str] | None = None) -> None:
         help="fig4: the solver of the paper-scale run (default: the planner's default)",
     )
     parser.add_argument(
+        "--page",
+        action="store_true",
+        help="physical: also the page in chromium (poses/s, frames/s, let-go -> new path)",
+    )
+    parser.add_argument(
+        "--speed",
+        type=float,
+        default=0.25,
+        help="physical --page: the page's simulated seconds per real second (default 0.25)",
+    )
+    parser.add_argument(
         "--breakdown",
         action="store_true",
         help="warm: where a fig. 4 run's time goes in each warm mode (--slice-runs runs of "
@@ -532,6 +543,11 @@ def main(argv: Sequence[str] | None = None) -> None:
         if not 1 <= n <= 48:
             parser.error("--problems: physical takes 1 to 48 environments (default 12)")
         print("\n".join(run_physical(n, 0 if args.seed is None else args.seed)))
+        if args.page:
+            from benchmarks.bench_physical import run_page_bench
+
+            print()
+            print("\n".join(run_page_bench(args.speed)))
         return
     args.problems = 60 if args.problems is None else args.problems
     args.seed = 0 if args.seed is None else args.seed

@@ -21,7 +21,7 @@ import numpy as np
 from corrections_sim.figures.presets import EXPERIMENTS_DIR
 from corrections_sim.interact import drive
 from corrections_sim.interact.log import StudyLog
-from corrections_sim.interact.page import serve
+from corrections_sim.interact.server import serve
 from corrections_sim.interact.session import Session
 from corrections_sim.study.schema import load_study
 

@@ -99,3 +99,71 @@ def run_bench(tasks: int = 12, seed: int = 0) -> list[str]:
         f"KF-C's error after one push from theta0 = 0 (2.0 before): {_percentiles(moved)}",
     ]
     return lines
+
+
+def run_page_bench(speed: float = 0.25, pushes: int = 2) -> list[str]:
+    """The physical page in chromium (software WebGL): arm poses the server sends per second
+    during a motion, frames the page draws per second, and from letting go of the handle to
+    the new path on the page; ``pushes`` pushes, one per plan."""
+    import socket
+    import tempfile
+    from pathlib import Path
+
+    from playwright.sync_api import sync_playwright
+
+    from corrections_sim.interact import drive
+    from corrections_sim.interact.log import StudyLog
+    from corrections_sim.interact.server import serve
+    from corrections_sim.interact.session import Session
+    from corrections_sim.study.schema import parse_study
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    study = {"theta_star": [1.0, -1.0], "learners": ["KF-CL"], "seed": 5, "iterations": pushes}
+    folder = Path(tempfile.mkdtemp())
+    log = StudyLog(folder / "bench.sqlite")
+    session = Session.start(
+        parse_study(study, name="bench"),
+        log,
+        learner="KF-CL",
+        params={"model": "physical"},
+        correction="physical",
+        participant="bench",
+    )
+    server, page = serve(session, port=port, speed=speed)
+    poses, drawn, latency, server_side = [], [], [], []
+    try:
+        with sync_playwright() as p:
+            browser = drive.launch(p)
+            tab = drive.open_page(browser, f"http://127.0.0.1:{port}", physical=True)
+            for k in range(pushes):
+                frames0, t0 = page.frames, time.perf_counter()
+                drive.click(tab, "Play: push the cup while it moves")
+                drive.wait_for(lambda: page.motion is not None and page.motion.time > 0.6, "motion")
+                drawn.append(drive.frame_rate(tab, 2.0))
+                poses.append((page.frames - frames0) / (time.perf_counter() - t0))
+                for _ in range(5):
+                    drive.push_cup(tab, np.asarray(page.handle.position), 150, hold=1.0)
+                    let_go = time.perf_counter()
+                    if page.max_force > 0:
+                        break
+                drive.wait_for(lambda k=k: page.pushes > k, "the push learnt", timeout=120)
+                drive.wait_for(lambda: "learnt" in drive.status(tab), "the new path shown")
+                latency.append(time.perf_counter() - let_go)
+                server_side.append(page.last_push[1] - page.last_push[0])
+                drive.wait_for(lambda: not page._runner.is_alive(), "the motion's end", 120)
+                page.max_force = 0.0
+            browser.close()
+    finally:
+        server.stop()
+        log.close()
+    return [
+        f"physical page at speed {speed} ({pushes} pushes, chromium, software WebGL)",
+        f"arm poses sent per second during a motion: {_percentiles(poses)} (target >= 30)",
+        f"frames the page draws per second during a motion: {_percentiles(drawn)} (target >= 20)",
+        f"letting go -> the learnt push and new path on the page: {_percentiles(latency)} s "
+        f"(includes the robot's {0.05 / speed:.2f} s wait for quiet; target <= 1)",
+        f"  of which on the server (push found -> learnt, logged, replanned, drawn): "
+        f"{_percentiles(server_side)} s",
+    ]

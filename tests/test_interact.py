@@ -211,3 +211,50 @@ def test_an_active_warm_started_session_resumes_exactly_after_skips(tmp_path):
         np.testing.assert_array_equal(
             resumed.proposal().plan.trajectory, session.proposal().plan.trajectory
         )
+
+
+def test_a_physical_session_logs_each_push_replans_and_resumes(tmp_path, settings):
+    with StudyLog(tmp_path / "p.sqlite") as log:
+        session = Session.start(
+            settings,
+            log,
+            learner="KF-C",
+            params={"model": "physical"},
+            correction="physical",
+            participant="sim-p",
+        )
+        assert session.physical
+        rows = simulate(session, make_user("physical"), (1.0, -1.0), 2)
+        assert [r["iteration"] for r in rows] == [0, 1]
+        logged = log.corrections(session.id)
+        assert all(r["drag"]["simulated"] and r["drag"]["released_at"] > 0 for r in logged)
+        # Each push: the deformation keeps start and goal; the rest was replanned from where
+        # the arm was, after the update that learnt it.
+        for row in logged:
+            np.testing.assert_allclose(row["xi_h"][[0, -1]], row["xi_robot"][[0, -1]])
+        replans = log.events(session.id, "replan")
+        assert len(replans) == 2 and all("trajectory" in e["detail"] for e in replans)
+        assert np.linalg.norm(session.belief.theta - (1.0, -1.0)) < np.linalg.norm((1.0, -1.0))
+        resumed = Session.resume(log, session.id)
+        np.testing.assert_array_equal(resumed.belief.theta, session.belief.theta)
+        assert resumed.physical
+
+        # A push the page drives, a look at a time: logged with its profile before it counts.
+        motion = session.motion()
+        while motion.time < 1.5:
+            motion.look(np.array([0.0, 0.0, 20.0]) if motion.time > 0.5 else None)
+        while not motion.look(None):
+            pass
+        row = session.submit_push(motion, speed=0.5)
+        drag = log.corrections(session.id)[-1]["drag"]
+        assert drag["mode"] == "physical" and drag["speed"] == 0.5
+        assert drag["peak_force"] == pytest.approx(20.0) and drag["sense_error"] < 0.1
+        assert np.asarray(drag["force"]).shape[1] == 3 and len(drag["times"]) == len(drag["cup"])
+        assert row["phi_h"][1] < row["phi_robot"][1]  # lifted: less time near the table
+
+
+def test_a_physical_user_needs_a_physical_session(tmp_path, settings):
+    with StudyLog(tmp_path / "q.sqlite") as log:
+        session = Session.start(settings, log, learner="KF-C", participant="sim-q")
+        with pytest.raises(ValueError, match="--mode physical"):
+            simulate(session, make_user("physical"), (1.0, -1.0), 1)

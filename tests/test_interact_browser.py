@@ -20,7 +20,7 @@ import pytest
 
 from corrections_sim.interact import drive
 from corrections_sim.interact.log import StudyLog
-from corrections_sim.interact.page import serve
+from corrections_sim.interact.server import serve
 from corrections_sim.interact.session import Session
 from corrections_sim.study.schema import parse_study
 
@@ -179,3 +179,50 @@ def test_killing_the_server_loses_no_confirmed_correction(playwright_browser, tm
         resumed = Session.resume(log, 1)
         assert resumed.iteration == 1
         np.testing.assert_array_equal(resumed.belief.theta, rows[0]["theta_after"])
+
+
+@pytest.fixture(scope="module")
+def served_physical(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("physical")
+    log = StudyLog(folder / "study.sqlite")
+    session = Session.start(
+        parse_study(STUDY, name="t"),
+        log,
+        learner="KF-C",
+        params={"model": "physical"},
+        correction="physical",
+        participant="t-push",
+    )
+    server, page = serve(session, port=_free_port(), speed=0.25)
+    yield session, page, f"http://127.0.0.1:{server.get_port()}", folder
+    server.stop()
+    log.close()
+
+
+def test_a_push_during_the_motion_teaches_the_learner_and_is_logged(
+    playwright_browser, served_physical
+):
+    session, page, url, folder = served_physical
+    tab = drive.open_page(playwright_browser, url, physical=True)
+    try:
+        before = session.belief.theta.copy()
+        drive.click(tab, "Play: push the cup while it moves")
+        drive.wait_for(lambda: page.motion is not None and page.motion.time > 0.6, "the motion")
+        # Up, far beyond the workspace: the spring's force is capped.
+        for _ in range(5):
+            drive.push_cup(tab, np.asarray(page.handle.position), 400, hold=1.5)
+            if page.max_force > 0 or page.motion.done:
+                break
+        assert page.max_force > 0, "no grab of the handle landed during the motion"
+        drive.wait_for(lambda: page.pushes == 1, "the push reaching the learner", timeout=120)
+        assert page.max_force <= page.force_cap + 1e-9
+        rows = session.log.corrections(session.id)
+        assert len(rows) == 1 and rows[0]["drag"]["mode"] == "physical"
+        assert np.all(np.isfinite(rows[0]["xi_h"])) and rows[0]["drag"]["peak_force"] > 1.0
+        assert not np.array_equal(session.belief.theta, before)
+        assert session.log.events(session.id, "replan")
+        drive.wait_for(lambda: "learnt" in drive.status(tab), "the push's outcome on the page")
+        tab.screenshot(path=str(folder / "push.png"))
+        assert (folder / "push.png").stat().st_size > 10_000
+    finally:
+        tab.close()

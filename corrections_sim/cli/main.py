@@ -199,6 +199,16 @@ def _port(text: str) -> int:
     return value
 
 
+def _speed(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a number") from None
+    if not (np.isfinite(value) and 0 < value <= 1):
+        raise argparse.ArgumentTypeError(f"{value}: must lie in (0, 1]")
+    return value
+
+
 def _positive_float(option: str) -> Callable[[str], float]:
     def parse(text: str) -> float:
         try:
@@ -433,6 +443,21 @@ def _interact_settings(args: argparse.Namespace):
         raise UsageError(f"{source}: {exc}") from None
 
 
+def _physical_learner(settings, learner: str, args: argparse.Namespace) -> dict | None:
+    """A physical session's learner: the study's, with the ``physical`` model of a push where
+    it takes a model and none was set (``--set learners.NAME.model=...``)."""
+    from corrections_sim import components
+    from corrections_sim.learning.base import LEARNERS
+
+    if "model" not in components.defaults(LEARNERS[learner]):
+        return None
+    if any(item.startswith(f"learners.{learner}.model") for item in args.set or ()):
+        return None
+    agent = settings.study.learners.get(learner)
+    params = components.params(agent) if agent is not None else {}
+    return params | {"model": "physical"}
+
+
 def _db(args: argparse.Namespace) -> Path:
     return (
         Path(args.db) if args.db else output_folder.default_out(False) / "interact" / "study.sqlite"
@@ -452,7 +477,7 @@ def run_interact(args: argparse.Namespace) -> list[Path]:
         raise UsageError(f"--db {db}: {exc}") from None
     try:
         if args.resume is not None:
-            if args.study_file or args.learner or args.headless:
+            if args.study_file or args.learner or args.headless or args.mode:
                 raise UsageError("--resume: the session's own settings apply; give only --db")
             session = Session.resume(log, args.resume)
         else:
@@ -460,11 +485,16 @@ def run_interact(args: argparse.Namespace) -> list[Path]:
             corrector = "person"
             if args.headless:
                 corrector = settings.study.user_params()
+            learner = args.learner or "KF-CL"
+            physical = args.mode == "physical"
+            if physical and args.drag_model:
+                raise UsageError("--drag-model: a physical session deforms by the push; drop it")
             session = Session.start(
                 settings,
                 log,
-                learner=args.learner or "KF-CL",
-                correction=args.drag_model or "waypoint",
+                learner=learner,
+                params=_physical_learner(settings, learner, args) if physical else None,
+                correction="physical" if physical else (args.drag_model or "waypoint"),
                 participant=args.participant or ("simulated" if args.headless else "anonymous"),
                 corrector=corrector,
             )
@@ -483,11 +513,13 @@ def run_interact(args: argparse.Namespace) -> list[Path]:
         return [db]
     import threading
 
-    from corrections_sim.interact.page import serve
+    from corrections_sim.interact.server import serve
 
     finished = threading.Event()
     try:
-        server, page = serve(session, args.host or "127.0.0.1", args.port or 8080)
+        server, page = serve(
+            session, args.host or "127.0.0.1", args.port or 8080, speed=args.speed or 1.0
+        )
     except OSError as exc:
         raise UsageError(f"--port {args.port or 8080}: {exc.strerror or exc}") from None
     page.on_done = finished.set
@@ -567,6 +599,8 @@ TOOL_OPTIONS: dict[str, tuple[str, ...]] = {
         "resume",
         "drag_model",
         "headless",
+        "mode",
+        "speed",
         "user",
         "iterations",
         "seed",
@@ -795,6 +829,17 @@ def parser() -> argparse.ArgumentParser:
     i.add_argument("--host", help="address to serve the page on (default 127.0.0.1)")
     i.add_argument("--port", type=_port, help="port of the page, 1-65535 (default 8080)")
     i.add_argument("--resume", type=int, metavar="SESSION", help="continue a logged session")
+    i.add_argument(
+        "--mode",
+        choices=["drag", "physical"],
+        help="drag (default): drag the cup at a waypoint of the plan; physical: push the cup "
+        "while the arm moves under impedance, the robot learns and replans when you let go",
+    )
+    i.add_argument(
+        "--speed",
+        type=_speed,
+        help="physical: simulated seconds per real second, in (0, 1] (default 1)",
+    )
     i.add_argument(
         "--drag-model",
         help="how a dragged waypoint becomes the corrected path: waypoint (default: only "

@@ -16,8 +16,7 @@ learner pair per user; executed regret online − kept per learner), the plot.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
-from concurrent.futures import Executor
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -27,8 +26,8 @@ import numpy as np
 from corrections_sim import provenance
 from corrections_sim.figures import learning, robustness
 from corrections_sim.figures.output import write_records
-from corrections_sim.figures.registry import Caches, register
-from corrections_sim.study import analysis, runner
+from corrections_sim.figures.registry import register
+from corrections_sim.study import analysis
 from corrections_sim.study.runner import FigureResult
 
 FIGURE = "physical"
@@ -144,36 +143,16 @@ def write(settings, results: Sequence[FigureResult], folder: Path) -> dict:
 
 
 @dataclass(frozen=True)
-class PhysicalFigure:
-    """The physical-corrections study as a registered figure; resumable per column."""
+class PhysicalFigure(robustness.RobustnessFigure):
+    """The physical-corrections study as a registered figure: fig. 6's columns and caches,
+    its own file, files and plot."""
 
     name: str = FIGURE
     help: str = "beyond the paper: a person pushes the moving arm; learners, online replanning"
-    options: tuple[str, ...] = learning.OPTIONS
-    unit: str = "run"
     in_all: bool = False
 
     def load(self, *, quick: bool, overrides: Mapping[str, Any]):
         return robustness.load_settings(quick=quick, overrides=dict(overrides), figure=FIGURE)
-
-    def folder(self, settings) -> str:
-        return self.name
-
-    def cache_keys(self, settings) -> dict[str, dict]:
-        return {f"column-{i}": runner.run_key(c.settings) for i, c in enumerate(settings.columns)}
-
-    def recorded(self, settings, *, quick: bool) -> dict:
-        return settings.as_dict()
-
-    def run(
-        self,
-        settings,
-        executor: Executor,
-        progress: Callable[[int, int], None] | None,
-        cache: Caches | None,
-    ) -> list[FigureResult]:
-        caches = [(cache or {}).get(f"column-{i}") for i in range(len(settings.columns))]
-        return robustness.run(settings, executor, progress, caches=caches)
 
     def write(self, settings, result: list[FigureResult], folder: Path) -> dict:
         return write(settings, result, folder)

@@ -53,14 +53,49 @@ def wait_for(predicate: Callable[[], object], what: str, timeout: float = 60.0):
         time.sleep(0.05)
 
 
-def open_page(browser, url: str, *, viewport: dict | None = None):
-    """A new tab on ``url`` once the page shows its plan (its submit button)."""
+def open_page(browser, url: str, *, viewport: dict | None = None, physical: bool = False):
+    """A new tab on ``url`` once the page shows its plan (its submit button; a physical
+    session's play button)."""
     tab = browser.new_page(viewport=viewport or VIEWPORT)
     tab.goto(url)
-    tab.get_by_text("Submit correction").wait_for(timeout=120_000)
+    ready = "Play: push the cup while it moves" if physical else "Submit correction"
+    tab.get_by_text(ready).wait_for(timeout=120_000)
     tab.locator("canvas").first.wait_for(timeout=120_000)
-    wait_for(lambda: cup_position(tab), "the cup's position on the page")
+    if not physical:
+        wait_for(lambda: cup_position(tab), "the cup's position on the page")
     return tab
+
+
+def frame_rate(tab, seconds: float = 2.0) -> float:
+    """Frames per second the page draws (requestAnimationFrame callbacks over ``seconds``)."""
+    return tab.evaluate(
+        """(seconds) => new Promise((done) => {
+            let frames = 0;
+            const start = performance.now();
+            const tick = (now) => {
+                frames += 1;
+                if (now - start < seconds * 1000) requestAnimationFrame(tick);
+                else done(frames / ((now - start) / 1000));
+            };
+            requestAnimationFrame(tick);
+        })""",
+        seconds,
+    )
+
+
+def push_cup(tab, cup, pixels_up: float, *, steps: int = 12, hold: float = 0.5) -> None:
+    """Grab the handle's vertical arrow at the cup's position ``cup`` (3,) now, drag it
+    ``pixels_up`` pixels up in ``steps`` moves, hold ``hold`` s, let go."""
+    box = tab.locator("canvas").first.bounding_box()
+    point = np.asarray(cup, float) + 0.7 * HANDLE_SCALE * np.eye(3)[2]
+    x, y = project(point, box["width"], box["height"])
+    start = (box["x"] + x, box["y"] + y)
+    tab.mouse.move(*start)
+    tab.mouse.down()
+    for i in range(1, steps + 1):
+        tab.mouse.move(start[0], start[1] - pixels_up * i / steps)
+    time.sleep(hold)
+    tab.mouse.up()
 
 
 def cup_position(tab) -> tuple[int, np.ndarray] | None:

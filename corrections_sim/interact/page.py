@@ -165,11 +165,7 @@ class Page:
         s = self.session
         self.client = client
         scene, gui = client.scene, client.gui
-        self.meshes = {}
-        for piece in pieces():
-            self.meshes[piece.geom] = scene.add_mesh_simple(
-                f"/world/{piece.name}", piece.vertices, piece.faces, color=piece.rgb
-            )
+        self._add_meshes(scene)
         self.title = gui.add_markdown("")
         self.status = gui.add_markdown("")
         self.where = gui.add_markdown("")
@@ -205,6 +201,15 @@ class Page:
         if s.iteration > 0:
             self.state_button.disabled = True
         self._new_proposal()
+
+    def _add_meshes(self, scene) -> None:
+        """The scene's visual pieces, kept by geom for posing the arm."""
+        self.meshes = {
+            piece.geom: scene.add_mesh_simple(
+                f"/world/{piece.name}", piece.vertices, piece.faces, color=piece.rgb
+            )
+            for piece in pieces()
+        }
 
     def _say(self, text: str) -> None:
         self.last_message = text
@@ -420,21 +425,3 @@ class Page:
                 )
         if self.on_done is not None:
             self.on_done()
-
-
-def serve(session: Session, host: str = "127.0.0.1", port: int = 8080):
-    """A viser server on ``host:port`` showing ``session``'s page; (server, page).
-
-    Raises:
-        RuntimeError: viser is not installed (``pip install "corrections_sim[interact]"``).
-    """
-    try:
-        import viser
-    except ImportError:
-        raise RuntimeError(
-            'interact needs viser: pip install -e ".[interact]" (or pip install viser==1.1.1)'
-        ) from None
-    server = viser.ViserServer(host=host, port=port, verbose=False)
-    server.gui.configure_theme(control_width="large", show_share_button=False)
-    server.gui.main_panel.dock_right()
-    return server, Page(server, session)

@@ -17,6 +17,13 @@ a simulated one compare line by line. Iteration t:
 3. :meth:`Session.submit` — the learner updates on Φ(ξ_h, Eᵗ); the row is committed to the log;
    only then does the caller see the new belief.
 
+A physical session (correction model ``physical``) replaces 2 and 3: the person pushes the cup
+while the arm plays ξᵗ under impedance (:class:`~corrections_sim.people.physical.PushedMotion`,
+driven by the page or by a simulated physical user); when the robot finds the push over,
+:meth:`Session.submit_push` learns from the deformation ξ_H and logs it with the push (force
+profile, executed path, sensed τ_h, where the arm was held), and :meth:`Session.replan_rest`
+plans the rest of the motion from where the arm is.
+
 The environment draws are stateless functions of (seed, draw index), and the learners' own
 generator of (seed, iteration), so a session resumed from its log (:meth:`Session.resume`)
 continues exactly where it stopped: its corrections are replayed through the learner and
@@ -38,6 +45,7 @@ from corrections_sim.calibration import nis
 from corrections_sim.interact.log import StudyLog, check_participant, now
 from corrections_sim.learning.base import LEARNERS, Learner, LearnerContext, make_learner
 from corrections_sim.people.corrections import CORRECTIONS, CorrectionModel
+from corrections_sim.people.physical import PushedMotion
 from corrections_sim.people.users import Situation, User
 from corrections_sim.planning.features import feature_counts
 from corrections_sim.planning.planner import Plan, Planner, PlanningError, shared_planner
@@ -280,6 +288,45 @@ class Session:
         """The registered name of the model that completes a drag into ξ_h."""
         return components.name_of(CORRECTIONS, self.correction)
 
+    @property
+    def physical(self) -> bool:
+        """Whether the person pushes the moving arm (correction model ``physical``) rather
+        than drags a waypoint."""
+        return self.correction_name == "physical"
+
+    def motion(self, duration: float = 5.0) -> PushedMotion:
+        """The current proposal played under impedance, for a person to push (no sensing
+        noise: the robot senses what the simulation gives it)."""
+        pending = self.proposal()
+        rng = np.random.default_rng(np.random.SeedSequence([self.seed, 28, pending.draw]))
+        return PushedMotion(pending.plan.trajectory, pending.env, duration, rng)
+
+    def submit_push(self, motion: PushedMotion, **extra) -> dict:
+        """Learn from ``motion``'s push (its deformation ξ_H), log it with the push and return
+        the row (see :func:`push_record`; ``extra`` is logged with it)."""
+        _, deformed = motion.deformation()
+        return self.submit(deformed, drag=push_record(motion) | extra)
+
+    def replan_rest(self, q_now, t_now: float, iteration: int) -> np.ndarray | None:
+        """The rest of the motion (T, 7) from the arm's configuration ``q_now`` (7,) at
+        ``t_now`` s, planned with the current θ̂ in the environment of correction
+        ``iteration``; None if the planner finds none (logged as a ``replan`` event either
+        way)."""
+        with self._lock:
+            q_now = np.asarray(q_now, dtype=float)
+            row = self.log.corrections(self.id)[-1]
+            env = self.envs[int(row["env_index"])]
+            detail: dict = {"t": float(t_now), "q": q_now.tolist(), "after": iteration}
+            try:
+                rest = self.planner.solve(self.belief.theta, replace_start(env, q_now))
+            except (PlanningError, ValueError) as exc:
+                detail["failed"] = str(exc).splitlines()[0]
+                self.log.add_event(self.id, iteration, "replan", detail)
+                return None
+            detail["trajectory"] = rest.trajectory.tolist()
+            self.log.add_event(self.id, iteration, "replan", detail)
+            return rest.trajectory
+
     # --- the steps -------------------------------------------------------------------------
 
     def _context(self) -> LearnerContext:
@@ -503,6 +550,40 @@ class Session:
             return deployment
 
 
+def replace_start(env: Environment, q_start: np.ndarray) -> Environment:
+    """``env`` with the motion starting at ``q_start`` (7,): the rest of a motion to plan."""
+    import dataclasses
+
+    return dataclasses.replace(env, q_start=q_start, name=f"{env.name} (rest)")
+
+
+def push_record(motion: PushedMotion) -> dict:
+    """What the log keeps of a push (the ``drag`` column): the force profile, the executed
+    cup path and the sensed τ_h at the person's rate, where the robot found itself held (Ũ),
+    when it let go, the effort and the sensing's error against the applied Jᵀ F."""
+    trace = motion.trace()
+    held, _ = motion.deformation()
+    pushed = np.linalg.norm(trace.force, axis=1) > 0
+    return {
+        "mode": "physical",
+        "times": np.round(trace.times, 4).tolist(),
+        "force": np.round(trace.force, 4).tolist(),
+        "cup": np.round(trace.cup, 5).tolist(),
+        "tau_sensed": np.round(trace.tau_sensed, 4).tolist(),
+        "held": held.tolist(),
+        "released_at": motion.released,
+        "effort": motion.effort,
+        "push_time": motion.push_time,
+        "peak_force": float(np.linalg.norm(trace.force, axis=1).max(initial=0.0)),
+        "sense_error": _relative_rms(trace.tau_sensed[pushed], trace.tau_applied[pushed]),
+    }
+
+
+def _relative_rms(sensed: np.ndarray, applied: np.ndarray) -> float | None:
+    scale = float(np.sqrt(np.mean(applied**2))) if applied.size else 0.0
+    return float(np.sqrt(np.mean((sensed - applied) ** 2)) / scale) if scale > 0 else None
+
+
 def settings_from_log(recorded: Mapping) -> FigureSettings:
     """A study's settings from the dictionary a session logged (``FigureSettings.as_dict``)."""
     values = dict(recorded)
@@ -533,7 +614,30 @@ def simulate(session: Session, user: User, theta_star, corrections: int) -> list
             features=session.features,
             theta_star=theta_star,
         )
+        if user.during_motion:
+            rows.append(_simulate_push(session, user, situation, rng))
+            continue
         corrected = user.correct(situation, rng)
         phi_h = user.correction_features(situation, rng)
         rows.append(session.submit(corrected, drag={"simulated": True}, phi_h=phi_h))
     return rows
+
+
+def _simulate_push(session: Session, user: User, situation: Situation, rng) -> dict:
+    """One push of a simulated physical ``user`` through the session's steps: the motion, the
+    push, the update and its log row, and the rest replanned from where the arm is."""
+    if not session.physical:
+        raise ValueError(
+            f"user: the physical user pushes the moving arm; start the session with "
+            f"--mode physical (its correction model is {session.correction_name})"
+        )
+    rows = []
+
+    def replan(deformed, q_now, t_now):
+        rows.append(session.submit(deformed, drag={"simulated": True, "released_at": t_now}))
+        return session.replan_rest(q_now, t_now, rows[-1]["iteration"])
+
+    outcome = user.perform(situation, rng, replan)
+    if not rows:  # no push found: the deformation is none, learnt after the motion
+        rows.append(session.submit(outcome.deformed, drag={"simulated": True}))
+    return rows[0]
