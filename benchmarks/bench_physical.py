@@ -5,7 +5,6 @@ seconds, over paper environments."""
 
 from __future__ import annotations
 
-import dataclasses
 import time
 
 import numpy as np
@@ -81,9 +80,7 @@ def run_bench(tasks: int = 12, seed: int = 0) -> list[str]:
         def replan(deformed, q_now, t_now, env=env, ctx=ctx, mine=mine, after=after, prior=belief):
             step = learner.update(ctx, prior, env, mine, feature_counts(deformed, env, FEATURES))
             after.append(step.belief.theta)
-            return planner.solve(
-                step.belief.theta, dataclasses.replace(env, q_start=q_now)
-            ).trajectory
+            return planner.solve(step.belief.theta, env.from_here(q_now)).trajectory
 
         t0 = time.process_time()
         outcome = person.perform(situation, rng, replan)

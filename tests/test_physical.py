@@ -3,8 +3,6 @@ correction, the simulated physical person and online learning (issue 28)."""
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 
@@ -122,7 +120,7 @@ def test_online_replans_from_where_the_arm_is(task, planner, rng):
 
     def replan(deformed, q_now, t_now):
         calls.append((deformed, q_now, t_now))
-        rest = dataclasses.replace(task.env, q_start=q_now)
+        rest = task.env.from_here(q_now)
         return planner.solve(THETA_STAR, rest).trajectory
 
     outcome = make_user("physical").perform(task, rng, replan)

@@ -318,7 +318,7 @@ class Session:
             env = self.envs[int(row["env_index"])]
             detail: dict = {"t": float(t_now), "q": q_now.tolist(), "after": iteration}
             try:
-                rest = self.planner.solve(self.belief.theta, replace_start(env, q_now))
+                rest = self.planner.solve(self.belief.theta, env.from_here(q_now))
             except (PlanningError, ValueError) as exc:
                 detail["failed"] = str(exc).splitlines()[0]
                 self.log.add_event(self.id, iteration, "replan", detail)
@@ -548,13 +548,6 @@ class Session:
             self.log.end_session(self.id)
             self.ended = True
             return deployment
-
-
-def replace_start(env: Environment, q_start: np.ndarray) -> Environment:
-    """``env`` with the motion starting at ``q_start`` (7,): the rest of a motion to plan."""
-    import dataclasses
-
-    return dataclasses.replace(env, q_start=q_start, name=f"{env.name} (rest)")
 
 
 def push_record(motion: PushedMotion) -> dict:

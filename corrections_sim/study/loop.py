@@ -23,7 +23,6 @@ Everything random flows from ``np.random.Generator`` objects made from the study
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -137,11 +136,14 @@ def run_learner(
             def replan(
                 deformed, q_now, t_now, ctx=ctx, env=env, mine=mine, online=online, prior=belief
             ):
-                """Online: learn from the push now and plan the rest of the motion."""
+                """Online: learn from the push now and plan the rest of the motion (None,
+                the old plan goes on, when the planner finds none from where the arm is)."""
                 phi = feature_counts(deformed, env, names)
                 online.append(agent.update(ctx, prior, env, mine, phi))
-                rest = dataclasses.replace(env, q_start=q_now, name=f"{env.name}@{t_now:.2f}s")
-                return planner.solve(online[0].belief.theta, rest).trajectory
+                try:
+                    return planner.solve(online[0].belief.theta, env.from_here(q_now)).trajectory
+                except (PlanningError, ValueError):
+                    return None
 
             outcome = user.perform(situation, rng, replan if settings.online else None)
             task = _task_columns(outcome, target, idx, env, planner)
