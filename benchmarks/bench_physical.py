@@ -80,7 +80,7 @@ def run_bench(tasks: int = 12, seed: int = 0) -> list[str]:
         def replan(deformed, q_now, t_now, env=env, ctx=ctx, mine=mine, after=after, prior=belief):
             step = learner.update(ctx, prior, env, mine, feature_counts(deformed, env, FEATURES))
             after.append(step.belief.theta)
-            return planner.solve(step.belief.theta, env.from_here(q_now)).trajectory
+            return planner.solve(step.belief.theta, env).trajectory
 
         t0 = time.process_time()
         outcome = person.perform(situation, rng, replan)

@@ -115,13 +115,12 @@ def test_same_seed_same_push(task):
     assert person.stochastic
 
 
-def test_online_replans_from_where_the_arm_is(task, planner, rng):
+def test_online_the_arm_joins_the_new_plan_after_the_push(task, planner, rng):
     calls = []
 
     def replan(deformed, q_now, t_now):
         calls.append((deformed, q_now, t_now))
-        rest = task.env.from_here(q_now)
-        return planner.solve(THETA_STAR, rest).trajectory
+        return planner.solve(THETA_STAR, task.env).trajectory
 
     outcome = make_user("physical").perform(task, rng, replan)
     assert len(calls) == 1

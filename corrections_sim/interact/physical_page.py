@@ -201,9 +201,9 @@ class PhysicalPage(Page):
         with self._lock:
             self.grab = None
         row = s.submit_push(motion, speed=self.speed)
-        rest = s.replan_rest(motion.q(), motion.time, row["iteration"])
-        if rest is not None:
-            motion.switch(rest, keep=False)
+        plan = s.replan(motion.q(), motion.time, row["iteration"])
+        if plan is not None:
+            motion.switch(plan, keep=False)
         scene = self.client.scene
         scene.add_spline_catmull_rom(
             "/correction/path",
@@ -212,17 +212,17 @@ class PhysicalPage(Page):
             thickness_units="screen",
             color=CORRECTION_RGB,
         )
-        if rest is not None:
+        if plan is not None:
             scene.add_spline_catmull_rom(
                 "/rest/path",
-                cup_path(rest),
+                cup_path(motion.reference.waypoints),
                 thickness=3.0,
                 thickness_units="screen",
                 color=REST_RGB,
             )
         self.pushes += 1
         self._show_belief()
-        replanned = "the rest replanned (green)" if rest is not None else "no new plan found"
+        replanned = "the rest replanned (green)" if plan is not None else "no new plan found"
         self._say(f"Push felt and learnt: the deformed path is orange, {replanned}.")
         return row
 

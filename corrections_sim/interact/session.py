@@ -21,8 +21,8 @@ A physical session (correction model ``physical``) replaces 2 and 3: the person 
 while the arm plays ξᵗ under impedance (:class:`~corrections_sim.people.physical.PushedMotion`,
 driven by the page or by a simulated physical user); when the robot finds the push over,
 :meth:`Session.submit_push` learns from the deformation ξ_H and logs it with the push (force
-profile, executed path, sensed τ_h, where the arm was held), and :meth:`Session.replan_rest`
-plans the rest of the motion from where the arm is.
+profile, executed path, sensed τ_h, where the arm was held), and :meth:`Session.replan` plans
+anew, the arm joining the new plan where it is.
 
 The environment draws are stateless functions of (seed, draw index), and the learners' own
 generator of (seed, iteration), so a session resumed from its log (:meth:`Session.resume`)
@@ -307,25 +307,23 @@ class Session:
         _, deformed = motion.deformation()
         return self.submit(deformed, drag=push_record(motion) | extra)
 
-    def replan_rest(self, q_now, t_now: float, iteration: int) -> np.ndarray | None:
-        """The rest of the motion (T, 7) from the arm's configuration ``q_now`` (7,) at
-        ``t_now`` s, planned with the current θ̂ in the environment of correction
-        ``iteration``; None if the planner finds none (logged as a ``replan`` event either
-        way)."""
+    def replan(self, q_now, t_now: float, iteration: int) -> np.ndarray | None:
+        """The new plan (T, 7) with the current θ̂ in the environment of correction
+        ``iteration``, which the arm (at ``q_now`` (7,), ``t_now`` s into the motion) joins;
+        None if the planner finds none. Logged as a ``replan`` event either way."""
         with self._lock:
-            q_now = np.asarray(q_now, dtype=float)
             row = self.log.corrections(self.id)[-1]
             env = self.envs[int(row["env_index"])]
-            detail: dict = {"t": float(t_now), "q": q_now.tolist(), "after": iteration}
+            detail: dict = {"t": float(t_now), "q": np.asarray(q_now, float).tolist()}
             try:
-                rest = self.planner.solve(self.belief.theta, env.from_here(q_now))
-            except (PlanningError, ValueError) as exc:
+                plan = self.book.plan(self.belief.theta, env).trajectory
+            except PlanningError as exc:
                 detail["failed"] = str(exc).splitlines()[0]
                 self.log.add_event(self.id, iteration, "replan", detail)
                 return None
-            detail["trajectory"] = rest.trajectory.tolist()
+            detail["trajectory"] = plan.tolist()
             self.log.add_event(self.id, iteration, "replan", detail)
-            return rest.trajectory
+            return plan
 
     # --- the steps -------------------------------------------------------------------------
 
@@ -628,7 +626,7 @@ def _simulate_push(session: Session, user: User, situation: Situation, rng) -> d
 
     def replan(deformed, q_now, t_now):
         rows.append(session.submit(deformed, drag={"simulated": True, "released_at": t_now}))
-        return session.replan_rest(q_now, t_now, rows[-1]["iteration"])
+        return session.replan(q_now, t_now, rows[-1]["iteration"])
 
     outcome = user.perform(situation, rng, replan)
     if not rows:  # no push found: the deformation is none, learnt after the motion

@@ -18,9 +18,10 @@ al., IJRR 2022), on the dynamics of :mod:`corrections_sim.scene.dynamics`:
    ξ_H = ξ_R + μ A⁻¹ Ũ (:func:`~corrections_sim.people.corrections.held_deformation`).
    Learners see Φ(ξ_H).
 4. Online (the IJRR 2022 setting), when the robot finds the push over it hands ξ_H to a
-   ``replan`` callback (the study loop: the learner updates, the planner plans the rest of the
-   motion from the arm's current state) and plays the new plan; the motion it would have made
-   on the old plan is simulated too, from the same state, so the two are compared paired.
+   ``replan`` callback (the study loop: the learner updates and the planner plans ξ*(θ̂, E)
+   anew) and follows the new plan for the rest of the motion, joining it from where the arm is
+   meant to be at the same point of its timing; the motion it would have made on the old plan is
+   simulated too, from the same state, so the two are compared paired.
 
 :class:`PhysicalCorrection` ("physical", a correction model) is the robot's model of what such
 a push does, for the correction-aware learners: the same hand spring against the same
@@ -54,7 +55,8 @@ PERSON_RATE = 100
 #: takes the push as over, s.
 RELEASE_WAIT = 0.05
 
-#: replan(ξ_H (T, 7), q_now (7,), t_now) -> the rest of the motion (T, 7) from q_now, or None.
+#: replan(ξ_H (T, 7), q_now (7,), t_now) -> the new plan of the whole task (T, 7), which the
+#: arm joins from where it is, or None (the old plan goes on).
 Replan = Callable[[np.ndarray, np.ndarray, float], "np.ndarray | None"]
 
 
@@ -359,18 +361,21 @@ class PushedMotion:
         held = _held(self.pushed, self.plan_timing.times, self.sim.impedance.stiffness)
         return held, held_deformation(self.robot, held)
 
-    def switch(self, rest: np.ndarray, *, keep: bool = True) -> None:
-        """Play ``rest`` (T, 7, from the arm's current q) for the rest of the motion, leaving
-        the current plan's velocity smoothly; with ``keep``, first play the current plan to its
-        end from a snapshot (the motion had the robot not replanned), then come back."""
-        _, velocity, _ = self.reference.at(np.array([self.sim.time]))
+    def switch(self, plan: np.ndarray, *, keep: bool = True) -> None:
+        """Follow ``plan`` (T, 7), the robot's new plan of the whole task, for the rest of the
+        motion: joined from where the arm is meant to be now, at the same point of its timing
+        (:meth:`~corrections_sim.scene.dynamics.TimedTrajectory.join`). With ``keep``, first
+        play the current plan to its end from a snapshot (the motion had the robot not
+        replanned), then come back."""
         if keep:
             self.sim.snapshot()
             self.kept = _finish(self.sim, self.reference, self.rng, self.steps)
             self.sim.restore()
-        self.reference = dynamics.TimedTrajectory(
-            rest, self.duration - self.sim.time, start_velocity=velocity[0], t0=self.sim.time
-        )
+        # Joined from where the arm is meant to be now (the reference's own state, so the
+        # setpoint does not jump); the impedance brings the arm there as it would have.
+        t = self.sim.time
+        (here,), _, _ = self.reference.at(np.array([t]))
+        self.reference = self.reference.join(plan, t, here)
         self.switched = True
 
     def trace(self) -> PushTrace:

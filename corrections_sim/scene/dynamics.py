@@ -163,11 +163,12 @@ def robot_model(model: mujoco.MjModel) -> mujoco.MjModel:
 
 
 class TimedTrajectory:
-    """Waypoints (T, 7) timed uniformly over ``duration`` seconds, joined by a C² cubic spline
-    with given velocities at both ends (rest by default).
+    """Waypoints (T, 7) at times t_0 < … < t_{T−1} (by default spaced uniformly over
+    ``duration`` s from ``t0``), joined by a C² cubic spline with a given velocity at the start
+    (rest by default) and rest at the end.
 
-    The spline passes through every waypoint at t_j = j · duration / (T − 1); its velocity and
-    acceleration are continuous, so the feedforward torque is too.
+    The spline passes through every waypoint at its time; its velocity and acceleration are
+    continuous, so the feedforward torque is too.
     """
 
     def __init__(
@@ -177,6 +178,7 @@ class TimedTrajectory:
         *,
         start_velocity: np.ndarray | None = None,
         t0: float = 0.0,
+        times: np.ndarray | None = None,
     ) -> None:
         waypoints = np.asarray(waypoints, dtype=float)
         if waypoints.ndim != 2 or waypoints.shape[0] < 2 or waypoints.shape[1] != N_ARM_JOINTS:
@@ -185,13 +187,40 @@ class TimedTrajectory:
             raise ValueError("waypoints: all values must be finite")
         if not (np.isfinite(duration) and duration > 0):
             raise ValueError(f"duration: must be finite and > 0, got {duration!r}")
+        if times is None:
+            times = t0 + np.linspace(0.0, duration, waypoints.shape[0])
+        times = np.asarray(times, dtype=float)
+        if times.shape != (waypoints.shape[0],) or not np.all(np.diff(times) > 0):
+            raise ValueError(f"times: expected {waypoints.shape[0]} increasing times")
         v0 = np.zeros(N_ARM_JOINTS) if start_velocity is None else np.asarray(start_velocity, float)
         self.waypoints = waypoints
-        self.duration = float(duration)
-        self.t0 = float(t0)
-        self.times = self.t0 + np.linspace(0.0, self.duration, waypoints.shape[0])
+        self.times = times
+        self.t0 = float(times[0])
+        self.duration = float(times[-1] - times[0])
         self._spline = CubicSpline(
             self.times, waypoints, axis=0, bc_type=((1, v0), (1, np.zeros(N_ARM_JOINTS)))
+        )
+
+    def join(
+        self, plan: np.ndarray, t: float, q: np.ndarray, *, gap: float = 0.1
+    ) -> TimedTrajectory:
+        """Another plan (T, 7), timed like this one, joined at time ``t`` from configuration
+        ``q`` (7,): the new plan's waypoints after ``t`` (those closer than ``gap`` s to ``t``
+        left out), reached from ``q`` with this trajectory's velocity at ``t``."""
+        plan = np.asarray(plan, dtype=float)
+        if plan.shape != self.waypoints.shape:
+            raise ValueError(f"plan: expected shape {self.waypoints.shape}, got {plan.shape}")
+        later = np.flatnonzero(self.times > t + gap)
+        later = later if later.size else np.array([self.times.size - 1])
+        if self.times[later[0]] <= t:
+            raise ValueError(f"t = {t}: past the end of the motion ({self.times[-1]} s)")
+        _, velocity, _ = self.at(np.array([t]))
+        # The joined trajectory keeps this one's timing: its waypoints come at this one's times.
+        return TimedTrajectory(
+            np.vstack([q, plan[later]]),
+            self.times[-1] - t,
+            start_velocity=velocity[0],
+            times=np.concatenate([[t], self.times[later]]),
         )
 
     @property

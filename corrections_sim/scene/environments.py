@@ -14,7 +14,6 @@ plug-in module is imported, before any planner is built: the vector's length is 
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -109,11 +108,6 @@ class Environment:
         if self.extra:
             key += repr(sorted(self.extra.items())).encode()
         return key
-
-    def from_here(self, q_start: np.ndarray) -> Environment:
-        """This environment with the motion starting at ``q_start`` (7,): the rest of a
-        motion to plan after a push (ValueError if ``q_start`` is outside the joint limits)."""
-        return dataclasses.replace(self, q_start=q_start, name=f"{self.name} (rest)")
 
     def __eq__(self, other: object) -> bool:
         return isinstance(other, Environment) and self.key() == other.key()

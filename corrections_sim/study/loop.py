@@ -136,13 +136,14 @@ def run_learner(
             def replan(
                 deformed, q_now, t_now, ctx=ctx, env=env, mine=mine, online=online, prior=belief
             ):
-                """Online: learn from the push now and plan the rest of the motion (None,
-                the old plan goes on, when the planner finds none from where the arm is)."""
+                """Online: learn from the push now and plan anew (the arm joins the new plan
+                where it is; None, the old plan goes on, when the planner finds none). The
+                plan is the book's, so the regret that follows reuses it."""
                 phi = feature_counts(deformed, env, names)
                 online.append(agent.update(ctx, prior, env, mine, phi))
                 try:
-                    return planner.solve(online[0].belief.theta, env.from_here(q_now)).trajectory
-                except (PlanningError, ValueError):
+                    return book.plan(online[0].belief.theta, env).trajectory
+                except PlanningError:
                     return None
 
             outcome = user.perform(situation, rng, replan if settings.online else None)
