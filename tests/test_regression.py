@@ -116,3 +116,35 @@ def test_kf_c_is_calibrated_where_the_papers_kf_is_not(quick_run):
     assert stats["KF"]["mean_nees"][-1] > high, stats["KF"]["mean_nees"]
     assert stats["KF-C"]["inside_band"] == 1.0, (stats["KF-C"]["mean_nees"], stats["KF-C"]["band"])
     assert stats["KF-C"]["coverage_2sigma_mean"] > stats["KF"]["coverage_2sigma_mean"]
+
+
+def test_quick_physical_curves_match_the_reference():
+    """The physical study's quick preset (``run physical --quick --out results/reference``):
+    both columns, error, regret and the executed regret online and kept."""
+    from corrections_sim.figures import robustness
+
+    settings = robustness.load_settings(quick=True, figure="physical")
+    with open(REFERENCE / "physical" / "curves.csv", newline="") as fh:
+        reference = list(csv.DictReader(fh))
+    with ThreadPoolExecutor(max_workers=1) as executor:
+        results = robustness.run(settings, executor)
+    keys = {**TOLERANCE, "executed_regret": 0.03, "executed_regret_kept": 0.03}
+    checked = 0
+    for column, result in zip(settings.columns, results, strict=True):
+        ref = [r for r in reference if r["user"] == column.label]
+        assert len(result.records) == len(ref)
+        for learner in column.settings.study.learners:
+            for key, rtol in keys.items():
+                rows = [r for r in ref if r.get(key) not in (None, "")]
+                if not rows:
+                    continue
+                now = [r for r in result.records if r.get(key) is not None]
+                np.testing.assert_allclose(
+                    _mean_curves(now, learner, key),
+                    _mean_curves(rows, learner, key),
+                    rtol=rtol,
+                    atol=1e-6,
+                    err_msg=f"physical {column.label} {learner} {key}",
+                )
+                checked += 1
+    assert checked == 2 * 4 * 2 + 4 * 2  # both columns' error and regret, the pushes' regrets

@@ -11,7 +11,10 @@ are the same either way (the push is the same and the learner gets it once).
 
 Files: ``matrix.csv`` (fig. 6's columns, plus executed regret, effort and sensing error per
 learner and user), ``curves.csv``, ``paired.csv`` (paired 95% intervals: final error of every
-learner pair per user; executed regret online − kept per learner), the plot.
+learner pair per user; executed regret online − kept per learner), the plot, and
+``push.png``: one push drawn (the first correction of the physical column in its first
+environment: the plans, the push's force, the executed motion, the deformation and the new
+plan).
 """
 
 from __future__ import annotations
@@ -27,6 +30,8 @@ from corrections_sim import provenance
 from corrections_sim.figures import learning, robustness
 from corrections_sim.figures.output import write_records
 from corrections_sim.figures.registry import register
+from corrections_sim.planning.features import feature_counts
+from corrections_sim.planning.planner import shared_planner
 from corrections_sim.study import analysis
 from corrections_sim.study.runner import FigureResult
 
@@ -97,9 +102,91 @@ def paired(settings, results: Sequence[FigureResult]) -> list[dict]:
     return out
 
 
-def write(settings, results: Sequence[FigureResult], folder: Path) -> dict:
-    """matrix.csv, curves.csv, paired.csv and the plot in ``folder``; the summary's fields."""
-    from corrections_sim.figures.plotting import plot_physical
+@dataclass(frozen=True)
+class PhysicalResult:
+    """Every column's result, and one push drawn in ``push.png`` (see :func:`example`)."""
+
+    columns: list[FigureResult]
+    example: dict
+
+
+def example(settings) -> dict:
+    """One push, as the physical column's first correction goes in the study's first
+    environment: the robot's plan at θ̂⁰, the person's at θ*, the push of the column's user, the
+    update of its learner told how people push (model ``physical``; else one with a covariance)
+    and, online, its new plan; cup paths (n, 3) and the force (n, 3) at the person's rate."""
+    from corrections_sim.learning.base import LEARNERS, LearnerContext
+    from corrections_sim.people.physical import PhysicalCorrection
+    from corrections_sim.people.users import Situation
+    from corrections_sim.planning.plans import PlanBook
+    from corrections_sim.scene import dynamics
+
+    column = next(c for c in settings.columns if c.settings.study.user.during_motion)
+    figure = column.settings
+    study = figure.study
+    planner = shared_planner(figure.planner_config())
+    env = figure.envs()[0]
+    # The learner told how people push, if one is; else one with a covariance; else the first.
+    names = sorted(
+        study.learners,
+        key=lambda n: (
+            not isinstance(getattr(study.learners[n], "model", None), PhysicalCorrection),
+            not LEARNERS[n].has_covariance,
+        ),
+    )
+    agent = study.learners[names[0]]
+    book = PlanBook(planner, warm_start=study.warm_start)
+    belief = agent.initial(study.prior(), study.noise())
+    mine = book.plan(belief.theta, env)
+    star = planner.solve(np.asarray(study.theta_star, float), env)
+    rng = np.random.default_rng(study.seed)
+    ctx = LearnerContext(
+        book=book,
+        envs=figure.envs(),
+        features=figure.features,
+        n_waypoints=planner.config.n_waypoints,
+        alphas=None,
+        rng=rng,
+        noise=study.noise(),
+        sigma=study.sigma(),
+    )
+    learnt = []
+
+    def replan(deformed, q_now, t_now):
+        phi = feature_counts(deformed, env, figure.features)
+        learnt.append(agent.update(ctx, belief, env, mine, phi).belief)
+        return book.plan(learnt[0].theta, env).trajectory if study.online else None
+
+    situation = Situation(
+        mine.trajectory, star.trajectory, env, figure.features, np.asarray(study.theta_star, float)
+    )
+    outcome = study.user.perform(situation, rng, replan)
+    cup = lambda q: dynamics.cup_kinematics(q)[0]  # noqa: E731
+    dense = lambda traj: dynamics.TimedTrajectory(traj, outcome.trace.times[-1]).at(  # noqa: E731
+        np.linspace(0.0, outcome.trace.times[-1], 120)
+    )[0]
+    return {
+        "environment": env.name,
+        "learner": names[0],
+        "plan": cup(dense(mine.trajectory)),
+        "person": cup(dense(star.trajectory)),
+        "deformed": cup(dense(outcome.deformed)),
+        "new_plan": cup(dense(book.plan(learnt[0].theta, env).trajectory)) if learnt else None,
+        "executed": outcome.trace.cup,
+        "force": outcome.trace.force,
+        "theta": [study.theta0, None if not learnt else learnt[0].theta.tolist()],
+        "effort": outcome.extras["effort"],
+        "sense_error": outcome.extras["sense_error"],
+    }
+
+
+def write(settings, result: PhysicalResult, folder: Path) -> dict:
+    """matrix.csv, curves.csv, paired.csv, the plot and push.png in ``folder``; the summary's
+    fields."""
+    from corrections_sim.figures.plotting import plot_physical, plot_push
+
+    results = result.columns
+    plot_push(result.example, [folder / "push.png"])
 
     rows = matrix(settings, results)
     pairs = paired(settings, results)
@@ -139,6 +226,10 @@ def write(settings, results: Sequence[FigureResult], folder: Path) -> dict:
         "paired": pairs,
         "planner": provenance.plain(first.planner_config()),
         "runs_per_learner": {n: first.study.runs_of(n) for n in settings.learners},
+        "example_push": {
+            k: result.example[k]
+            for k in ("environment", "learner", "theta", "effort", "sense_error")
+        },
     }
 
 
@@ -154,7 +245,11 @@ class PhysicalFigure(robustness.RobustnessFigure):
     def load(self, *, quick: bool, overrides: Mapping[str, Any]):
         return robustness.load_settings(quick=quick, overrides=dict(overrides), figure=FIGURE)
 
-    def write(self, settings, result: list[FigureResult], folder: Path) -> dict:
+    def run(self, settings, executor, progress, cache) -> PhysicalResult:
+        columns = super().run(settings, executor, progress, cache)
+        return PhysicalResult(columns=columns, example=example(settings))
+
+    def write(self, settings, result: PhysicalResult, folder: Path) -> dict:
         return write(settings, result, folder)
 
 

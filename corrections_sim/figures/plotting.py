@@ -744,3 +744,70 @@ def plot_physical(curves: dict, tasks: dict, k: int, title: str, paths) -> None:
     ax.legend(fontsize=8)
     fig.suptitle(title, fontsize=11)
     _save_and_close(fig, paths, dpi=110)
+
+
+def plot_push(example: dict, paths) -> None:
+    """One push seen from above and from the side: the robot's plan (blue), the person's
+    (grey, dashed), the executed cup path (orange) with the person's force (red arrows, every
+    0.1 s), the deformation ξ_H the robot learnt from (orange, dashed) and its new plan
+    (green, dotted)."""
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.8))
+    force = np.asarray(example["force"])
+    executed = np.asarray(example["executed"])
+    pushing = np.flatnonzero(np.linalg.norm(force, axis=1) > 0)[::10]
+    for ax, (i, j), view in zip(
+        axes, ((0, 1), (0, 2)), ("from above", "from the side"), strict=True
+    ):
+        ax.plot(
+            *example["person"][:, [i, j]].T,
+            "--",
+            color="0.45",
+            lw=1.6,
+            label="the person's plan ξ*(θ*)",
+        )
+        ax.plot(*example["plan"][:, [i, j]].T, color="tab:blue", lw=2, label="the robot's plan ξ_R")
+        ax.plot(
+            *executed[:, [i, j]].T, color="tab:orange", lw=2.2, label="executed (with the push)"
+        )
+        ax.plot(
+            *example["deformed"][:, [i, j]].T,
+            "--",
+            color="tab:orange",
+            lw=1.4,
+            label="deformation ξ_H (learnt)",
+        )
+        if example["new_plan"] is not None:
+            ax.plot(
+                *example["new_plan"][:, [i, j]].T,
+                ":",
+                color="tab:green",
+                lw=2.2,
+                label="new plan (online)",
+            )
+        if pushing.size:
+            ax.quiver(
+                executed[pushing, i],
+                executed[pushing, j],
+                force[pushing, i],
+                force[pushing, j],
+                color="tab:red",
+                angles="xy",
+                scale_units="xy",
+                scale=150,
+                width=0.004,
+                label="the person's force",
+            )
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)" if j == 1 else "z (m)")
+        ax.set_title(view, fontsize=10)
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=7, loc="best")
+    before, after = (None if t is None else np.round(t, 2).tolist() for t in example["theta"])
+    learnt = f" → {after}" if after is not None else ""
+    fig.suptitle(
+        f"one push in {example['environment']}: {example['learner']} θ̂ {before}{learnt}; "
+        f"effort {example['effort']:.1f} N·s, sensing error {100 * example['sense_error']:.1f}%",
+        fontsize=10,
+    )
+    _save_and_close(fig, paths, dpi=110)
