@@ -181,3 +181,17 @@ def test_a_command_help_lists_its_own_options_only(capsys):
 def test_an_interrupted_session_speaks_of_the_session():
     assert "--resume SESSION" in cli._nothing_kept(cli.parser().parse_args(["interact"]))
     assert "figs. 4-6" in cli._nothing_kept(cli.parser().parse_args(["fig4"]))
+
+
+@pytest.mark.parametrize(
+    ("argv", "names"),
+    [
+        (["interact", "--mode", "physical", "--drag-model", "deform"], ["--drag-model"]),
+        (["interact", "--speed", "0.5"], ["--speed", "--mode physical"]),
+        (["interact", "--mode", "physical", "--speed", "2"], ["--speed", "(0, 1]"]),
+        (["interact", "--mode", "pushy"], ["--mode", "pushy"]),
+    ],
+)
+def test_physical_session_options_are_checked(argv, names, tmp_path, capsys):
+    assert _main([*argv, "--db", str(tmp_path / "s.sqlite")]) == 2
+    _one_line(capsys.readouterr().err, *names)

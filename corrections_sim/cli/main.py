@@ -489,6 +489,8 @@ def run_interact(args: argparse.Namespace) -> list[Path]:
             physical = args.mode == "physical"
             if physical and args.drag_model:
                 raise UsageError("--drag-model: a physical session deforms by the push; drop it")
+            if args.speed is not None and not physical:
+                raise UsageError("--speed: plays a physical session's motions; add --mode physical")
             session = Session.start(
                 settings,
                 log,
