@@ -21,7 +21,7 @@ import numpy as np
 
 from corrections_sim.interact.page import CORRECTION_RGB, HANDLE_SCALE, PLAN_RGB, Page, cup_path
 from corrections_sim.interact.session import Refused, Session
-from corrections_sim.people.physical import cap_force
+from corrections_sim.people.physical import spring_force
 from corrections_sim.scene.robot import cup_pose
 
 #: Arm poses sent to the page per second of real time during a motion.
@@ -136,7 +136,7 @@ class PhysicalPage(Page):
             grab = self.grab
         if grab is None:
             return None
-        return cap_force(self.stiffness * (grab - cup), self.force_cap)
+        return spring_force(cup, grab, self.stiffness, self.force_cap)
 
     # --- the motion ------------------------------------------------------------------------
 
