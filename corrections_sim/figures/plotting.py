@@ -659,8 +659,8 @@ def plot_robustness_matrix(rows: Sequence[dict], title: str, paths) -> None:
 def plot_physical(curves: dict, tasks: dict, k: int, title: str, paths) -> None:
     """The physical-corrections figure: estimate error and regret against corrections per
     learner (solid: the physical person, dashed: the other columns' users), the regret of
-    the motion the person got per correction (solid: online replanning, dotted: the plan kept
-    after the push, same pushes) and the mean NEES (log, calibrated band shaded).
+    the motion the person got with online replanning minus with the plan kept after the same
+    push, per correction, and the mean NEES (log, calibrated band shaded).
 
     Args:
         curves: user label -> ``analysis.curves`` (learner -> metric -> (runs, T + 1)).
@@ -702,26 +702,25 @@ def plot_physical(curves: dict, tasks: dict, k: int, title: str, paths) -> None:
         ax.set_xlabel("corrections")
         ax.set_title(label, fontsize=10)
         ax.grid(alpha=0.3)
-    axes[0, 0].legend(fontsize=7, ncol=2)
+    axes[0, 0].legend(fontsize=7, ncol=2, loc="upper right")
     ax = axes[1, 0]
     for user in physical:
         for learner, columns in tasks[user].items():
+            online, kept = columns["executed_regret"], columns["executed_regret_kept"]
+            if kept.size == 0 or not np.isfinite(kept).any():
+                continue
+            mean, sem = mean_sem(online - kept)
+            x = np.arange(1, mean.size + 1)
             colour = palette[learner]
-            for key, style, what in (
-                ("executed_regret", "-", "online"),
-                ("executed_regret_kept", ":", "plan kept"),
-            ):
-                values = columns[key]
-                if values.size == 0 or not np.isfinite(values).any():
-                    continue
-                mean, sem = mean_sem(values)
-                x = np.arange(1, mean.size + 1)
-                ax.plot(
-                    x, mean, style, color=colour, lw=1.8, label=f"{learner_label(learner)}, {what}"
-                )
-                ax.fill_between(x, mean - sem, mean + sem, color=colour, alpha=0.12, lw=0)
+            ax.plot(x, mean, "-o", color=colour, lw=1.8, ms=3, label=learner_label(learner))
+            ax.fill_between(x, mean - sem, mean + sem, color=colour, alpha=0.15, lw=0)
+    ax.axhline(0.0, color="0.3", lw=1)
     ax.set_xlabel("correction (task)")
-    ax.set_title("regret of the executed motion in the task's environment", fontsize=10)
+    ax.set_title(
+        "regret of the executed motion: online replanning − plan kept (same push; < 0: "
+        "online helps)",
+        fontsize=10,
+    )
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, ncol=2)
     ax = axes[1, 1]
