@@ -162,3 +162,23 @@ def test_online_needs_a_user_who_corrects_during_the_motion():
         schema.parse_study(values)
     with pytest.raises(ValueError, match="^online = 'yes'"):
         schema.parse_study({**values, "online": "yes", "user": "physical"})
+
+
+def test_a_push_into_the_table_is_a_contact_the_arm_survives(task):
+    reference = dynamics.TimedTrajectory(task.robot, 5.0)
+    sim = dynamics.ArmSimulation(task.env)
+    sim.reset(task.robot[0])
+    sim.advance(reference, 1500)
+    down = [sim.advance(reference, 10, np.array([0.0, 0.0, -150.0])) for _ in range(100)]
+    assert any(c.contacts for c in down)  # the cup or the arm on the table
+    rest = [sim.advance(reference, 10) for _ in range(250)]
+    for chunk in (*down, *rest):
+        assert np.all(np.isfinite(chunk.q)) and np.all(np.isfinite(chunk.tau_sensed))
+    # Pressed on the table, the robot senses less than the push (the table takes the rest),
+    # and once let go it tracks its plan again.
+    pressed = [c for c in down if c.contacts]
+    sensed = np.mean([np.linalg.norm(c.tau_sensed[-1]) for c in pressed])
+    applied = np.mean([np.linalg.norm(c.tau_applied[-1]) for c in pressed])
+    assert sensed < 0.9 * applied
+    planned, _ = dynamics.cup_kinematics(reference.at(rest[-1].times)[0])
+    assert np.linalg.norm(rest[-1].cup[-1] - planned[-1]) < 0.02
