@@ -26,7 +26,6 @@ from typing import Any
 
 import numpy as np
 
-from corrections_sim import provenance
 from corrections_sim.figures import learning, robustness
 from corrections_sim.figures.output import write_records
 from corrections_sim.figures.registry import register
@@ -190,16 +189,8 @@ def write(settings, result: PhysicalResult, folder: Path) -> dict:
 
     rows = matrix(settings, results)
     pairs = paired(settings, results)
-    write_records(folder / "matrix.csv", rows)
+    summary = robustness.write_matrix(settings, results, rows, folder)
     write_records(folder / "paired.csv", pairs)
-    write_records(
-        folder / "curves.csv",
-        [
-            {"user": c.label, **rec}
-            for c, result in zip(settings.columns, results, strict=True)
-            for rec in result.records
-        ],
-    )
     first = settings.columns[0].settings
     title = (
         f"physical corrections: {first.study.runs} runs × {first.study.iterations} corrections; "
@@ -219,13 +210,8 @@ def write(settings, result: PhysicalResult, folder: Path) -> dict:
     plot_physical(
         curves, tasks, first.study.k, title, [folder / f"{FIGURE}.png", folder / f"{FIGURE}.pdf"]
     )
-    return {
-        "planner_solves": sum(r.solves for r in results),
-        "resumed_runs": sum(r.resumed for r in results),
-        "matrix": rows,
+    return summary | {
         "paired": pairs,
-        "planner": provenance.plain(first.planner_config()),
-        "runs_per_learner": {n: first.study.runs_of(n) for n in settings.learners},
         "example_push": {
             k: result.example[k]
             for k in ("environment", "learner", "theta", "effort", "sense_error")

@@ -161,12 +161,11 @@ def matrix(settings: RobustnessSettings, results: Sequence[FigureResult]) -> lis
     return rows
 
 
-def write(settings: RobustnessSettings, results: Sequence[FigureResult], folder: Path) -> dict:
-    """matrix.csv, curves.csv (every column's records, labelled by user) and the plot in
-    ``folder``; returns the summary's fields."""
-    from corrections_sim.figures.plotting import plot_robustness_matrix
-
-    rows = matrix(settings, results)
+def write_matrix(
+    settings: RobustnessSettings, results: Sequence[FigureResult], rows: list[dict], folder: Path
+) -> dict:
+    """matrix.csv (``rows``) and curves.csv (every column's records, labelled by user) in
+    ``folder``; returns the summary's fields every matrix of users shares."""
     write_records(folder / "matrix.csv", rows)
     write_records(
         folder / "curves.csv",
@@ -177,11 +176,6 @@ def write(settings: RobustnessSettings, results: Sequence[FigureResult], folder:
         ],
     )
     first = settings.columns[0].settings
-    title = (
-        f"fig6: learners × simulated users; {first.study.runs} runs × "
-        f"{first.study.iterations} corrections; " + learning.describe(first).rsplit(";", 1)[0]
-    )
-    plot_robustness_matrix(rows, title, [folder / "fig6.png", folder / "fig6.pdf"])
     return {
         "planner_solves": sum(r.solves for r in results),
         "resumed_runs": sum(r.resumed for r in results),
@@ -189,6 +183,22 @@ def write(settings: RobustnessSettings, results: Sequence[FigureResult], folder:
         "planner": provenance.plain(first.planner_config()),
         "runs_per_learner": {n: first.study.runs_of(n) for n in settings.learners},
     }
+
+
+def write(settings: RobustnessSettings, results: Sequence[FigureResult], folder: Path) -> dict:
+    """matrix.csv, curves.csv (every column's records, labelled by user) and the plot in
+    ``folder``; returns the summary's fields."""
+    from corrections_sim.figures.plotting import plot_robustness_matrix
+
+    rows = matrix(settings, results)
+    summary = write_matrix(settings, results, rows, folder)
+    first = settings.columns[0].settings
+    title = (
+        f"fig6: learners × simulated users; {first.study.runs} runs × "
+        f"{first.study.iterations} corrections; " + learning.describe(first).rsplit(";", 1)[0]
+    )
+    plot_robustness_matrix(rows, title, [folder / "fig6.png", folder / "fig6.pdf"])
+    return summary
 
 
 @dataclass(frozen=True)
