@@ -420,7 +420,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         help="interact: the sessions' log (default results/interact/bench.sqlite)",
     )
     parser.add_argument(
-        "--screenshot", help="interact: save the page after the first session's last update"
+        "--screenshot",
+        help="interact: save the page after the first session's last update; physical --page: "
+        "after the first push",
     )
     parser.add_argument(
         "--slice-runs",
@@ -547,7 +549,8 @@ def main(argv: Sequence[str] | None = None) -> None:
             from benchmarks.bench_physical import run_page_bench
 
             print()
-            print("\n".join(run_page_bench(args.speed)))
+            shot = Path(args.screenshot) if args.screenshot else None
+            print("\n".join(run_page_bench(args.speed, screenshot=shot)))
         return
     args.problems = 60 if args.problems is None else args.problems
     args.seed = 0 if args.seed is None else args.seed

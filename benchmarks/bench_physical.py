@@ -98,10 +98,11 @@ def run_bench(tasks: int = 12, seed: int = 0) -> list[str]:
     return lines
 
 
-def run_page_bench(speed: float = 0.25, pushes: int = 2) -> list[str]:
+def run_page_bench(speed: float = 0.25, pushes: int = 2, screenshot=None) -> list[str]:
     """The physical page in chromium (software WebGL): arm poses the server sends per second
     during a motion, frames the page draws per second, and from letting go of the handle to
-    the new path on the page; ``pushes`` pushes, one per plan."""
+    the new path on the page; ``pushes`` pushes, one per plan; the page after the first push
+    saved to ``screenshot`` if given."""
     import socket
     import tempfile
     from pathlib import Path
@@ -148,6 +149,8 @@ def run_page_bench(speed: float = 0.25, pushes: int = 2) -> list[str]:
                 drive.wait_for(lambda k=k: page.pushes > k, "the push learnt", timeout=120)
                 drive.wait_for(lambda: "learnt" in drive.status(tab), "the new path shown")
                 latency.append(time.perf_counter() - let_go)
+                if screenshot is not None and k == 0:
+                    tab.screenshot(path=str(screenshot))
                 server_side.append(page.last_push[1] - page.last_push[0])
                 drive.wait_for(lambda: not page._runner.is_alive(), "the motion's end", 120)
                 page.max_force = 0.0
