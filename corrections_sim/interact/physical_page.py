@@ -66,6 +66,8 @@ class PhysicalPage(Page):
         self.last_push = (float("nan"), float("nan"))  # release found, new path on the page
         self.max_force = 0.0
         self._runner: threading.Thread | None = None
+        self._force_shown = False
+        self._force_line = None
         super().__init__(server, session, on_done=on_done)
 
     def _build(self, client) -> None:
@@ -96,7 +98,7 @@ class PhysicalPage(Page):
         scene.add_spline_catmull_rom(
             "/plan/path", cup_path(plan), thickness=3.0, thickness_units="screen", color=PLAN_RGB
         )
-        for name in ("/correction/path", "/rest/path", "/force", "/deploy/plain", "/deploy/averse"):
+        for name in ("/correction/path", "/rest/path", "/deploy/plain", "/deploy/averse"):
             scene.add_spline_catmull_rom(name, np.zeros((2, 3)), visible=False)
         cup = cup_pose(plan[0])[1]
         self.handle = scene.add_transform_controls(
@@ -163,7 +165,10 @@ class PhysicalPage(Page):
 
     def _play_motion(self) -> None:
         s = self.session
-        motion = s.motion(self.duration)
+        # A look every 1/(2 FRAME_RATE) s of real time at most, so a slow motion is shown
+        # smoothly (10 steps at real time, fewer when slower).
+        steps = max(1, min(10, int(1000 * self.speed / (2 * FRAME_RATE))))
+        motion = s.motion(self.duration, look_steps=steps)
         self.motion = motion
         start = time.perf_counter()
         next_frame = start
@@ -227,12 +232,16 @@ class PhysicalPage(Page):
         return row
 
     def _show_motion(self, motion, force) -> None:
+        """The arm's pose now; the force line while pushed (removed once, when let go); the
+        handle back on the cup when it has fallen behind; the time and force in words."""
         cup = motion.cup()
         self._pose_arm(motion.q())
         self.frames += 1
         scene = self.client.scene
         if force is None:
-            scene.add_spline_catmull_rom("/force", np.zeros((2, 3)), visible=False)
+            if self._force_shown:
+                self._force_line.remove()
+                self._force_shown = False
             with self._lock:
                 # The handle follows the cup in steps, not every frame: a gizmo moved under
                 # the mouse while it is being grabbed loses the grab.
@@ -241,17 +250,19 @@ class PhysicalPage(Page):
                     self.handle.position = cup
         else:
             tip = cup + FORCE_SCALE * force
-            scene.add_line_segments(
+            self._force_line = scene.add_line_segments(
                 "/force",
                 np.array([[cup, tip]]),
                 colors=FORCE_RGB,
                 thickness=6.0,
                 thickness_units="screen",
             )
-        self.where.content = (
-            f"t = {motion.time:.2f} s · cup ({cup[0]:.2f}, {cup[1]:.2f}, {cup[2]:.2f}) m"
-            + (f" · force {np.linalg.norm(force):.1f} N" if force is not None else "")
-        )
+            self._force_shown = True
+        if self.frames % 5 == 0 or force is not None:
+            self.where.content = (
+                f"t = {motion.time:.2f} s · cup ({cup[0]:.2f}, {cup[1]:.2f}, {cup[2]:.2f}) m"
+                + (f" · force {np.linalg.norm(force):.1f} N" if force is not None else "")
+            )
 
     def _skip_physical(self) -> None:
         with self._lock:

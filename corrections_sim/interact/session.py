@@ -294,12 +294,15 @@ class Session:
         than drags a waypoint."""
         return self.correction_name == "physical"
 
-    def motion(self, duration: float = 5.0) -> PushedMotion:
+    def motion(self, duration: float = 5.0, *, look_steps: int | None = None) -> PushedMotion:
         """The current proposal played under impedance, for a person to push (no sensing
-        noise: the robot senses what the simulation gives it)."""
+        noise: the robot senses what the simulation gives it); ``look_steps`` physics steps a
+        look (see :class:`~corrections_sim.people.physical.PushedMotion`)."""
         pending = self.proposal()
         rng = np.random.default_rng(np.random.SeedSequence([self.seed, 28, pending.draw]))
-        return PushedMotion(pending.plan.trajectory, pending.env, duration, rng)
+        return PushedMotion(
+            pending.plan.trajectory, pending.env, duration, rng, look_steps=look_steps
+        )
 
     def submit_push(self, motion: PushedMotion, **extra) -> dict:
         """Learn from ``motion``'s push (its deformation ξ_H), log it with the push and return

@@ -287,6 +287,8 @@ class PushedMotion:
         rng: the generator of the sensing noise.
         torque_noise: σ of the joint-torque sensing noise, N·m.
         detect: ‖τ_h‖ above this is a push, N·m.
+        look_steps: physics steps a look advances (default: the person's 100 Hz, 10 steps; a
+            page played slower than real time looks more often, to show the arm smoothly).
     """
 
     def __init__(
@@ -298,6 +300,7 @@ class PushedMotion:
         *,
         torque_noise: float = 0.0,
         detect: float = 1.0,
+        look_steps: int | None = None,
     ) -> None:
         self.robot = np.asarray(robot, dtype=float)
         self.env = env
@@ -308,7 +311,10 @@ class PushedMotion:
         self.reference = self.plan_timing
         self.sim = _arm(env, torque_noise)
         self.sim.reset(self.robot[0])
-        self.steps = int(round(1.0 / (PERSON_RATE * self.sim.dt)))
+        person = int(round(1.0 / (PERSON_RATE * self.sim.dt)))
+        self.steps = person if look_steps is None else int(look_steps)
+        if not 1 <= self.steps <= person:
+            raise ValueError(f"look_steps: must lie in [1, {person}], got {look_steps!r}")
         self.look_time = self.steps * self.sim.dt
         self.chunks: list[dynamics.Chunk] = []
         self.pushed: list[dynamics.Chunk] = []
