@@ -210,15 +210,20 @@ class Page:
             )
             for piece in pieces()
         }
+        self._moving = {piece.geom for piece in pieces() if piece.moves}
 
     def _say(self, text: str) -> None:
         self.last_message = text
         self.status.content = text
 
-    def _pose_arm(self, q: np.ndarray) -> None:
+    def _pose_arm(self, q: np.ndarray, *, moving_only: bool = False) -> None:
+        """Every piece at its pose for the arm at ``q`` (7,); with ``moving_only`` only the
+        arm's and the cup's (the props stay where the environment put them)."""
         env = self.proposal.env
         with self.client.atomic():
             for geom, (position, wxyz) in self.poser.poses(q, env).items():
+                if moving_only and geom not in self._moving:
+                    continue
                 handle = self.meshes[geom]
                 handle.position = position
                 handle.wxyz = wxyz

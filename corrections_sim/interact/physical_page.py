@@ -24,8 +24,9 @@ from corrections_sim.interact.session import Refused, Session
 from corrections_sim.people.physical import spring_force
 from corrections_sim.scene.robot import cup_pose
 
-#: Arm poses sent to the page per second of real time during a motion.
-FRAME_RATE = 30.0
+#: Arm poses sent to the page per second of real time during a motion (a little over 30, so
+#: that at least 30 arrive whatever the rounding of the looks).
+FRAME_RATE = 32.0
 REST_RGB = (30, 160, 80)
 FORCE_RGB = (220, 30, 30)
 #: The handle jumps back onto the cup when it is this far from it (m) and nobody holds it.
@@ -185,7 +186,9 @@ class PhysicalPage(Page):
             now = time.perf_counter()
             if now >= next_frame:
                 self._show_motion(motion, force)
-                next_frame = now + 1.0 / FRAME_RATE
+                # On a schedule, not "a frame period after this one": frames go out with
+                # looks, so that would round every period up to a whole number of looks.
+                next_frame = max(next_frame + 1.0 / FRAME_RATE, now - 1.0 / FRAME_RATE)
             # Pace: simulated time over speed is the real time it should have taken.
             ahead = start + motion.time / self.speed - time.perf_counter()
             if ahead > 0:
@@ -235,7 +238,7 @@ class PhysicalPage(Page):
         """The arm's pose now; the force line while pushed (removed once, when let go); the
         handle back on the cup when it has fallen behind; the time and force in words."""
         cup = motion.cup()
-        self._pose_arm(motion.q())
+        self._pose_arm(motion.q(), moving_only=True)
         self.frames += 1
         scene = self.client.scene
         if force is None:

@@ -252,10 +252,16 @@ class PhysicalUser(User):
         return 1.0 if edge >= 1 else 0.5 - 0.5 * np.cos(np.pi * edge)
 
     def perform(
-        self, situation: Situation, rng: np.random.Generator, replan: Replan | None = None
+        self,
+        situation: Situation,
+        rng: np.random.Generator,
+        replan: Replan | None = None,
+        *,
+        keep: bool = True,
     ) -> PhysicalOutcome:
-        """Play the robot's plan, push, let go; see the module docstring."""
-        return _perform(self, situation, rng, replan)
+        """Play the robot's plan, push, let go; see the module docstring. With ``replan``
+        and ``keep``, the motion on the old plan is played too (``executed_kept``)."""
+        return _perform(self, situation, rng, replan, keep)
 
 
 @functools.cache
@@ -422,7 +428,11 @@ class PushedMotion:
 
 
 def _perform(
-    person: PhysicalUser, situation: Situation, rng: np.random.Generator, replan: Replan | None
+    person: PhysicalUser,
+    situation: Situation,
+    rng: np.random.Generator,
+    replan: Replan | None,
+    keep: bool,
 ) -> PhysicalOutcome:
     robot, intended = situation.robot, situation.intended
     motion = PushedMotion(
@@ -452,7 +462,7 @@ def _perform(
             _, deformed = motion.deformation()
             rest = replan(deformed, motion.q(), motion.time)
             if rest is not None:
-                motion.switch(rest)
+                motion.switch(rest, keep=keep)
     return motion.outcome(situation.features)
 
 
