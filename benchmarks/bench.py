@@ -416,8 +416,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     )
     parser.add_argument(
         "--db",
-        default="results/interact/bench.sqlite",
-        help="interact: the sessions' log (default results/interact/bench.sqlite)",
+        help="interact: the sessions' log (default results/interact/bench.sqlite); physical "
+        "--page: the session's (default a temporary file)",
     )
     parser.add_argument(
         "--screenshot",
@@ -490,6 +490,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         help="physical: also the page in chromium (poses/s, frames/s, let-go -> new path)",
     )
     parser.add_argument(
+        "--pushes", type=int, default=2, help="physical --page: pushes, one a plan (default 2)"
+    )
+    parser.add_argument(
         "--speed",
         type=float,
         default=0.25,
@@ -550,7 +553,7 @@ def main(argv: Sequence[str] | None = None) -> None:
 
             print()
             shot = Path(args.screenshot) if args.screenshot else None
-            print("\n".join(run_page_bench(args.speed, screenshot=shot)))
+            print("\n".join(run_page_bench(args.speed, args.pushes, shot, args.db)))
         return
     args.problems = 60 if args.problems is None else args.problems
     args.seed = 0 if args.seed is None else args.seed
@@ -561,7 +564,8 @@ def main(argv: Sequence[str] | None = None) -> None:
             parser.error("--corrections must be >= 1")
         shot = Path(args.screenshot) if args.screenshot else None
         learners = [n.strip() for n in args.learners.split(",") if n.strip()]
-        print("\n".join(run_interact(learners, args.corrections, Path(args.db), shot)))
+        db = Path(args.db or "results/interact/bench.sqlite")
+        print("\n".join(run_interact(learners, args.corrections, db, shot)))
         return
     if args.what == "fig4":
         from benchmarks.bench_batch import run_bench

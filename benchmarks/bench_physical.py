@@ -108,11 +108,12 @@ def run_bench(tasks: int = 12, seed: int = 0) -> list[str]:
     return lines
 
 
-def run_page_bench(speed: float = 0.25, pushes: int = 2, screenshot=None) -> list[str]:
+def run_page_bench(speed: float = 0.25, pushes: int = 2, screenshot=None, db=None) -> list[str]:
     """The physical page in chromium (software WebGL): arm poses the server sends per second
     during a motion, frames the page draws per second, and from letting go of the handle to
     the new path on the page; ``pushes`` pushes, one per plan; the page after the first push
-    saved to ``screenshot`` if given."""
+    saved to ``screenshot`` if given; the session logged to ``db`` (default a temporary
+    file)."""
     import socket
     import tempfile
     from pathlib import Path
@@ -129,15 +130,14 @@ def run_page_bench(speed: float = 0.25, pushes: int = 2, screenshot=None) -> lis
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     study = {"theta_star": [1.0, -1.0], "learners": ["KF-CL"], "seed": 5, "iterations": pushes}
-    folder = Path(tempfile.mkdtemp())
-    log = StudyLog(folder / "bench.sqlite")
+    log = StudyLog(Path(db) if db else Path(tempfile.mkdtemp()) / "bench.sqlite")
     session = Session.start(
         parse_study(study, name="bench"),
         log,
         learner="KF-CL",
         params={"model": "physical"},
         correction="physical",
-        participant="bench",
+        participant="bench-physical",
     )
     server, page = serve(session, port=port, speed=speed)
     poses, drawn, latency, server_side = [], [], [], []
@@ -172,7 +172,8 @@ def run_page_bench(speed: float = 0.25, pushes: int = 2, screenshot=None) -> lis
         server.stop()
         log.close()
     return [
-        f"physical page at speed {speed} ({pushes} pushes, chromium, software WebGL)",
+        f"physical page at speed {speed} ({pushes} pushes, chromium, software WebGL; session "
+        f"{session.id} of {log.path})",
         f"arm poses sent per second during a motion: {_percentiles(poses)} (target >= 30)",
         f"frames the page draws per second during a motion: {_percentiles(drawn)} (target >= 20)",
         f"letting go -> the learnt push and new path on the page: {_percentiles(latency)} s "
