@@ -186,10 +186,7 @@ class Page:
         self.reset_button = gui.add_button("Reset the drag")
         self.skip_button = gui.add_button("Skip this environment")
         self.done_button = gui.add_button("Done: deploy")
-        self.belief_image = gui.add_image(
-            np.full((10, 10, 3), 255, np.uint8), label="θ̂ and its uncertainty"
-        )
-        self.belief_text = gui.add_markdown("")
+        self._add_belief_panel(gui)
 
         self.state_button.on_click(lambda _: self._state())
         self.waypoint.on_update(lambda _: self._show_waypoint())
@@ -211,6 +208,13 @@ class Page:
             for piece in pieces()
         }
         self._moving = {piece.geom for piece in pieces() if piece.moves}
+
+    def _add_belief_panel(self, gui) -> None:
+        """θ̂ and its uncertainty: a picture and a table (see :meth:`_show_belief`)."""
+        self.belief_image = gui.add_image(
+            np.full((10, 10, 3), 255, np.uint8), label="θ̂ and its uncertainty"
+        )
+        self.belief_text = gui.add_markdown("")
 
     def _say(self, text: str) -> None:
         self.last_message = text

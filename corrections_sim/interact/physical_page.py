@@ -82,10 +82,7 @@ class PhysicalPage(Page):
         self.skip_button = gui.add_button("Skip this environment")
         self.done_button = gui.add_button("Done: deploy")
         self.submit_button = gui.add_button("Submit correction", visible=False, disabled=True)
-        self.belief_image = gui.add_image(
-            np.full((10, 10, 3), 255, np.uint8), label="θ̂ and its uncertainty"
-        )
-        self.belief_text = gui.add_markdown("")
+        self._add_belief_panel(gui)
         self.play.on_click(lambda _: self._start())
         self.skip_button.on_click(lambda _: self._skip_physical())
         self.done_button.on_click(lambda _: self._done())
