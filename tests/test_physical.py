@@ -182,3 +182,29 @@ def test_a_push_into_the_table_is_a_contact_the_arm_survives(task):
     assert sensed < 0.9 * applied
     planned, _ = dynamics.cup_kinematics(reference.at(rest[-1].times)[0])
     assert np.linalg.norm(rest[-1].cup[-1] - planned[-1]) < 0.02
+
+
+def test_a_joined_plan_is_continuous_and_keeps_the_timing(task):
+    timed = dynamics.TimedTrajectory(task.robot, 5.0)
+    t = 2.2
+    (here,), _, _ = timed.at(np.array([t]))
+    joined = timed.join(task.intended, t, here)
+    # Position and velocity continuous at the join; the new plan's later waypoints at the old
+    # plan's times (those closer than 0.1 s to the join left out).
+    before, velocity, _ = timed.at(np.array([t]))
+    after, velocity_after, _ = joined.at(np.array([t]))
+    np.testing.assert_allclose(after, before, atol=1e-12)
+    np.testing.assert_allclose(velocity_after, velocity, atol=1e-12)
+    later = timed.times > t + 0.1
+    np.testing.assert_allclose(joined.at(timed.times[later])[0], task.intended[later], atol=1e-9)
+    with pytest.raises(ValueError, match="plan"):
+        timed.join(task.intended[:5], t, here)
+
+
+def test_replanning_to_the_same_plan_changes_nothing(task, rng):
+    """With θ̂ unchanged the online motion is the kept one (the joined spline differs from the
+    old one only by its knots: well under a milliradian): what online replanning gains in the
+    study is the learning's, not the join's."""
+    outcome = make_user("physical").perform(task, rng, lambda deformed, q, t: task.robot)
+    assert outcome.extras["replanned"] == 1.0
+    np.testing.assert_allclose(outcome.executed, outcome.executed_kept, atol=5e-4)

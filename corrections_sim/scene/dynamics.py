@@ -228,9 +228,12 @@ class TimedTrajectory:
         return self.t0 + self.duration
 
     def at(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """q_d, q̇_d, q̈_d at times ``t`` (n,), each (n, 7); held at the ends outside."""
-        t = np.clip(np.asarray(t, dtype=float), self.t0, self.t_end)
-        inside = (t > self.t0) & (t < self.t_end)
+        """q_d, q̇_d, q̈_d at times ``t`` (n,), each (n, 7); held at the ends outside
+        [t_0, t_end) (at t_0 itself the spline's own velocity and acceleration: a joined
+        trajectory starts moving)."""
+        t = np.asarray(t, dtype=float)
+        inside = (t >= self.t0) & (t < self.t_end)
+        t = np.clip(t, self.t0, self.t_end)
         q = self._spline(t)
         qd = self._spline(t, 1) * inside[:, None]
         qdd = self._spline(t, 2) * inside[:, None]
