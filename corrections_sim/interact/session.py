@@ -557,7 +557,6 @@ def push_record(motion: PushedMotion) -> dict:
     when it let go, the effort and the sensing's error against the applied Jᵀ F."""
     trace = motion.trace()
     held, _ = motion.deformation()
-    pushed = np.linalg.norm(trace.force, axis=1) > 0
     return {
         "mode": "physical",
         "times": np.round(trace.times, 4).tolist(),
@@ -569,13 +568,8 @@ def push_record(motion: PushedMotion) -> dict:
         "effort": motion.effort,
         "push_time": motion.push_time,
         "peak_force": float(np.linalg.norm(trace.force, axis=1).max(initial=0.0)),
-        "sense_error": _relative_rms(trace.tau_sensed[pushed], trace.tau_applied[pushed]),
+        "sense_error": None if np.isnan(error := motion.sense_error()) else error,
     }
-
-
-def _relative_rms(sensed: np.ndarray, applied: np.ndarray) -> float | None:
-    scale = float(np.sqrt(np.mean(applied**2))) if applied.size else 0.0
-    return float(np.sqrt(np.mean((sensed - applied) ** 2)) / scale) if scale > 0 else None
 
 
 def settings_from_log(recorded: Mapping) -> FigureSettings:

@@ -67,16 +67,14 @@ def _positive(name: str, value, *, zero: bool = False) -> float:
     return float(value)
 
 
-def worst_cup_waypoint(
-    robot: np.ndarray, intended: np.ndarray
-) -> tuple[int, np.ndarray, np.ndarray]:
+def worst_cup_waypoint(robot: np.ndarray, intended: np.ndarray) -> tuple[int, np.ndarray]:
     """The free waypoint where the cups of ``robot`` and ``intended`` (T, 7) are farthest apart
-    (ties to the lower index), and both cup paths (T, 3)."""
+    (ties to the lower index), and the intended cup path (T, 3)."""
     mine, _ = dynamics.cup_kinematics(robot)
     theirs, _ = dynamics.cup_kinematics(intended)
     gaps = np.linalg.norm(theirs - mine, axis=1)
     gaps[[0, -1]] = -np.inf
-    return int(np.argmax(gaps)), mine, theirs
+    return int(np.argmax(gaps)), theirs
 
 
 def spring_force(cup: np.ndarray, target: np.ndarray, stiffness: float, cap: float) -> np.ndarray:
@@ -137,7 +135,7 @@ class PhysicalCorrection(CorrectionModel):
 
     def apply(self, robot: np.ndarray, intended: np.ndarray) -> np.ndarray:
         robot = np.asarray(robot, dtype=float)
-        i, _, theirs = worst_cup_waypoint(robot, intended)
+        i, theirs = worst_cup_waypoint(robot, intended)
         held = np.zeros_like(robot)
         stiff = dynamics.Impedance().stiffness
         for j in range(max(1, i - self.span), min(robot.shape[0] - 1, i + self.span + 1)):
@@ -390,6 +388,11 @@ class PushedMotion:
         self.reference = self.reference.join(plan, t, here)
         self.switched = True
 
+    def sense_error(self) -> float:
+        """RMS of the sensed τ_h minus the applied Jᵀ F over RMS of Jᵀ F, over the push's
+        samples (NaN before a push)."""
+        return _relative_rms(self.pushed)
+
     def trace(self) -> PushTrace:
         """The task so far at the person's rate."""
         chunks = self.chunks
@@ -411,7 +414,7 @@ class PushedMotion:
         extras = {
             "effort": self.effort,
             "push_time": self.push_time,
-            "sense_error": _relative_rms(self.pushed),
+            "sense_error": self.sense_error(),
             "replanned": float(self.switched),
             "contact": float(any(c.contacts for c in self.chunks)),
         }
@@ -444,7 +447,7 @@ def _perform(
         detect=person.detect,
     )
     theirs = dynamics.TimedTrajectory(intended, person.duration)
-    worst, _, _ = worst_cup_waypoint(robot, intended)
+    worst, _ = worst_cup_waypoint(robot, intended)
     start, end = person.window(motion.plan_timing.times[worst])
 
     def person_force(t: float, cup: np.ndarray) -> np.ndarray | None:

@@ -267,7 +267,6 @@ class ArmSimulation:
             raise ValueError(f"filter_hz: must be finite and >= 0, got {filter_hz!r}")
         self.model = dynamics_model() if model is None else copy.copy(model)
         world.place_environment(self.model, env)
-        self.env = env
         self.impedance = impedance or Impedance()
         self.torque_noise = float(torque_noise)
         self.filter_hz = float(filter_hz)
@@ -299,7 +298,6 @@ class ArmSimulation:
     def move_to(self, env: Environment) -> None:
         """Move the table and laptop to ``env`` (call :meth:`reset` next)."""
         world.place_environment(self.model, env)
-        self.env = env
 
     def q(self) -> np.ndarray:
         """The measured joint positions now (7,)."""
@@ -437,18 +435,10 @@ class ArmSimulation:
     def _applied_torque(self, q: np.ndarray, force: np.ndarray | None) -> np.ndarray:
         """Jᵀ F per step (n, 7) of the applied force at the cup's centre of mass: the truth
         the sensing is checked against (tests and benchmarks only; the robot never reads it)."""
-        out = np.zeros_like(q)
         if force is None:
-            return out
-        d = self._own_data
-        jac = np.zeros((3, self.own.nv))
-        for i in range(q.shape[0]):
-            d.qpos[:] = q[i]
-            mujoco.mj_kinematics(self.own, d)
-            mujoco.mj_comPos(self.own, d)
-            mujoco.mj_jac(self.own, d, jac, None, d.xipos[self._cup], self._cup)
-            out[i] = jac.T @ force
-        return out
+            return np.zeros_like(q)
+        _, jacobians = cup_kinematics(q)  # (n, 3, 7)
+        return np.array([jac.T @ force for jac in jacobians])
 
 
 @dataclass(frozen=True, eq=False)
