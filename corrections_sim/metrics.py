@@ -50,3 +50,29 @@ def mean_sem(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return mean, np.zeros_like(mean)
     n = np.sum(np.isfinite(values), axis=0)
     return mean, np.nanstd(values, axis=0, ddof=1) / np.sqrt(np.maximum(n, 1))
+
+
+def roc_auc(scores: np.ndarray, labels: np.ndarray) -> float | None:
+    """ROC AUC of ``scores`` for the binary ``labels`` (1 positive): the probability that a
+    random positive scores above a random negative, ties counting one half (Mann–Whitney U
+    from mid-ranks). None when either class is empty or a score is not finite."""
+    scores = np.asarray(scores, dtype=float)
+    labels = np.asarray(labels, dtype=float)
+    if scores.shape != labels.shape or not np.all(np.isfinite(scores)):
+        return None
+    positive = labels == 1
+    n_pos, n_neg = int(positive.sum()), int((~positive).sum())
+    if n_pos == 0 or n_neg == 0:
+        return None
+    order = np.argsort(scores, kind="stable")
+    ranks = np.empty(scores.size)
+    sorted_scores = scores[order]
+    i = 0
+    while i < scores.size:  # mid-ranks of ties
+        j = i
+        while j + 1 < scores.size and sorted_scores[j + 1] == sorted_scores[i]:
+            j += 1
+        ranks[order[i : j + 1]] = 0.5 * (i + j) + 1.0
+        i = j + 1
+    u = ranks[positive].sum() - n_pos * (n_pos + 1) / 2.0
+    return float(u / (n_pos * n_neg))

@@ -23,3 +23,11 @@ def random_belief():
         return Belief(theta=rng.normal(size=k), cov=a @ a.T + 0.3 * np.eye(k))
 
     return make
+
+
+@pytest.fixture(scope="module")
+def planner():
+    """Fig. 4's planner (laptop and table, four cold starts), for the tests that plan."""
+    from corrections_sim.planning.planner import PlannerConfig, shared_planner
+
+    return shared_planner(PlannerConfig(n_starts=4))

@@ -258,3 +258,31 @@ def test_a_physical_user_needs_a_physical_session(tmp_path, settings):
         session = Session.start(settings, log, learner="KF-C", participant="sim-q")
         with pytest.raises(ValueError, match="--mode physical"):
             simulate(session, make_user("physical"), (1.0, -1.0), 1)
+
+
+def test_a_relevance_aware_session_shows_and_logs_beta_and_replays_it(tmp_path):
+    """KF-CR in a session of the distracted user: each correction's β̂ (and ρ) is logged as a
+    ``relevance`` event before the row returns, is what the page shows, follows the label
+    (a nudge is judged irrelevant), and the replay recomputes the same θ̂."""
+    settings = parse_study(
+        {
+            "environments": ENVIRONMENTS,
+            "theta_star": [1.0, -1.0],
+            "learners": ["KF-CR"],
+            "seed": 3,
+            "user": {"name": "distracted", "fraction": 0.5},
+        },
+        name="relevance",
+    )
+    with StudyLog(tmp_path / "s.sqlite") as log:
+        session = Session.start(settings, log, learner="KF-CR")
+        rows = simulate(session, make_user("distracted", {"fraction": 0.5}), (1.0, -1.0), 4)
+        events = [e for e in log.events(session.id) if e["kind"] == "relevance"]
+        assert len(events) == 4
+        for row, event in zip(rows, events, strict=True):
+            assert event["detail"]["beta"] == row["relevance"]["beta"]
+            relevant = row["drag"]["relevant"]
+            assert (row["relevance"]["beta"] > 0.5) == relevant
+        assert session.last_relevance == rows[-1]["relevance"]
+        _, _, facts = replay(log, session.id, ["KF-CR"])
+        assert facts["max_gap_to_log"] == 0.0

@@ -11,17 +11,11 @@ from corrections_sim.people import physical
 from corrections_sim.people.corrections import deformation_correction, held_deformation
 from corrections_sim.people.users import Situation, make_user
 from corrections_sim.planning.features import feature_counts
-from corrections_sim.planning.planner import PlannerConfig, shared_planner
 from corrections_sim.scene import dynamics
 from corrections_sim.scene.environments import paper_environments
 
 FEATURES = ("laptop", "table")
 THETA_STAR = np.array([1.0, -1.0])
-
-
-@pytest.fixture(scope="module")
-def planner():
-    return shared_planner(PlannerConfig(n_starts=4))
 
 
 @pytest.fixture(scope="module")

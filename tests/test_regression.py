@@ -118,24 +118,27 @@ def test_kf_c_is_calibrated_where_the_papers_kf_is_not(quick_run):
     assert stats["KF-C"]["coverage_2sigma_mean"] > stats["KF"]["coverage_2sigma_mean"]
 
 
-def test_quick_physical_curves_match_the_reference():
-    """The physical study's quick preset (``run physical --quick --out results/reference``):
-    both columns, error, regret and the executed regret online and kept."""
+def _check_matrix(figure: str, keys: dict[str, float], *, labels: bool = False) -> int:
+    """A matrix figure's quick preset against ``results/reference/<figure>``: per column
+    (person) and learner, the mean curve of every key the reference has; the ``relevant``
+    labels exactly with ``labels``. Returns how many curves were compared."""
     from corrections_sim.figures import robustness
 
-    settings = robustness.load_settings(quick=True, figure="physical")
-    with open(REFERENCE / "physical" / "curves.csv", newline="") as fh:
+    settings = robustness.load_settings(quick=True, figure=figure)
+    with open(REFERENCE / figure / "curves.csv", newline="") as fh:
         reference = list(csv.DictReader(fh))
     with ThreadPoolExecutor(max_workers=1) as executor:
         results = robustness.run(settings, executor)
-    keys = {**TOLERANCE, "executed_regret": 0.03, "executed_regret_kept": 0.03}
     checked = 0
     for column, result in zip(settings.columns, results, strict=True):
         ref = [r for r in reference if r["user"] == column.label]
         assert len(result.records) == len(ref)
+        if labels:
+            now = [r.get("relevant") for r in result.records]
+            assert now == [None if r["relevant"] == "" else float(r["relevant"]) for r in ref]
         for learner in column.settings.study.learners:
             for key, rtol in keys.items():
-                rows = [r for r in ref if r.get(key) not in (None, "")]
+                rows = [r for r in ref if r["learner"] == learner and r.get(key) not in (None, "")]
                 if not rows:
                     continue
                 now = [r for r in result.records if r.get(key) is not None]
@@ -144,7 +147,23 @@ def test_quick_physical_curves_match_the_reference():
                     _mean_curves(rows, learner, key),
                     rtol=rtol,
                     atol=1e-6,
-                    err_msg=f"physical {column.label} {learner} {key}",
+                    err_msg=f"{figure} {column.label} {learner} {key}",
                 )
                 checked += 1
+    return checked
+
+
+def test_quick_physical_curves_match_the_reference():
+    """The physical study's quick preset (``run physical --quick --out results/reference``):
+    both columns, error, regret and the executed regret online and kept."""
+    keys = {**TOLERANCE, "executed_regret": 0.03, "executed_regret_kept": 0.03}
+    checked = _check_matrix("physical", keys)
     assert checked == 2 * 4 * 2 + 4 * 2  # both columns' error and regret, the pushes' regrets
+
+
+def test_quick_relevance_curves_match_the_reference():
+    """The relevance study's quick preset (``run relevance --quick --out results/reference``):
+    every person's error and regret, KF-CR's and PP-R's β̂ per correction (its mean per
+    iteration), and the labels exactly."""
+    checked = _check_matrix("relevance", {**TOLERANCE, "relevance": 0.03}, labels=True)
+    assert checked == 4 * 8 * 2 + 4 * 2  # every person's error and regret, two learners' β̂

@@ -26,8 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from corrections_sim.figures import learning, robustness
-from corrections_sim.figures.output import write_records
+from corrections_sim.figures import robustness
 from corrections_sim.figures.registry import register
 from corrections_sim.planning.features import feature_counts
 from corrections_sim.planning.planner import shared_planner
@@ -189,13 +188,9 @@ def write(settings, result: PhysicalResult, folder: Path) -> dict:
 
     rows = matrix(settings, results)
     pairs = paired(settings, results)
-    summary = robustness.write_matrix(settings, results, rows, folder)
-    write_records(folder / "paired.csv", pairs)
+    summary = robustness.write_matrix(settings, results, rows, folder, pairs)
     first = settings.columns[0].settings
-    title = (
-        f"physical corrections: {first.study.runs} runs × {first.study.iterations} corrections; "
-        + learning.describe(first).rsplit(";", 1)[0]
-    )
+    title = robustness.title(settings, "physical corrections")
     curves = {
         c.label: analysis.curves(c.settings, r.records)
         for c, r in zip(settings.columns, results, strict=True)
@@ -211,7 +206,6 @@ def write(settings, result: PhysicalResult, folder: Path) -> dict:
         curves, tasks, first.study.k, title, [folder / f"{FIGURE}.png", folder / f"{FIGURE}.pdf"]
     )
     return summary | {
-        "paired": pairs,
         "example_push": {
             k: result.example[k]
             for k in ("environment", "learner", "theta", "effort", "sense_error")

@@ -810,3 +810,58 @@ def plot_push(example: dict, paths) -> None:
         fontsize=10,
     )
     _save_and_close(fig, paths, dpi=110)
+
+
+def plot_relevance(rows: Sequence[dict], seen: dict, title: str, paths) -> None:
+    """The relevance figure's second plot: (a) the unexplained fraction ρ of each correction
+    the relevance-aware learners judged, relevant and irrelevant apart, per person; (b) how
+    far θ̂ drifted from θ̂⁰ over the run, per learner and person (mean ± SEM).
+
+    Args:
+        rows: ``relevance.matrix`` rows (learner, user, drift_mean, drift_sem, …).
+        seen: person -> learner -> {"rho", "beta", "relevant"} arrays per correction.
+        paths: files to write.
+    """
+    users = list(dict.fromkeys(r["user"] for r in rows))
+    learners = list(dict.fromkeys(r["learner"] for r in rows))
+    cell = {(r["learner"], r["user"]): r for r in rows}
+    fig, (left, right) = plt.subplots(1, 2, figsize=(15, 5.2))
+    bins = np.linspace(0.0, 1.0, 41)
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for j, user in enumerate(users):
+        for learner, data in seen.get(user, {}).items():
+            if learner != "KF-CR" or data["rho"].size == 0:
+                continue
+            for label, mask, style in (
+                ("relevant", data["relevant"] == 1, "-"),
+                ("irrelevant", data["relevant"] == 0, "--"),
+            ):
+                values = data["rho"][mask & np.isfinite(data["rho"])]
+                if values.size:
+                    left.hist(
+                        values,
+                        bins=bins,
+                        histtype="step",
+                        linestyle=style,
+                        color=colours[j % len(colours)],
+                        label=f"{user}: {label} ({values.size})",
+                        density=True,
+                    )
+    left.set_xlabel("ρ, the unexplained fraction of a correction (KF-CR's best θ)")
+    left.set_ylabel("density")
+    left.set_yscale("log")
+    left.set_title("(a) what the robot's features cannot explain", fontsize=10)
+    left.legend(fontsize=7)
+    width = 0.8 / max(len(users), 1)
+    x = np.arange(len(learners))
+    for j, user in enumerate(users):
+        means = [cell[(n, user)]["drift_mean"] for n in learners]
+        sems = [cell[(n, user)]["drift_sem"] for n in learners]
+        right.bar(x + (j - (len(users) - 1) / 2) * width, means, width, yerr=sems, label=user)
+    right.set_xticks(x, learners, rotation=20, fontsize=9)
+    right.set_ylabel("‖θ̂ᵀ − θ̂⁰‖₁")
+    right.set_title("(b) how far θ̂ moved over the run", fontsize=10)
+    right.legend(fontsize=8)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    _save_and_close(fig, paths, dpi=130)

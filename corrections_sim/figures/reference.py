@@ -34,10 +34,11 @@ from corrections_sim.learning import reference as ref
 from corrections_sim.learning.paper import (
     BoltzmannPosterior,
     CorrectionAwareKalman,
+    RelevanceAwareKalman,
     UnscentedKalman,
 )
 from corrections_sim.people.users import Situation
-from corrections_sim.planning.features import feature_counts
+from corrections_sim.planning.features import waypoint_features
 from corrections_sim.planning.planner import Planner, PlanningError, build_key, cache_dir
 from corrections_sim.planning.plans import Target
 from corrections_sim.scene.environments import Environment
@@ -77,6 +78,19 @@ def grid_plans(planner: Planner, env: Environment, grid: ref.Grid) -> np.ndarray
     return plans
 
 
+def grid_observations(plans: np.ndarray, robot: np.ndarray, correct, env, names) -> np.ndarray:
+    """h(θ) at every grid point (n, k): Φ of ``correct(robot, ξ*(θ))``, NaN where the grid
+    has no plan; the features of every corrected trajectory in one call."""
+    n, T = plans.shape[:2]
+    finite = np.all(np.isfinite(plans), axis=(1, 2))
+    out = np.full((n, len(names)), np.nan)
+    if finite.any():
+        corrected = np.stack([correct(robot, p) for p in plans[finite]])
+        per_waypoint = waypoint_features(corrected.reshape(-1, 7), env.params(), names)
+        out[finite] = per_waypoint.reshape(-1, T, len(names)).sum(axis=1)
+    return out
+
+
 def _rows(folder: Path, learner: str) -> dict[int, list[dict]]:
     with open(folder / "curves.csv", newline="") as fh:
         rows = [r for r in csv.DictReader(fh) if r["learner"] == learner]
@@ -107,6 +121,8 @@ def reference_run(
         )
     if not isinstance(model, UnscentedKalman | BoltzmannPosterior):
         raise ValueError(f"learner {learner}: no reference for it (KF-type learners and BP)")
+    if isinstance(model, RelevanceAwareKalman) and model.noise == "learnt":
+        raise ValueError(f"learner {learner}: no reference for relevance with N learnt")
     k, names = study.k, planner.config.features
     envs = {e.name: e for e in settings.envs()}
     theta_star = np.array(study.theta_star)
@@ -134,15 +150,15 @@ def reference_run(
             correct = (
                 model.model.apply if isinstance(model, CorrectionAwareKalman) else (lambda r, x: x)
             )
-            h = np.array(
-                [
-                    feature_counts(correct(robot.trajectory, p), env.params(), names)
-                    if np.all(np.isfinite(p))
-                    else np.full(k, np.nan)
-                    for p in plans
-                ]
-            )
-            if learnt:
+            h = grid_observations(plans, robot.trajectory, correct, env, names)
+            if isinstance(model, RelevanceAwareKalman):
+                if row.get("relevance"):  # else the learner skipped this update
+                    log_l = ref.relevance_log_likelihood(
+                        ref.gaussian_log_likelihood(z, h, noise), log_p, float(row["relevance"])
+                    )
+                    log_p = log_p + log_l
+                log_post = log_p
+            elif learnt:
                 zs.append(z)
                 hs.append(h)
                 log_l = ref.learnt_noise_log_likelihood(
@@ -167,6 +183,35 @@ def reference_run(
         rec["ref_kl"] = ref.kl_to_gaussian(grid, thetas, weights, belief)
         out.append(rec)
     return out
+
+
+def final_summary(records: list[dict], *, resamples: int = 2000) -> dict:
+    """At the last iteration, over runs: NEES / reference NEES as the ratio of the means with
+    a 95% bootstrap interval over runs (seeded, so the same records give the same interval),
+    and ``ref_kl``'s mean with its 95% t-interval."""
+    from scipy import stats
+
+    last = max(r["iteration"] for r in records)
+    at = [r for r in records if r["iteration"] == last and r["nees"] is not None]
+    nees = np.array([r["nees"] for r in at], float)
+    ref_nees = np.array([r["ref_nees"] for r in at], float)
+    kl = np.array([r["ref_kl"] for r in at], float)
+    n = len(at)
+    ratio = float(nees.mean() / ref_nees.mean())
+    rng = np.random.default_rng(0)
+    picks = rng.integers(n, size=(resamples, n))
+    boot = nees[picks].mean(axis=1) / ref_nees[picks].mean(axis=1)
+    half = float(stats.t.ppf(0.975, n - 1) * kl.std(ddof=1) / np.sqrt(n)) if n > 1 else np.nan
+    return {
+        "iteration": last,
+        "runs": n,
+        "nees": float(nees.mean()),
+        "ref_nees": float(ref_nees.mean()),
+        "ratio": ratio,
+        "ratio_ci95": [float(np.quantile(boot, 0.025)), float(np.quantile(boot, 0.975))],
+        "ref_kl": float(kl.mean()),
+        "ref_kl_ci95": [float(kl.mean() - half), float(kl.mean() + half)],
+    }
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -210,6 +255,13 @@ def main(argv: list[str] | None = None) -> int:
         at = [r for r in records if r["iteration"] == t]
         means = [np.mean([r[key] for r in at]) for key in ("ref_nees", "nees", "ref_kl")]
         print(f"{t:>3} {means[0]:9.2f} {means[1]:13.2f} {means[2]:8.3f}")
+    final = final_summary(records)
+    print(
+        f"t = {final['iteration']}: NEES / reference NEES = {final['ratio']:.2f} "
+        f"[{final['ratio_ci95'][0]:.2f}, {final['ratio_ci95'][1]:.2f}], ref_kl = "
+        f"{final['ref_kl']:.3f} [{final['ref_kl_ci95'][0]:.3f}, {final['ref_kl_ci95'][1]:.3f}] "
+        f"(95% intervals over {final['runs']} runs)"
+    )
     if args.check_grid:
         fine = grid.halved()
         first = sorted(runs)[0]

@@ -33,6 +33,7 @@ BUILT_IN = (
     "corrections_sim.figures.learning",
     "corrections_sim.figures.robustness",
     "corrections_sim.figures.physical",
+    "corrections_sim.figures.relevance",
 )
 
 #: Options every figure takes (the command line's own: where, how big, which executor).

@@ -35,8 +35,9 @@ from corrections_sim.study.runner import FigureResult, RunCache
 from corrections_sim.study.settings import FigureSettings
 
 FIGURE = "fig6"
-#: Keys a column may set; everything else is shared by all columns.
-COLUMN_KEYS = ("label", "user", "online")
+#: Keys a column may set; everything else is shared by all columns. A column is a person:
+#: their way of correcting (``user``), what they weigh (``user_features``, ``theta_star``).
+COLUMN_KEYS = ("label", "user", "online", "user_features", "theta_star")
 #: Options that set the user: refused, the columns are the users.
 USER_OPTIONS = ("user", "user_step", "user_waypoints")
 
@@ -105,7 +106,7 @@ def load_settings(
             raise ValueError(f"columns[{i}].user: missing (a name or a table with its parameters)")
         labels.add(label)
         try:
-            extra = {"online": column["online"]} if "online" in column else {}
+            extra = {k: column[k] for k in COLUMN_KEYS[2:] if k in column}
             settings = schema.parse_study({**values, "user": column["user"], **extra})
         except ValueError as exc:
             raise ValueError(f"columns[{i}] ({label}): {exc}") from None
@@ -161,12 +162,28 @@ def matrix(settings: RobustnessSettings, results: Sequence[FigureResult]) -> lis
     return rows
 
 
+def title(settings: RobustnessSettings, what: str) -> str:
+    """A matrix figure's plot title: ``what``, the runs and corrections, the shared settings."""
+    first = settings.columns[0].settings
+    return (
+        f"{what}: {first.study.runs} runs × {first.study.iterations} corrections; "
+        + learning.describe(first).rsplit(";", 1)[0]
+    )
+
+
 def write_matrix(
-    settings: RobustnessSettings, results: Sequence[FigureResult], rows: list[dict], folder: Path
+    settings: RobustnessSettings,
+    results: Sequence[FigureResult],
+    rows: list[dict],
+    folder: Path,
+    paired: list[dict] | None = None,
 ) -> dict:
-    """matrix.csv (``rows``) and curves.csv (every column's records, labelled by user) in
-    ``folder``; returns the summary's fields every matrix of users shares."""
+    """matrix.csv (``rows``), curves.csv (every column's records, labelled by user) and, when
+    given, paired.csv in ``folder``; returns the summary's fields every matrix of users
+    shares (with ``paired``)."""
     write_records(folder / "matrix.csv", rows)
+    if paired is not None:
+        write_records(folder / "paired.csv", paired)
     write_records(
         folder / "curves.csv",
         [
@@ -182,6 +199,7 @@ def write_matrix(
         "matrix": rows,
         "planner": provenance.plain(first.planner_config()),
         "runs_per_learner": {n: first.study.runs_of(n) for n in settings.learners},
+        **({"paired": paired} if paired is not None else {}),
     }
 
 

@@ -298,8 +298,18 @@ class Page:
             + " |"
             for i, name in enumerate(s.features)
         )
+        relevance = ""
+        if s.last_relevance is not None:
+            beta, rho = s.last_relevance["beta"], s.last_relevance["rho"]
+            relevance = (
+                f"\n\nThe last correction is explained by my features with probability "
+                f"**β̂ = {beta:.2f}**"
+                + (f" (unexplained fraction ρ = {rho:.2f})" if rho is not None else "")
+                + "; I learnt from it in proportion."
+            )
         self.belief_text.content = (
             f"After **{s.iteration}** corrections:\n\n| feature | θ̂ | σ |\n|---|---|---|\n{rows}"
+            + relevance
         )
 
     # --- actions ---------------------------------------------------------------------------

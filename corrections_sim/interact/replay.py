@@ -139,6 +139,7 @@ def replay(
                 noise=s.noise(),
                 sigma=s.sigma(),
                 iteration=t,
+                corrected=logged["xi_h"],
             )
             skipped, step = "", None
             try:

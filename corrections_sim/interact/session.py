@@ -182,6 +182,8 @@ class Session:
         self.book = PlanBook(self.planner, warm_start=s.warm_start)
         self.checker = CollisionChecker()
         self.iteration = 0
+        #: β̂ and ρ of the last correction, for a relevance-aware learner (else None).
+        self.last_relevance: dict | None = None
         self.draws = 0
         self.ended = False
         self._pending: Proposal | None = None
@@ -267,7 +269,7 @@ class Session:
                     f"{row['env_index']}, the learner now chooses {index} (other code or settings?)"
                 )
             try:
-                step = self._update(index, plan, np.asarray(row["phi_h"]))
+                step = self._update(index, plan, np.asarray(row["phi_h"]), row["xi_h"])
             except PlanningError:
                 step = None  # the update was skipped then too (update_skipped)
             theta = self.belief.theta if step is None else step.belief.theta
@@ -330,7 +332,7 @@ class Session:
 
     # --- the steps -------------------------------------------------------------------------
 
-    def _context(self) -> LearnerContext:
+    def _context(self, corrected: np.ndarray | None = None) -> LearnerContext:
         fixed = self.agent.fixed_rate()
         return LearnerContext(
             book=self.book,
@@ -342,6 +344,7 @@ class Session:
             noise=self._noise,
             sigma=self._sigma,
             iteration=self.iteration,
+            corrected=corrected,
         )
 
     def _check_open(self) -> None:
@@ -475,7 +478,7 @@ class Session:
             before = self.belief
             skipped = ""
             try:
-                step = self._update(pending.env_index, pending.plan, phi_h)
+                step = self._update(pending.env_index, pending.plan, phi_h, corrected)
             except PlanningError as exc:
                 step, skipped = None, str(exc).splitlines()[0]
             after = before if step is None else step.belief
@@ -505,14 +508,23 @@ class Session:
                 "update_skipped": skipped,
             }
             self.log.add_correction(self.id, row)  # committed before anyone sees the update
+            if step is not None and step.relevance is not None:
+                # A relevance-aware learner's β̂ and ρ: an event beside the row (the
+                # corrections table keeps its schema; a replay recomputes both).
+                row["relevance"] = {"beta": float(step.relevance), "rho": step.residual}
+                self.log.add_event(self.id, self.iteration, "relevance", row["relevance"])
+            self.last_relevance = row.get("relevance")
             self.belief = after
             self.iteration += 1
             self.draws = pending.draw + 1
             self._pending = None
             return row
 
-    def _update(self, env_index: int, plan: Plan, phi_h: np.ndarray):
-        return self.agent.update(self._context(), self.belief, self.envs[env_index], plan, phi_h)
+    def _update(self, env_index: int, plan: Plan, phi_h: np.ndarray, corrected=None):
+        """The learner's step for a correction with features ``phi_h`` and, where the person
+        showed it, the corrected trajectory ``corrected`` (a relevance-aware learner judges it)."""
+        context = self._context(None if corrected is None else np.asarray(corrected, float))
+        return self.agent.update(context, self.belief, self.envs[env_index], plan, phi_h)
 
     def state(self, theta) -> np.ndarray:
         """Log the person's stated preference θ (k,) as the session's reference."""
@@ -605,9 +617,14 @@ def simulate(session: Session, user: User, theta_star, corrections: int) -> list
         if user.during_motion:
             rows.append(_simulate_push(session, user, situation, rng))
             continue
-        corrected = user.correct(situation, rng)
-        phi_h = user.correction_features(situation, rng)
-        rows.append(session.submit(corrected, drag={"simulated": True}, phi_h=phi_h))
+        outcome = user.perform(situation, rng)  # one draw for the trajectory and its features
+        corrected = outcome.corrected
+        if corrected is None:  # a user that shows noisy features: the trajectory it shows
+            corrected = user.correct(situation, rng)
+        drag = {"simulated": True}
+        if outcome.relevant is not None:
+            drag["relevant"] = bool(outcome.relevant)
+        rows.append(session.submit(corrected, drag=drag, phi_h=outcome.phi_h))
     return rows
 
 

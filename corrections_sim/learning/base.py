@@ -68,6 +68,8 @@ class LearnerContext:
         noise: the study's filter noise, M (process) and N (observation).
         sigma: the study's unscented-transform sigma points.
         iteration: t, the correction being processed (0-based).
+        corrected: the corrected trajectory ξ_h (T, 7) when the person showed one (a learner
+            that judges whether a correction is explainable reads it), else None.
     """
 
     book: PlanBook
@@ -79,6 +81,7 @@ class LearnerContext:
     noise: KalmanNoise
     sigma: SigmaPoints
     iteration: int = 0
+    corrected: np.ndarray | None = None
 
 
 class Learner(abc.ABC):

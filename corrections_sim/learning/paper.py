@@ -22,6 +22,7 @@ the study through :class:`~corrections_sim.learning.base.LearnerContext`.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -45,6 +46,7 @@ from corrections_sim.learning.kalman import (
 from corrections_sim.learning.perceptron import perceptron_update
 from corrections_sim.learning.preference_posterior import BoltzmannCorrection
 from corrections_sim.learning.preference_posterior import update as posterior_update
+from corrections_sim.learning.relevance import Relevance, explain
 from corrections_sim.people.corrections import (
     CORRECTIONS,
     CorrectionModel,
@@ -424,3 +426,127 @@ class CorrectionAwareActiveLearntNoise(_Active, CorrectionAwareKalmanLearntNoise
 
     label = "AL-C, N learnt (AL-CL)"
     style = ("#ff7f0e", "--")
+
+
+def _judge(
+    ctx: LearnerContext,
+    belief: Belief,
+    env: Environment,
+    plan: Plan,
+    model: CorrectionModel,
+    relevance: Relevance,
+) -> tuple[float, float | None]:
+    """(β̂, ρ) of the correction in ``ctx``: the relevance model's posterior from ρ, the
+    unexplained fraction of the move under ``model`` (:func:`~.relevance.explain`, started
+    from θ̂ and the sigma points of N(θ̂, P + M), the plans the UKF solves anyway). Without a
+    trajectory to judge (a person who shows noisy features) it is the prior."""
+    if ctx.corrected is None:
+        return relevance.prior, None
+    starts = ctx.sigma.points(belief.theta, belief.cov + ctx.noise.process)
+    found = explain(ctx.book, env, plan.trajectory, ctx.corrected, model, starts)
+    return relevance.probability(found.rho), found.rho
+
+
+class _RelevanceAware:
+    """Mix-in: the parameters of a learner that weighs each correction by its relevance β̂
+    (:mod:`corrections_sim.learning.relevance`)."""
+
+    relevance_prior: float
+    relevance_spread: float
+
+    def relevance(self, k: int) -> Relevance:
+        """Its model of ρ under relevant and irrelevant corrections."""
+        return Relevance(prior=self.relevance_prior, spread=self.relevance_spread, k=k)
+
+
+@register_learner("KF-CR")
+@dataclass(frozen=True)
+class RelevanceAwareKalman(_RelevanceAware, CorrectionAwareKalman):
+    """KF-C that weighs each correction by its relevance β̂ (Bobu et al., CoRL 2018): the
+    observation noise of the update is N / β̂.
+
+    Attributes:
+        relevance_prior: p in (0, 1), the prior probability that a correction is relevant.
+        relevance_spread: σ > 0 of the unexplained fraction ρ of a relevant correction.
+    """
+
+    label = "Relevance-aware KF-C (KF-CR)"
+    style = ("#e377c2", "--")
+
+    relevance_prior: float = 0.5
+    relevance_spread: float = 0.05
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        self.relevance(2)
+
+    def update(
+        self, ctx: LearnerContext, belief: Belief, env: Environment, plan: Plan, phi_h: np.ndarray
+    ) -> Step:
+        beta, rho = _judge(ctx, belief, env, plan, self.model, self.relevance(belief.dim))
+        noise = KalmanNoise(process=ctx.noise.process, observation=ctx.noise.observation / beta)
+        step = super().update(dataclasses.replace(ctx, noise=noise), belief, env, plan, phi_h)
+        return dataclasses.replace(step, relevance=beta, residual=rho)
+
+
+@register_learner("PP-R")
+@dataclass(frozen=True)
+class RelevanceAwarePerceptron(_RelevanceAware, Perceptron):
+    """PP whose rate is scaled by the correction's relevance β̂: θ̂ += αᵗ β̂ (Φ_h − Φ(ξᵗ)).
+
+    Attributes:
+        model: C, the correction model β̂ explains corrections with (KF-C's default).
+        relevance_prior: p in (0, 1), the prior probability that a correction is relevant.
+        relevance_spread: σ > 0 of the unexplained fraction ρ of a relevant correction.
+    """
+
+    label = "Relevance-aware PP (PP-R)"
+    style = ("#bcbd22", "-")
+
+    model: CorrectionModel = components.nested(CORRECTIONS, WaypointCorrection())
+    relevance_prior: float = 0.5
+    relevance_spread: float = 0.05
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not isinstance(self.model, CorrectionModel):
+            raise ParameterError("model", f"expected a correction model, got {self.model!r}")
+        self.relevance(2)
+
+    def check(self, n_waypoints: int) -> None:
+        try:
+            self.model.check(n_waypoints)
+        except ParameterError as exc:
+            raise ParameterError(f"model.{exc.name}", exc.message) from None
+
+    def update(
+        self, ctx: LearnerContext, belief: Belief, env: Environment, plan: Plan, phi_h: np.ndarray
+    ) -> Step:
+        beta, rho = _judge(ctx, belief, env, plan, self.model, self.relevance(belief.dim))
+        alpha = float(ctx.alphas[ctx.iteration]) * beta
+        new = perceptron_update(belief, plan.features, phi_h, alpha)
+        return Step(new, None, phi_h - plan.features, None, relevance=beta, residual=rho)
+
+
+@register_learner("PP-MAX")
+@dataclass(frozen=True)
+class OneFeaturePerceptron(Perceptron):
+    """One feature at a time (Bajcsy, Losey, O'Malley & Dragan, HRI 2018; FERL's "MAX"): the
+    perceptron's update on the one feature the correction changed most, |Φ_h,i − Φ_i|, and
+    none on the others. Every feature here is a sum of per-waypoint values in [0, 1], so the
+    changes are compared as they are."""
+
+    label = "One feature at a time (PP-MAX)"
+    style = ("#7f7f7f", ":")
+
+    def update(
+        self, ctx: LearnerContext, belief: Belief, env: Environment, plan: Plan, phi_h: np.ndarray
+    ) -> Step:
+        change = np.asarray(phi_h, float) - plan.features
+        only = np.zeros_like(change)
+        i = int(np.argmax(np.abs(change)))
+        only[i] = change[i]
+        new = perceptron_update(
+            belief, plan.features, plan.features + only, float(ctx.alphas[ctx.iteration])
+        )
+        return Step(new, None, change, None)

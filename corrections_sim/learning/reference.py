@@ -10,6 +10,8 @@ solves ξ*(θ, E) there once; this module never plans):
 * :func:`learnt_noise_log_likelihood` — the same with N integrated out under an
   inverse-Wishart prior IW(ν₀, V₀) (what a ``noise = "learnt"`` filter assumes), exactly:
   p(z₁…z_t | θ) ∝ |V₀ + Σᵢ rᵢ rᵢᵀ|^(−(ν₀ + t)/2), rᵢ = zᵢ − hᵢ(θ);
+* :func:`relevance_log_likelihood` — KF-CR's: KF-C's Gaussian where the correction is
+  relevant (probability β̂, the learner's own), uninformative where it is not;
 * :func:`boltzmann_log_likelihood` — BP's model, P(ξ_h ≻ ξᵗ | θ) = ε/2 + (1 − ε) mean_β σ(β θ·Δ).
 
 :func:`posterior` turns a log prior plus log likelihoods into normalized cell weights;
@@ -84,6 +86,33 @@ def gaussian_log_likelihood(z: np.ndarray, h: np.ndarray, noise: np.ndarray) -> 
     with np.errstate(invalid="ignore"):
         out = -0.5 * np.einsum("ni,ij,nj->n", r, np.linalg.inv(noise), r)
     return np.where(np.isfinite(out), out, -np.inf)  # no plan at a grid point: impossible
+
+
+def relevance_log_likelihood(
+    log_gaussian: np.ndarray, log_current: np.ndarray, relevance: float
+) -> np.ndarray:
+    """log p(z | θ) of a relevance-aware learner's model, the relevance r integrated out:
+    β̂ N(z; h(θ), N) + (1 − β̂) c. β̂ is the learner's P(relevant | ρ) for this correction
+    (from the joint-space evidence ρ, which does not depend on θ); c, the density of z if the
+    correction is irrelevant, is the marginal of z under the current posterior,
+    Σ_θ' w(θ') N(z; h(θ'), N), so that z itself adds no evidence about r beyond β̂.
+
+    Args:
+        log_gaussian: log N(z; h(θ), N) per grid point (n,), up to one constant
+            (:func:`gaussian_log_likelihood`).
+        log_current: the posterior before this correction, an unnormalized log density (n,).
+        relevance: β̂ in (0, 1].
+    """
+    if not 0.0 < relevance <= 1.0:
+        raise ValueError(f"relevance = {relevance!r}: expected a probability in (0, 1]")
+    if relevance == 1.0:
+        return log_gaussian
+    weights = posterior(log_current)
+    top = np.max(log_gaussian)
+    marginal = float(weights @ np.exp(log_gaussian - top))  # c · exp(−top)
+    with np.errstate(divide="ignore"):
+        relevant = np.log(relevance) + log_gaussian - top
+        return top + np.logaddexp(relevant, np.log1p(-relevance) + np.log(marginal))
 
 
 def learnt_noise_log_likelihood(

@@ -26,6 +26,9 @@ class Step:
         innovation: Φ_h minus what the learner predicted (k,).
         innovation_cov: its predicted covariance S (k, k), or None (then no NIS).
         repaired: True if a covariance had to be repaired to stay positive definite.
+        relevance: β̂, the learner's probability that the correction is explained by its
+            features at all (a relevance-aware learner), else None.
+        residual: ρ, the unexplained fraction of the correction β̂ was computed from, or None.
     """
 
     belief: Belief
@@ -33,3 +36,5 @@ class Step:
     innovation: np.ndarray
     innovation_cov: np.ndarray | None = None
     repaired: bool = False
+    relevance: float | None = None
+    residual: float | None = None

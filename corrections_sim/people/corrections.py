@@ -184,6 +184,14 @@ class CorrectionModel(abc.ABC):
         (called once the planner's T is known, before anything runs)."""
         return None
 
+    def at(self, robot: np.ndarray, intended: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """The correction toward ``intended`` at the waypoints ``rows`` (a boolean mask, the
+        ones a person was seen to move), (m, n): what explaining an observed correction
+        compares with it. By default :meth:`apply` there; a model that chooses which
+        waypoints move (the worst ones) answers for the observed ones instead, so that the
+        explanation does not jump when another waypoint becomes the worst."""
+        return self.apply(robot, intended)[rows]
+
 
 CORRECTIONS: Registry[type[CorrectionModel]] = Registry("correction model", base=CorrectionModel)
 """Every correction model by name."""
@@ -216,6 +224,11 @@ class WaypointCorrection(CorrectionModel):
 
     def check(self, n_waypoints: int) -> None:
         _check_count(self.waypoints, n_waypoints)
+
+    def at(self, robot: np.ndarray, intended: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """The observed waypoints moved ``step`` of the way onto ``intended``'s."""
+        robot, intended = _check_pair(robot, intended)
+        return robot[rows] + self.step * (intended[rows] - robot[rows])
 
     def apply(self, robot: np.ndarray, intended: np.ndarray) -> np.ndarray:
         return waypoint_correction(robot, intended, self.step, self.waypoints)

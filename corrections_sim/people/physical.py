@@ -424,6 +424,7 @@ class PushedMotion:
             executed=_sample(trace.times, trace.q, final, at),
             executed_kept=kept,
             extras=extras,
+            corrected=deformed,
             held=held,
             deformed=deformed,
             trace=trace,

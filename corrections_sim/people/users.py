@@ -78,12 +78,20 @@ class TaskOutcome:
         executed_kept: with online replanning, the motion the robot would have made had it kept
             its plan after the push (T, 7), from the same state; else None.
         extras: per-task numbers for the records (``effort``, ``push_time``, …).
+        corrected: the corrected trajectory ξ_h (T, 7) the robot observed, for learners that
+            judge a correction in joint space (relevance); None where the person shows
+            features rather than a trajectory (feature noise).
+        relevant: the ground truth for scoring relevance estimates: False for a correction
+            that carries no preference (a nudge), True for one made toward the person's plan,
+            None for a user that never makes irrelevant ones (no label recorded).
     """
 
     phi_h: np.ndarray
     executed: np.ndarray | None = None
     executed_kept: np.ndarray | None = None
     extras: Mapping[str, float] = field(default_factory=dict)
+    corrected: np.ndarray | None = None
+    relevant: bool | None = None
 
 
 class User(abc.ABC):
@@ -105,15 +113,31 @@ class User(abc.ABC):
     def correct(self, situation: Situation, rng: np.random.Generator) -> np.ndarray:
         """ξ_h, (T, 7): the corrected trajectory."""
 
+    def observe(
+        self, corrected: np.ndarray, situation: Situation, rng: np.random.Generator
+    ) -> np.ndarray:
+        """What the learners see of the correction ``corrected``: Φ(ξ_h, E), shape (k,), by
+        default; a user with feature noise adds it here."""
+        return feature_counts(corrected, situation.env, situation.features)
+
+    def shows_trajectory(self) -> bool:
+        """Whether the learners may read the corrected trajectory itself (not when what they
+        see is noisy features of it)."""
+        return True
+
     def correction_features(self, situation: Situation, rng: np.random.Generator) -> np.ndarray:
         """Φ(ξ_h, E), shape (k,), what the learners see."""
-        return feature_counts(self.correct(situation, rng), situation.env, situation.features)
+        return self.observe(self.correct(situation, rng), situation, rng)
 
     def perform(self, situation: Situation, rng: np.random.Generator, replan=None) -> TaskOutcome:
-        """The whole task: by default the correction's features alone. A user who corrects
-        during the motion overrides it and calls ``replan`` (online learning) when its
-        correction is over; others ignore ``replan``."""
-        return TaskOutcome(phi_h=self.correction_features(situation, rng))
+        """The whole task: by default the correction, its features and the corrected
+        trajectory. A user who corrects during the motion overrides it and calls ``replan``
+        (online learning) when its correction is over; others ignore ``replan``."""
+        corrected = self.correct(situation, rng)
+        return TaskOutcome(
+            phi_h=self.observe(corrected, situation, rng),
+            corrected=corrected if self.shows_trajectory() else None,
+        )
 
     def check(self, n_waypoints: int) -> None:
         """Refuse parameters that do not fit trajectories of ``n_waypoints`` waypoints."""
@@ -228,10 +252,15 @@ class NoisyOptimalUser(User):
         """ξ*(θ*, E): the trajectory it shows (its features are observed with noise)."""
         return OptimalCorrection().apply(situation.robot, situation.intended)
 
-    def correction_features(self, situation: Situation, rng: np.random.Generator) -> np.ndarray:
+    def observe(
+        self, corrected: np.ndarray, situation: Situation, rng: np.random.Generator
+    ) -> np.ndarray:
         """Φ(ξ*, E) + n, shape (k,)."""
-        phi = feature_counts(situation.intended, situation.env, situation.features)
+        phi = feature_counts(corrected, situation.env, situation.features)
         return phi + rng.normal(0.0, self.noise, size=phi.shape)
+
+    def shows_trajectory(self) -> bool:
+        return False
 
 
 @register_user("model")
@@ -261,8 +290,59 @@ class ModelUser(CorrectingUser):
     def model(self) -> CorrectionModel:
         return self.correction
 
-    def correction_features(self, situation: Situation, rng: np.random.Generator) -> np.ndarray:
-        phi = super().correction_features(situation, rng)
+    def observe(
+        self, corrected: np.ndarray, situation: Situation, rng: np.random.Generator
+    ) -> np.ndarray:
+        phi = super().observe(corrected, situation, rng)
         if self.noise > 0:
             phi = phi + rng.normal(0.0, self.noise, size=phi.shape)
         return phi
+
+    def shows_trajectory(self) -> bool:
+        return self.noise == 0
+
+
+@register_user("distracted")
+@dataclass(frozen=True)
+class DistractedUser(BiasedUser):
+    """The biased user, whose correction is, a ``fraction`` of the time, a nudge that carries
+    no preference: the worst waypoint moves as far as the biased correction would have moved
+    it, in a uniformly random joint-space direction (something the robot cannot represent, or
+    nothing at all). Each correction is labelled relevant or not (``relevant`` in the records).
+
+    Attributes:
+        fraction: the probability in [0, 1] that a correction is such a nudge.
+        step, waypoints: the relevant correction's, as the biased user's.
+    """
+
+    fraction: float = 0.3
+    stochastic: ClassVar[bool] = True
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        number = isinstance(self.fraction, int | float) and not isinstance(self.fraction, bool)
+        if not (number and np.isfinite(self.fraction) and 0.0 <= self.fraction <= 1.0):
+            raise ParameterError("fraction", f"must lie in [0, 1], got {self.fraction!r}")
+
+    def nudge(self, situation: Situation, rng: np.random.Generator) -> tuple[np.ndarray, bool]:
+        """(ξ_h, relevant): the biased correction, or the nudge in its place. Both draws (the
+        coin and the direction) are made every time, so the stream does not depend on them."""
+        relevant = self.corrected_trajectory(situation.robot, situation.intended)
+        coin = rng.random()
+        direction = rng.normal(size=relevant.shape[1])
+        if coin >= self.fraction:
+            return relevant, True
+        moved = np.linalg.norm(relevant - situation.robot, axis=1)
+        out = situation.robot.copy()
+        for i in np.flatnonzero(moved > 0.0):
+            out[i] += moved[i] * direction / np.linalg.norm(direction)
+        return out, False
+
+    def correct(self, situation: Situation, rng: np.random.Generator) -> np.ndarray:
+        return self.nudge(situation, rng)[0]
+
+    def perform(self, situation: Situation, rng: np.random.Generator, replan=None) -> TaskOutcome:
+        corrected, relevant = self.nudge(situation, rng)
+        return TaskOutcome(
+            phi_h=self.observe(corrected, situation, rng), corrected=corrected, relevant=relevant
+        )

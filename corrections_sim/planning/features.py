@@ -17,6 +17,9 @@ With c the cup centre (world, metres) and z_h the hand's approach axis:
   edges of width ``TABLE_EDGE``).
 * ``coffee``  — how far the cup is tilted: :math:`(1 + z_h \cdot \hat z)/2`, 0 upright,
   1 upside down.
+* ``human``   — how close the coffee comes to a person standing across the table (FERL's
+  "human" feature): :math:`\exp(-\|c - p\|^2 / (2 σ_p^2))`, p = ``HUMAN_POSITION``,
+  σ_p = ``HUMAN_SCALE``. None of the paper's learners has it.
 
 Positive weights θ_i make the robot seek a feature, negative ones avoid it.
 
@@ -44,6 +47,10 @@ from corrections_sim.scene.robot import N_ARM_JOINTS, symbolic_fk
 FEATURE_NAMES = ("laptop", "table", "coffee")
 
 LAPTOP_SCALE = 0.15  # m, σ_l
+#: Where the person stands (FERL's "human" feature): across the table from the robot, the
+#: cup centre's height a chest would be at, world frame, m; and the feature's length scale.
+HUMAN_POSITION = (1.15, 0.0, 0.35)
+HUMAN_SCALE = 0.35  # m, σ_p
 TABLE_SCALE = 0.20  # m, σ_t
 TABLE_EDGE = 0.02  # m, width of the logistic footprint edges
 
@@ -144,6 +151,15 @@ def table(w: Waypoint) -> ca.SX:
 def coffee(w: Waypoint) -> ca.SX:
     """(1 + z_h·ẑ)/2: how far the cup is tilted, 0 upright, 1 upside down."""
     return 0.5 * (1 + w.rot_hand[2, 2])
+
+
+@register_feature("human")
+def human(w: Waypoint) -> ca.SX:
+    """exp(−‖c − p‖² / (2 σ_p²)): the coffee close to the person standing across the table
+    (at ``HUMAN_POSITION``). No learner of the paper has it: a person who minds it corrects
+    for something the robot cannot represent."""
+    d2 = sum((w.cup[i] - HUMAN_POSITION[i]) ** 2 for i in range(3))
+    return ca.exp(-d2 / (2 * HUMAN_SCALE**2))
 
 
 def symbolic_features(

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from corrections_sim.metrics import regret_terms
+from corrections_sim.planning.features import feature_counts
 from corrections_sim.planning.planner import Plan, Planner, PlanningError, smoothness_cost
 from corrections_sim.scene.environments import Environment
 
@@ -96,21 +97,45 @@ class PlanBook:
 
 @dataclass(frozen=True)
 class Target:
-    """The user's side of every environment: θ* and its optimal plans ξ*(θ*, E)."""
+    """The user's side of every environment: θ* and its optimal plans ξ*(θ*, E).
+
+    Attributes:
+        theta_star: the person's θ*, over ``features``.
+        plans: ξ*(θ*, E) per environment, solved over the person's features.
+        features: the features the person weighs, when they are not the robot's (a person
+            who cares about what the robot does not know); None: the robot's own.
+    """
 
     theta_star: np.ndarray
     plans: tuple[Plan, ...]
+    features: tuple[str, ...] | None = None
 
     @classmethod
     def solve(cls, planner: Planner, theta_star, envs: Sequence[Environment]) -> Target:
+        """θ* and its plans with ``planner``, whose features are the person's; they are
+        recorded when they differ from the robot's (see :func:`evaluate`)."""
         theta = np.asarray(theta_star, float)
-        return cls(theta_star=theta, plans=tuple(planner.solve(theta, e) for e in envs))
+        return cls(
+            theta_star=theta,
+            plans=tuple(planner.solve(theta, e) for e in envs),
+            features=planner.config.features,
+        )
+
+    def person_features(self, plan: Plan, env: Environment, robot: tuple[str, ...]) -> np.ndarray:
+        """Φ of a robot's ``plan`` over the person's features (the plan's own when the
+        person weighs the robot's features ``robot``)."""
+        if self.features is None or tuple(self.features) == tuple(robot):
+            return plan.features
+        return feature_counts(plan.trajectory, env, self.features)
 
 
 def evaluate(
     book: PlanBook, target: Target, envs: Sequence[Environment], theta_hat: np.ndarray
 ) -> tuple[float, float, int]:
     """(regret, paper regret, failed environments) of θ̂ summed over ``envs``.
+
+    The regret is the person's: their full objective θ*·Φ − λS over their own features, which
+    for a person who weighs features the robot lacks includes what the robot cannot see.
 
     An environment whose plan fails is left out of both sums and counted instead.
     """
@@ -127,7 +152,7 @@ def evaluate(
             target.theta_star,
             star.features,
             smoothness_cost(star.trajectory),
-            plan.features,
+            target.person_features(plan, env, book.planner.config.features),
             smoothness_cost(plan.trajectory),
             lam,
         )

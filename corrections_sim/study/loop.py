@@ -24,7 +24,7 @@ Everything random flows from ``np.random.Generator`` objects made from the study
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -84,6 +84,9 @@ def run_learner(
     k, n_iter = settings.k, settings.iterations
     # Drawn up front so PP and KF run r see the same environments (common random numbers).
     draws = rng.integers(len(envs), size=n_iter)
+    # θ* on the learners' features: what error and NEES compare against (the person may weigh
+    # more; their regret is over all of theirs, see `evaluate`).
+    known = np.array(settings.theta_star, float)
     gains = np.full((n_iter, k, k), np.nan)
     records = []
 
@@ -94,13 +97,13 @@ def run_learner(
             "run": run,
             "iteration": t,
             "environment": env_name,
-            "estimate_error": estimate_error(belief.theta, target.theta_star),
+            "estimate_error": estimate_error(belief.theta, known),
             "regret": regret,
             "regret_paper": paper,
             "regret_failures": failed,
             "update_skipped": skipped,
         }
-        rec |= belief_columns(belief, step, target.theta_star, cls.has_covariance)
+        rec |= belief_columns(belief, step, known, cls.has_covariance)
         rec |= task
         records.append(rec)
 
@@ -140,7 +143,8 @@ def run_learner(
                 where it is; None, the old plan goes on, when the planner finds none). The
                 plan is the book's, so the regret that follows reuses it."""
                 phi = feature_counts(deformed, env, names)
-                online.append(agent.update(ctx, prior, env, mine, phi))
+                seen = replace(ctx, corrected=deformed)
+                online.append(agent.update(seen, prior, env, mine, phi))
                 try:
                     return book.plan(online[0].belief.theta, env).trajectory
                 except PlanningError:
@@ -148,11 +152,12 @@ def run_learner(
 
             outcome = user.perform(situation, rng, replan if settings.online else None)
             task = _task_columns(outcome, target, idx, env, planner)
-            step = (
-                online[0]
-                if online
-                else agent.update(ctx, belief, env, mine, np.asarray(outcome.phi_h, dtype=float))
-            )
+            label = _relevant(outcome, settings, known)
+            if label is not None:
+                task["relevant"] = label
+            seen = replace(ctx, corrected=outcome.corrected)
+            phi_h = np.asarray(outcome.phi_h, dtype=float)
+            step = online[0] if online else agent.update(seen, belief, env, mine, phi_h)
             belief = step.belief
             if step.gain is not None:
                 gains[t] = step.gain
@@ -186,6 +191,9 @@ def belief_columns(
         if step is not None and step.innovation_cov is not None
         else None
     )
+    if step is not None and step.relevance is not None:
+        rec["relevance"] = float(step.relevance)
+        rec["relevance_residual"] = None if step.residual is None else float(step.residual)
     return rec
 
 
@@ -205,7 +213,7 @@ def _task_columns(outcome: TaskOutcome, target: Target, idx: int, env, planner: 
             target.theta_star,
             star.features,
             smoothness_cost(star.trajectory),
-            feature_counts(motion, env, names),
+            feature_counts(motion, env, target.features or names),
             smoothness_cost(motion),
             lam,
         )
@@ -215,6 +223,18 @@ def _task_columns(outcome: TaskOutcome, target: Target, idx: int, env, planner: 
     if outcome.executed_kept is not None:
         columns["executed_regret_kept"] = regret(outcome.executed_kept)
     return columns | {key: float(value) for key, value in outcome.extras.items()}
+
+
+def _relevant(outcome: TaskOutcome, settings: StudySettings, known: np.ndarray) -> float | None:
+    """The ground-truth label of a correction for scoring relevance (1 relevant, 0 not), or
+    None where every correction is relevant by construction (no column then). A correction is
+    relevant when the person made it toward their own plan (not a nudge) and that plan weighs
+    at least one of the learners' features; a person whose θ* weighs only features the robot
+    lacks makes none."""
+    if outcome.relevant is None and not settings.user_theta:
+        return None
+    made = True if outcome.relevant is None else bool(outcome.relevant)
+    return float(made and bool(np.any(known != 0.0)))
 
 
 def _index(learner: str, idx, n: int) -> int:

@@ -68,7 +68,8 @@ def prepare(settings: FigureSettings) -> Shared:
     s = settings.study
     planner = shared_planner(settings.planner_config())
     envs = settings.envs()
-    target = Target.solve(planner, np.array(s.theta_star), envs)
+    person = shared_planner(settings.user_planner_config()) if settings.user_features else planner
+    target = Target.solve(person, s.person(), envs)
     book = PlanBook(planner)
     evaluate(book, target, envs, np.array(s.theta0, float))
     return Shared(target=target, prior=book.entries(), solves=len(envs) + book.solves)

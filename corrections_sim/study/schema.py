@@ -84,7 +84,16 @@ STUDY_KEYS: dict[str, tuple[Any, str]] = {
         ["laptop", "table"],
         "the features θ weighs, in order: a non-empty subset of the registered features",
     ),
-    "theta_star": (None, "the simulated user's true weights θ*, one per feature (required)"),
+    "user_features": (
+        None,
+        "the features the simulated person weighs (default: the learners' features): all of "
+        "them and any others the scene knows, e.g. the learners know laptop and table, the "
+        "person also minds coffee; the person plans over these, the learners see theirs",
+    ),
+    "theta_star": (
+        None,
+        "the simulated user's true weights θ*, one per feature of user_features (required)",
+    ),
     "theta0": ("zeros", "the robot's initial estimate θ̂⁰"),
     "cov0": ("identity", "P⁰, k × k rows, symmetric positive definite"),
     "environments": (
@@ -539,13 +548,17 @@ def parse_study(
     planner = _planner(values.get("planner"))
     if "theta_star" not in values:
         raise ValueError("theta_star: missing (the simulated user's true weights)")
+    own = values.get("user_features")
+    own = features if own is None else check_user_features(own, features)
     theta_star = values["theta_star"]
-    if not isinstance(theta_star, list | tuple) or len(theta_star) != k:
+    if not isinstance(theta_star, list | tuple) or len(theta_star) != len(own):
         raise ValueError(
-            f"theta_star: expected {k} weights for the features {features}, got "
+            f"theta_star: expected {len(own)} weights for the features {list(own)}, got "
             f"{len(theta_star) if isinstance(theta_star, list | tuple) else repr(theta_star)}"
         )
     theta_star = _numbers("theta_star", theta_star)
+    person = theta_star if own != features else ()
+    theta_star = tuple(theta_star[own.index(name)] for name in features)
     theta0 = _numbers("theta0", values.get("theta0", [0.0] * k))
     cov0 = values.get("cov0", [[float(i == j) for j in range(k)] for i in range(k)])
     if not isinstance(cov0, list | tuple) or not all(isinstance(r, list | tuple) for r in cov0):
@@ -563,6 +576,7 @@ def parse_study(
         raise ValueError(f"online = {online!r}: expected true or false")
     study = StudySettings(
         theta_star=theta_star,
+        user_theta=person,
         theta0=theta0,
         cov0=cov0,
         iterations=values["iterations"],
@@ -579,6 +593,7 @@ def parse_study(
         study=study,
         planner=planner,
         features=features,
+        user_features=own if own != features else (),
         environments=parse_environments(raw_envs),
         plugins=plugins,
         name=name,
@@ -861,16 +876,30 @@ def cup_position(name: str, value) -> tuple[float, float, float]:
     return point  # type: ignore[return-value]
 
 
-def check_features(value) -> tuple[str, ...]:
+def check_features(value, key: str = "features") -> tuple[str, ...]:
     """A non-empty ordered list of distinct names from ``features.FEATURES`` (the paper's
-    three and any registered plug-in)."""
+    three and any registered plug-in); ``key`` names it in errors."""
     if not isinstance(value, list | tuple) or not value:
-        raise ValueError(f"features = {value!r}: expected a non-empty list of feature names")
+        raise ValueError(f"{key} = {value!r}: expected a non-empty list of feature names")
     for i, name in enumerate(value):
         if name not in FEATURES:
             raise ValueError(
-                f"features[{i}] = {name!r}: unknown feature (choose from {', '.join(FEATURES)})"
+                f"{key}[{i}] = {name!r}: unknown feature (choose from {', '.join(FEATURES)})"
             )
     if len(set(value)) != len(value):
-        raise ValueError(f"features = {list(value)}: each feature at most once")
+        raise ValueError(f"{key} = {list(value)}: each feature at most once")
     return tuple(value)
+
+
+def check_user_features(value, features: tuple[str, ...]) -> tuple[str, ...]:
+    """The features the simulated person weighs: every one the learners have (in any order)
+    and any others the scene knows. Refused in one line when the person's list lacks one of
+    the learners' features (the robot would learn a weight the person cannot have)."""
+    own = check_features(value, "user_features")
+    missing = [name for name in features if name not in own]
+    if missing:
+        raise ValueError(
+            f"user_features = {list(own)}: must contain every learner feature "
+            f"({', '.join(features)}); missing {', '.join(missing)}"
+        )
+    return own

@@ -85,7 +85,10 @@ class StudySettings:
     """Resolved settings of one study (a figure's learning curves).
 
     Attributes:
-        theta_star: the user's true preferences θ* (k,).
+        theta_star: the user's true preferences θ* (k,) over the learners' features (the
+            part of the person's θ* the learners can learn; error and NEES against it).
+        user_theta: the person's whole θ* over their own features (``user_features`` of the
+            figure) when they weigh features the learners lack; () when they do not.
         theta0: the robot's initial estimate θ̂⁰ (k,).
         cov0: initial covariance P⁰ (k, k), symmetric positive definite.
         iterations: corrections per run.
@@ -115,8 +118,11 @@ class StudySettings:
     filter: FilterSettings = field(default_factory=FilterSettings)
     warm_start: bool = False
     online: bool = False
+    user_theta: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
+        if not np.all(np.isfinite(np.asarray(self.user_theta, float))):
+            raise ValueError(f"theta_star: all weights must be finite, got {self.user_theta}")
         k = len(self.theta_star)
         if len(self.theta0) != k:
             raise ValueError(
@@ -168,6 +174,10 @@ class StudySettings:
     def k(self) -> int:
         return len(self.theta_star)
 
+    def person(self) -> np.ndarray:
+        """The person's whole θ*, over their own features."""
+        return np.array(self.user_theta or self.theta_star, float)
+
     def prior(self) -> Belief:
         return Belief(theta=np.array(self.theta0, float), cov=np.array(self.cov0, float))
 
@@ -206,7 +216,7 @@ class StudySettings:
     def as_dict(self) -> dict[str, Any]:
         """The settings as plain data (``summary.json``; the study file's nested form)."""
         return {
-            "theta_star": self.theta_star,
+            "theta_star": self.user_theta or self.theta_star,
             "theta0": self.theta0,
             "cov0": self.cov0,
             "iterations": self.iterations,
@@ -233,6 +243,8 @@ class FigureSettings:
         planner: planner settings as (name, value) pairs, passed to ``PlannerConfig``
             (``n_starts``, the multi-start count, ``solver``, ``warm`` and ``certificate``).
         features: the features θ weighs, in order (k of them).
+        user_features: the features the simulated person weighs, when not the learners'
+            (then ``study.user_theta`` is their θ* over them); () when the same.
         environments: "paper" (the 48), or paper environment names and specs of the user's own
             (see :mod:`corrections_sim.study.schema`).
         plugins: the plug-in files the study imports first.
@@ -248,16 +260,33 @@ class FigureSettings:
         ("certificate", True),
     )
     features: tuple[str, ...] = ("laptop", "table")
+    user_features: tuple[str, ...] = ()
     environments: Environments = "paper"
     plugins: tuple = ()
     name: str = field(default="", compare=False)
     description: str = field(default="", compare=False)
 
     def __post_init__(self) -> None:
+        if self.user_features:
+            missing = [name for name in self.features if name not in self.user_features]
+            if missing:
+                raise ValueError(f"user_features: missing the learners' {', '.join(missing)}")
+            if len(self.study.user_theta) != len(self.user_features):
+                raise ValueError(
+                    f"theta_star: expected {len(self.user_features)} weights for the person's "
+                    f"features {list(self.user_features)}, got {len(self.study.user_theta)}"
+                )
+        elif self.study.user_theta:
+            raise ValueError("theta_star: the person's own weights need user_features")
         self.study.check(self.planner_config().n_waypoints)
 
     def planner_config(self) -> PlannerConfig:
         return PlannerConfig(features=self.features, **dict(self.planner))
+
+    def user_planner_config(self) -> PlannerConfig:
+        """The planner the simulated person plans with: the learners' over the person's own
+        features (the same smoothness, waypoints and solver)."""
+        return PlannerConfig(features=self.user_features or self.features, **dict(self.planner))
 
     def envs(self) -> tuple[Environment, ...]:
         """The study's environments (memoized per process)."""
@@ -267,6 +296,8 @@ class FigureSettings:
         d = self.study.as_dict()
         d["planner"] = dict(self.planner)
         d["features"] = list(self.features)
+        if self.user_features:
+            d["user_features"] = list(self.user_features)
         d["environments"] = environments.as_data(self.environments)
         if self.plugins:
             d["plugins"] = [p.as_dict() for p in self.plugins]

@@ -1,0 +1,165 @@
+"""Relevance (beyond the paper): people who correct for what the robot cannot represent, and
+learners that notice (Bobu, Bajcsy, Fisac & Dragan, CoRL 2018).
+
+The columns of ``experiments/relevance.toml`` are people, as in fig. 6 (the same machinery,
+:mod:`corrections_sim.figures.robustness`; a column may set ``user_features`` and
+``theta_star``, what the person weighs): the paper's biased user; a person who also minds a
+feature the robot does not have; the biased user whose corrections are nudges without a
+preference 30% of the time; a person who minds only the unknown feature. Rows are learners:
+the paper's, the correction-aware ones, BP, one feature at a time (PP-MAX) and the
+relevance-aware PP-R and KF-CR, which estimate per correction the probability β̂ that it is
+explained by their features (:mod:`corrections_sim.learning.relevance`).
+
+Files: ``matrix.csv`` (fig. 6's cells — final error on the known features, regret of the
+person's whole objective, calibration — plus the drift ‖θ̂¹² − θ̂⁰‖₁, and for a learner with
+β̂ its ROC AUC against the ``relevant`` labels and its mean over relevant and irrelevant
+corrections), ``curves.csv`` (every record, with ``relevant``, ``relevance`` and
+``relevance_residual`` per correction), ``paired.csv`` (paired 95% intervals of each
+relevance-aware learner and PP-MAX against its twin: final error, regret and drift, per
+person), the matrix plot and ``relevance-beta.png`` (ρ of relevant and irrelevant
+corrections, and the drift).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from corrections_sim.figures import robustness
+from corrections_sim.figures.registry import register
+from corrections_sim.metrics import mean_sem, roc_auc
+from corrections_sim.study import analysis
+from corrections_sim.study.runner import FigureResult
+
+FIGURE = "relevance"
+#: Each learner compared with its twin in ``paired.csv``: the same learner without relevance
+#: (and PP-MAX with the perceptron it restricts).
+TWINS = {"KF-CR": "KF-C", "PP-R": "PP", "PP-MAX": "PP"}
+
+
+def _final(records: Sequence[dict], learner: str) -> list[dict]:
+    last = max(r["iteration"] for r in records)
+    return [r for r in records if r["learner"] == learner and r["iteration"] == last]
+
+
+def drift(records: Sequence[dict], learner: str, k: int) -> np.ndarray:
+    """‖θ̂ᵀ − θ̂⁰‖₁ per run (runs,), in run order."""
+    first = {r["run"]: r for r in records if r["learner"] == learner and r["iteration"] == 0}
+    out = []
+    for r in sorted(_final(records, learner), key=lambda r: r["run"]):
+        start = first[r["run"]]
+        out.append(sum(abs(float(r[f"theta_{i}"]) - float(start[f"theta_{i}"])) for i in range(k)))
+    return np.array(out, dtype=float)
+
+
+def judged(records: Sequence[dict], learner: str) -> dict[str, np.ndarray]:
+    """β̂, ρ and the label of every correction ``learner`` judged (``relevant`` 1 where the
+    study records no label: every correction of such a person is relevant)."""
+    rows = [
+        r
+        for r in records
+        if r["learner"] == learner
+        and r["iteration"] > 0
+        and analysis._number(r.get("relevance")) == analysis._number(r.get("relevance"))
+    ]
+    label = [analysis._number(r.get("relevant", 1.0)) for r in rows]
+    return {
+        "beta": np.array([analysis._number(r["relevance"]) for r in rows], dtype=float),
+        "rho": np.array([analysis._number(r.get("relevance_residual")) for r in rows], float),
+        "relevant": np.nan_to_num(np.array(label, dtype=float), nan=1.0),
+    }
+
+
+def matrix(settings, results: Sequence[FigureResult]) -> list[dict]:
+    """Fig. 6's rows with, per learner and person: the drift of θ̂ (mean, SEM), and for a
+    learner that estimates relevance its ROC AUC and mean β̂ over relevant and irrelevant
+    corrections, and the share of irrelevant corrections."""
+    rows = robustness.matrix(settings, results)
+    by_user = {c.label: (c, r) for c, r in zip(settings.columns, results, strict=True)}
+    for row in rows:
+        column, result = by_user[row["user"]]
+        moved = drift(result.records, row["learner"], column.settings.study.k)
+        mean, sem = mean_sem(moved[:, None])
+        row["drift_mean"], row["drift_sem"] = float(mean[0]), float(sem[0])
+        seen = judged(result.records, row["learner"])
+        has = seen["beta"].size > 0
+        relevant = seen["relevant"] == 1
+        row["relevance_auc"] = roc_auc(seen["beta"], seen["relevant"]) if has else None
+        row["relevance_relevant_mean"] = (
+            float(seen["beta"][relevant].mean()) if has and relevant.any() else None
+        )
+        row["relevance_irrelevant_mean"] = (
+            float(seen["beta"][~relevant].mean()) if has and (~relevant).any() else None
+        )
+        row["irrelevant_share"] = float(np.mean(~relevant)) if has else None
+    return rows
+
+
+def paired(settings, results: Sequence[FigureResult]) -> list[dict]:
+    """Paired 95% t-intervals of each learner in :data:`TWINS` minus its twin, per person:
+    final estimate error, final regret and drift (the learners share their runs' draws)."""
+    out = []
+    for column, result in zip(settings.columns, results, strict=True):
+        learners = column.settings.study.learners
+        data = analysis.curves(column.settings, result.records)
+        k = column.settings.study.k
+        for a, b in TWINS.items():
+            if a not in learners or b not in learners:
+                continue
+            if data[a]["regret"].shape[0] != data[b]["regret"].shape[0]:
+                continue
+            for metric in ("estimate_error", "regret"):
+                diff = data[a][metric][:, -1] - data[b][metric][:, -1]
+                out.append(
+                    {"user": column.label, "a": a, "b": b, "metric": f"final {metric}"}
+                    | analysis._mean_ci(diff)
+                )
+            diff = drift(result.records, a, k) - drift(result.records, b, k)
+            out.append(
+                {"user": column.label, "a": a, "b": b, "metric": "drift"} | analysis._mean_ci(diff)
+            )
+    return out
+
+
+def write(settings, results: Sequence[FigureResult], folder: Path) -> dict:
+    """matrix.csv, curves.csv, paired.csv and the plots in ``folder``; the summary's fields."""
+    from corrections_sim.figures.plotting import plot_relevance, plot_robustness_matrix
+
+    rows = matrix(settings, results)
+    pairs = paired(settings, results)
+    summary = robustness.write_matrix(settings, results, rows, folder, pairs)
+    title = robustness.title(settings, "relevance")
+    plot_robustness_matrix(rows, title, [folder / f"{FIGURE}.png", folder / f"{FIGURE}.pdf"])
+    seen = {
+        c.label: {
+            learner: judged(r.records, learner)
+            for learner in c.settings.study.learners
+            if learner in TWINS and learner != "PP-MAX"
+        }
+        for c, r in zip(settings.columns, results, strict=True)
+    }
+    plot_relevance(rows, seen, title, [folder / f"{FIGURE}-beta.png"])
+    return summary
+
+
+@dataclass(frozen=True)
+class RelevanceFigure(robustness.RobustnessFigure):
+    """The relevance study as a registered figure: fig. 6's columns (people) and caches, its
+    own file, files and plots."""
+
+    name: str = FIGURE
+    help: str = "beyond the paper: corrections the robot cannot explain; relevance-aware learners"
+    in_all: bool = False
+
+    def load(self, *, quick: bool, overrides: Mapping[str, Any]):
+        return robustness.load_settings(quick=quick, overrides=dict(overrides), figure=FIGURE)
+
+    def write(self, settings, result: list[FigureResult], folder: Path) -> dict:
+        return write(settings, result, folder)
+
+
+register(RelevanceFigure())
