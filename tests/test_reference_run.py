@@ -1,6 +1,7 @@
 """The reference beside a finished figure's runs (python -m corrections_sim.figures.reference):
 the replayed corrections are the run's own, and the exact posterior on a coarse grid gives
-finite NEES and KL for KF-C, for KF-CL (noise integrated out) and for BP."""
+finite NEES and KL for KF-C, for KF-CL (noise integrated out), for BP and for KF-CR (its
+relevance integrated out)."""
 
 from __future__ import annotations
 
@@ -19,7 +20,7 @@ runs = 1
 iterations = 2
 seed = 3
 environments = ["s0-t0-l1", "s1-t1-l2"]
-learners = ["KF-C", "KF-CL", "BP"]
+learners = ["KF-C", "KF-CL", "BP", "KF-CR"]
 """
 
 
@@ -32,7 +33,7 @@ def figure(tmp_path_factory):
     return folder / "out" / "tiny"
 
 
-@pytest.mark.parametrize("learner", ["KF-C", "KF-CL", "BP"])
+@pytest.mark.parametrize("learner", ["KF-C", "KF-CL", "BP", "KF-CR"])
 def test_the_reference_of_a_run(figure, learner, capsys):
     assert reference.main([str(figure), "--learner", learner, "--runs", "1", "--points", "9"]) == 0
     with open(figure / f"reference-{learner}.csv", newline="") as fh:
@@ -53,3 +54,19 @@ def test_a_learner_the_figure_did_not_run_is_one_line(figure, capsys):
     assert reference.main([str(figure), "--learner", "KF"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: --learner KF: not in this figure") and err.count("\n") == 1
+
+
+def test_one_filter_step_from_the_reference(figure, capsys):
+    """``--one-step``: the learner's update from the reference before each correction. At the
+    first correction it starts from the prior, as the learner itself did, so it is the
+    learner's own first step (up to the grid's moments of the prior)."""
+    argv = [str(figure), "--learner", "KF-CR", "--runs", "1", "--points", "41", "--one-step"]
+    assert reference.main(argv) == 0
+    with open(figure / "reference-KF-CR.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    first = rows[0]
+    assert float(first["one_step_nees"]) == pytest.approx(float(first["nees"]), rel=0.05)
+    assert all(float(r["one_step_kl"]) >= -1e-9 for r in rows)
+    assert "one filter step from the reference" in capsys.readouterr().out
+    assert reference.main([str(figure), "--learner", "KF-CL", "--one-step"]) == 2
+    assert "--one-step needs a Kalman learner with N fixed" in capsys.readouterr().err

@@ -812,44 +812,49 @@ def plot_push(example: dict, paths) -> None:
     _save_and_close(fig, paths, dpi=110)
 
 
-def plot_relevance(rows: Sequence[dict], seen: dict, title: str, paths) -> None:
-    """The relevance figure's second plot: (a) the unexplained fraction ρ of each correction
-    the relevance-aware learners judged, relevant and irrelevant apart, per person; (b) how
+def plot_relevance(
+    rows: Sequence[dict], seen: dict, title: str, paths, boundary: float | None = None
+) -> None:
+    """The relevance figure's second plot: (a) the distribution of ρ, the unexplained fraction
+    of each correction KF-CR judged, relevant and irrelevant apart, per person; (b) how
     far θ̂ drifted from θ̂⁰ over the run, per learner and person (mean ± SEM).
 
     Args:
         rows: ``relevance.matrix`` rows (learner, user, drift_mean, drift_sem, …).
         seen: person -> learner -> {"rho", "beta", "relevant"} arrays per correction.
         paths: files to write.
+        boundary: the ρ where β̂ = 1/2, drawn as a line.
     """
     users = list(dict.fromkeys(r["user"] for r in rows))
     learners = list(dict.fromkeys(r["learner"] for r in rows))
     cell = {(r["learner"], r["user"]): r for r in rows}
     fig, (left, right) = plt.subplots(1, 2, figsize=(15, 5.2))
-    bins = np.linspace(0.0, 1.0, 41)
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for j, user in enumerate(users):
-        for learner, data in seen.get(user, {}).items():
-            if learner != "KF-CR" or data["rho"].size == 0:
-                continue
-            for label, mask, style in (
-                ("relevant", data["relevant"] == 1, "-"),
-                ("irrelevant", data["relevant"] == 0, "--"),
-            ):
-                values = data["rho"][mask & np.isfinite(data["rho"])]
-                if values.size:
-                    left.hist(
-                        values,
-                        bins=bins,
-                        histtype="step",
-                        linestyle=style,
-                        color=colours[j % len(colours)],
-                        label=f"{user}: {label} ({values.size})",
-                        density=True,
-                    )
+        data = seen.get(user, {}).get("KF-CR")
+        if data is None or data["rho"].size == 0:
+            continue
+        for label, mask, style in (
+            ("relevant", data["relevant"] == 1, "-"),
+            ("irrelevant", data["relevant"] == 0, "--"),
+        ):
+            values = np.sort(data["rho"][mask & np.isfinite(data["rho"])])
+            if values.size:
+                left.step(
+                    values,
+                    np.arange(1, values.size + 1) / values.size,
+                    where="post",
+                    linestyle=style,
+                    color=colours[j % len(colours)],
+                    label=f"{user}: {label} ({values.size})",
+                )
+    if boundary is not None:
+        left.axvline(boundary, color="0.4", lw=0.8, ls=":")
+        left.text(boundary, 0.02, f" β̂ = 0.5 at ρ = {boundary:.2f}", fontsize=8, color="0.3")
+    left.set_xlim(0.0, 1.0)
+    left.set_ylim(0.0, 1.02)
     left.set_xlabel("ρ, the unexplained fraction of a correction (KF-CR's best θ)")
-    left.set_ylabel("density")
-    left.set_yscale("log")
+    left.set_ylabel("fraction of corrections with a smaller ρ")
     left.set_title("(a) what the robot's features cannot explain", fontsize=10)
     left.legend(fontsize=7)
     width = 0.8 / max(len(users), 1)

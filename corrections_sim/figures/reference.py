@@ -40,7 +40,7 @@ from corrections_sim.learning.paper import (
 from corrections_sim.people.users import Situation
 from corrections_sim.planning.features import waypoint_features
 from corrections_sim.planning.planner import Planner, PlanningError, build_key, cache_dir
-from corrections_sim.planning.plans import Target
+from corrections_sim.planning.plans import PlanBook, Target
 from corrections_sim.scene.environments import Environment
 from corrections_sim.study import schema
 from corrections_sim.study.settings import FigureSettings
@@ -78,6 +78,29 @@ def grid_plans(planner: Planner, env: Environment, grid: ref.Grid) -> np.ndarray
     return plans
 
 
+def _filter_step(model, study, book: PlanBook, env, robot, z, start, row) -> Belief:
+    """The learner's update of the correction ``z`` to the robot's plan ``robot``, from the
+    Gaussian N(``start``) (the reference's moments before it): the UKF with the learner's
+    observation model and noise (N / β̂ for a relevance-aware learner, its β̂ from the
+    record)."""
+    from corrections_sim.belief import KalmanNoise
+    from corrections_sim.learning.kalman import ukf_update
+    from corrections_sim.learning.paper import correction_observer
+
+    names = book.planner.config.features
+    if isinstance(model, CorrectionAwareKalman):
+        observe = correction_observer(book, env, robot.trajectory, model.model, names)
+    else:
+        observe = book.observe(env)
+    noise = study.noise()
+    if isinstance(model, RelevanceAwareKalman) and row.get("relevance"):
+        beta = float(row["relevance"])
+        noise = KalmanNoise(process=noise.process, observation=noise.observation / beta)
+    prior = Belief(theta=start[0], cov=start[1])
+    step = ukf_update(prior, observe, z, noise, study.sigma(), reference=robot.features)
+    return step.belief
+
+
 def grid_observations(plans: np.ndarray, robot: np.ndarray, correct, env, names) -> np.ndarray:
     """h(θ) at every grid point (n, k): Φ of ``correct(robot, ξ*(θ))``, NaN where the grid
     has no plan; the features of every corrected trajectory in one call."""
@@ -110,9 +133,20 @@ def _belief(row: dict, k: int) -> Belief:
 
 
 def reference_run(
-    settings: FigureSettings, learner: str, rows: list[dict], grid: ref.Grid, planner: Planner
+    settings: FigureSettings,
+    learner: str,
+    rows: list[dict],
+    grid: ref.Grid,
+    planner: Planner,
+    *,
+    one_step: bool = False,
 ) -> list[dict]:
-    """The reference after every correction of one run (``rows``: its records, t = 0 … T)."""
+    """The reference after every correction of one run (``rows``: its records, t = 0 … T).
+
+    With ``one_step`` (a Kalman learner with N fixed), also the learner's own update started
+    from the reference before the correction (its moments), as ``one_step_nees`` and
+    ``one_step_kl`` against the reference after it: the error of one step of the filter, apart
+    from what earlier steps left (which the learner's own NEES and ``ref_kl`` include)."""
     study = settings.study
     model = study.learners[learner]
     if study.user.stochastic:
@@ -134,7 +168,11 @@ def reference_run(
     learnt = isinstance(model, UnscentedKalman) and model.noise == "learnt"
     prior_noise = model.initial(study.prior(), study.noise()).noise if learnt else None
     zs, hs, out = [], [], []
+    if one_step and not (isinstance(model, UnscentedKalman) and not learnt):
+        raise ValueError(f"learner {learner}: --one-step needs a Kalman learner with N fixed")
+    book = PlanBook(planner)
     for row in rows[1:]:
+        start = ref.moments(thetas, ref.posterior(log_p)) if one_step else None
         t, env = int(row["iteration"]), envs[row["environment"]]
         before = _belief(rows[t - 1], k)
         robot = planner.solve(before.theta, env)
@@ -181,6 +219,10 @@ def reference_run(
         rec["ref_nees"] = ref.nees(mean, cov, theta_star)
         rec["nees"] = float(row["nees"]) if row["nees"] else None
         rec["ref_kl"] = ref.kl_to_gaussian(grid, thetas, weights, belief)
+        if start is not None:
+            step = _filter_step(model, study, book, env, robot, z, start, row)
+            rec["one_step_nees"] = ref.nees(step.theta, step.cov, theta_star)
+            rec["one_step_kl"] = ref.kl_to_gaussian(grid, thetas, weights, step)
         out.append(rec)
     return out
 
@@ -202,7 +244,7 @@ def final_summary(records: list[dict], *, resamples: int = 2000) -> dict:
     picks = rng.integers(n, size=(resamples, n))
     boot = nees[picks].mean(axis=1) / ref_nees[picks].mean(axis=1)
     half = float(stats.t.ppf(0.975, n - 1) * kl.std(ddof=1) / np.sqrt(n)) if n > 1 else np.nan
-    return {
+    out = {
         "iteration": last,
         "runs": n,
         "nees": float(nees.mean()),
@@ -212,6 +254,16 @@ def final_summary(records: list[dict], *, resamples: int = 2000) -> dict:
         "ref_kl": float(kl.mean()),
         "ref_kl_ci95": [float(kl.mean() - half), float(kl.mean() + half)],
     }
+    if at and "one_step_nees" in at[0]:
+        one = np.array([r["one_step_nees"] for r in at], float)
+        boot = one[picks].mean(axis=1) / ref_nees[picks].mean(axis=1)
+        out["one_step_ratio"] = float(one.mean() / ref_nees.mean())
+        out["one_step_ratio_ci95"] = [
+            float(np.quantile(boot, 0.025)),
+            float(np.quantile(boot, 0.975)),
+        ]
+        out["one_step_kl"] = float(np.mean([r["one_step_kl"] for r in at]))
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -224,6 +276,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--learner", default="KF-C")
     p.add_argument("--runs", type=int, default=2, help="how many runs (the first N)")
     p.add_argument("--points", type=int, default=61, help="grid points per axis over [-3, 3]^2")
+    p.add_argument(
+        "--one-step",
+        action="store_true",
+        help="also the learner's update from the reference before each correction (a Kalman "
+        "learner with N fixed): the error of one filter step, apart from accumulation",
+    )
     p.add_argument(
         "--check-grid",
         action="store_true",
@@ -241,7 +299,9 @@ def main(argv: list[str] | None = None) -> int:
         planner = Planner(settings.planner_config())
         records = []
         for run in sorted(runs)[: args.runs]:
-            records += reference_run(settings, args.learner, runs[run], grid, planner)
+            records += reference_run(
+                settings, args.learner, runs[run], grid, planner, one_step=args.one_step
+            )
             print(f"run {run}: done", file=sys.stderr, flush=True)
     except (OSError, KeyError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
@@ -262,6 +322,13 @@ def main(argv: list[str] | None = None) -> int:
         f"{final['ref_kl']:.3f} [{final['ref_kl_ci95'][0]:.3f}, {final['ref_kl_ci95'][1]:.3f}] "
         f"(95% intervals over {final['runs']} runs)"
     )
+    if "one_step_ratio" in final:
+        low, high = final["one_step_ratio_ci95"]
+        print(
+            f"one filter step from the reference: NEES / reference NEES = "
+            f"{final['one_step_ratio']:.2f} [{low:.2f}, {high:.2f}], KL "
+            f"{final['one_step_kl']:.3f}"
+        )
     if args.check_grid:
         fine = grid.halved()
         first = sorted(runs)[0]

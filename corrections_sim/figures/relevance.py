@@ -125,6 +125,19 @@ def paired(settings, results: Sequence[FigureResult]) -> list[dict]:
     return out
 
 
+def boundary(settings) -> float | None:
+    """The ρ at which KF-CR's β̂ is one half (bisection), if the study runs KF-CR."""
+    learner = settings.columns[0].settings.study.learners.get("KF-CR")
+    if learner is None:
+        return None
+    model = learner.relevance(settings.columns[0].settings.study.k)
+    low, high = 1e-9, 1.0 - 1e-9
+    for _ in range(60):
+        mid = 0.5 * (low + high)
+        low, high = (mid, high) if model.probability(mid) > 0.5 else (low, mid)
+    return 0.5 * (low + high)
+
+
 def write(settings, results: Sequence[FigureResult], folder: Path) -> dict:
     """matrix.csv, curves.csv, paired.csv and the plots in ``folder``; the summary's fields."""
     from corrections_sim.figures.plotting import plot_relevance, plot_robustness_matrix
@@ -142,7 +155,7 @@ def write(settings, results: Sequence[FigureResult], folder: Path) -> dict:
         }
         for c, r in zip(settings.columns, results, strict=True)
     }
-    plot_relevance(rows, seen, title, [folder / f"{FIGURE}-beta.png"])
+    plot_relevance(rows, seen, title, [folder / f"{FIGURE}-beta.png"], boundary(settings))
     return summary
 
 
