@@ -61,12 +61,19 @@ def test_one_filter_step_from_the_reference(figure, capsys):
     first correction it starts from the prior, as the learner itself did, so it is the
     learner's own first step (up to the grid's moments of the prior)."""
     argv = [str(figure), "--learner", "KF-CR", "--runs", "1", "--points", "41", "--one-step"]
-    assert reference.main(argv) == 0
+    assert reference.main([*argv, "--restart", "0,1"]) == 0
     with open(figure / "reference-KF-CR.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
     first = rows[0]
     assert float(first["one_step_nees"]) == pytest.approx(float(first["nees"]), rel=0.05)
     assert all(float(r["one_step_kl"]) >= -1e-9 for r in rows)
+    # Run on from the reference after the first correction, the second step is one step.
+    assert float(rows[1]["restart_1_nees"]) == pytest.approx(float(rows[1]["one_step_nees"]))
+    # Run on from the prior, the filter is the learner replayed (plans solved cold here).
+    assert float(rows[1]["restart_0_nees"]) == pytest.approx(float(rows[1]["nees"]), rel=0.1)
     assert "one filter step from the reference" in capsys.readouterr().out
     assert reference.main([str(figure), "--learner", "KF-CL", "--one-step"]) == 2
-    assert "--one-step needs a Kalman learner with N fixed" in capsys.readouterr().err
+    assert "--one-step and --restart need a Kalman learner" in capsys.readouterr().err
+    assert reference.main([str(figure), "--learner", "KF-C", "--restart", "x"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: --restart x: expected iterations") and err.count("\n") == 1

@@ -140,13 +140,17 @@ def reference_run(
     planner: Planner,
     *,
     one_step: bool = False,
+    restarts: tuple[int, ...] = (),
 ) -> list[dict]:
     """The reference after every correction of one run (``rows``: its records, t = 0 … T).
 
     With ``one_step`` (a Kalman learner with N fixed), also the learner's own update started
     from the reference before the correction (its moments), as ``one_step_nees`` and
     ``one_step_kl`` against the reference after it: the error of one step of the filter, apart
-    from what earlier steps left (which the learner's own NEES and ``ref_kl`` include)."""
+    from what earlier steps left (which the learner's own NEES and ``ref_kl`` include). With
+    ``restarts`` (iterations s), also the learner's filter run on from the reference at each s
+    (s = 0: the prior, i.e. the learner replayed), as ``restart_<s>_nees``: how much of the
+    final gap the steps before s leave."""
     study = settings.study
     model = study.learners[learner]
     if study.user.stochastic:
@@ -168,11 +172,18 @@ def reference_run(
     learnt = isinstance(model, UnscentedKalman) and model.noise == "learnt"
     prior_noise = model.initial(study.prior(), study.noise()).noise if learnt else None
     zs, hs, out = [], [], []
-    if one_step and not (isinstance(model, UnscentedKalman) and not learnt):
-        raise ValueError(f"learner {learner}: --one-step needs a Kalman learner with N fixed")
+    if (one_step or restarts) and not (isinstance(model, UnscentedKalman) and not learnt):
+        raise ValueError(
+            f"learner {learner}: --one-step and --restart need a Kalman learner with N fixed"
+        )
     book = PlanBook(planner)
+    restarted: dict[int, Belief] = {}
     for row in rows[1:]:
-        start = ref.moments(thetas, ref.posterior(log_p)) if one_step else None
+        start = ref.moments(thetas, ref.posterior(log_p)) if one_step or restarts else None
+        t = int(row["iteration"])
+        for s in restarts:
+            if s == t - 1:
+                restarted[s] = study.prior() if s == 0 else Belief(theta=start[0], cov=start[1])
         t, env = int(row["iteration"]), envs[row["environment"]]
         before = _belief(rows[t - 1], k)
         robot = planner.solve(before.theta, env)
@@ -219,10 +230,14 @@ def reference_run(
         rec["ref_nees"] = ref.nees(mean, cov, theta_star)
         rec["nees"] = float(row["nees"]) if row["nees"] else None
         rec["ref_kl"] = ref.kl_to_gaussian(grid, thetas, weights, belief)
-        if start is not None:
+        if one_step:
             step = _filter_step(model, study, book, env, robot, z, start, row)
             rec["one_step_nees"] = ref.nees(step.theta, step.cov, theta_star)
             rec["one_step_kl"] = ref.kl_to_gaussian(grid, thetas, weights, step)
+        for s, state in restarted.items():
+            state = _filter_step(model, study, book, env, robot, z, (state.theta, state.cov), row)
+            restarted[s] = state
+            rec[f"restart_{s}_nees"] = ref.nees(state.theta, state.cov, theta_star)
         out.append(rec)
     return out
 
@@ -263,6 +278,10 @@ def final_summary(records: list[dict], *, resamples: int = 2000) -> dict:
             float(np.quantile(boot, 0.975)),
         ]
         out["one_step_kl"] = float(np.mean([r["one_step_kl"] for r in at]))
+    for key in sorted(k for k in (at[0] if at else {}) if k.startswith("restart_")):
+        out[key.removesuffix("_nees") + "_ratio"] = float(
+            np.mean([r[key] for r in at]) / ref_nees.mean()
+        )
     return out
 
 
@@ -283,6 +302,13 @@ def main(argv: list[str] | None = None) -> int:
         "learner with N fixed): the error of one filter step, apart from accumulation",
     )
     p.add_argument(
+        "--restart",
+        default="",
+        metavar="S,S",
+        help="also the learner's filter run on from the reference at these iterations (0: the "
+        "prior): NEES / reference NEES at the end for each",
+    )
+    p.add_argument(
         "--check-grid",
         action="store_true",
         help="also on the halved grid (first run): how much mean and covariance move",
@@ -295,12 +321,24 @@ def main(argv: list[str] | None = None) -> int:
             known = ", ".join(settings.study.learners)
             raise ValueError(f"--learner {args.learner}: not in this figure ({known})")
         runs = _rows(args.folder, args.learner)
+        try:
+            restarts = tuple(sorted({int(v) for v in args.restart.split(",") if v.strip()}))
+        except ValueError:
+            raise ValueError(f"--restart {args.restart}: expected iterations like 0,1,4") from None
+        if any(s < 0 for s in restarts):
+            raise ValueError(f"--restart {args.restart}: iterations are >= 0")
         grid = ref.Grid((-3.0,) * settings.study.k, (3.0,) * settings.study.k, args.points)
         planner = Planner(settings.planner_config())
         records = []
         for run in sorted(runs)[: args.runs]:
             records += reference_run(
-                settings, args.learner, runs[run], grid, planner, one_step=args.one_step
+                settings,
+                args.learner,
+                runs[run],
+                grid,
+                planner,
+                one_step=args.one_step,
+                restarts=restarts,
             )
             print(f"run {run}: done", file=sys.stderr, flush=True)
     except (OSError, KeyError, ValueError) as exc:
@@ -329,6 +367,10 @@ def main(argv: list[str] | None = None) -> int:
             f"{final['one_step_ratio']:.2f} [{low:.2f}, {high:.2f}], KL "
             f"{final['one_step_kl']:.3f}"
         )
+    for key, value in final.items():
+        if key.startswith("restart_"):
+            at = key.split("_")[1]
+            print(f"the filter from the reference at t = {at} on: NEES / ref NEES {value:.2f}")
     if args.check_grid:
         fine = grid.halved()
         first = sorted(runs)[0]
