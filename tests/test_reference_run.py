@@ -48,6 +48,9 @@ def test_the_reference_of_a_run(figure, learner, capsys):
     assert [r["environment"] for r in rows] == [c["environment"] for c in curves[1:]]
     assert summary["settings"]["learners"][learner] is not None
     assert "ref NEES" in capsys.readouterr().out
+    final = json.loads((figure / f"reference-{learner}.json").read_text())
+    assert final["learner"] == learner and final["iteration"] == 2 and final["runs"] == 1
+    assert final["ratio"] > 0 and np.isfinite(final["ref_kl"])
 
 
 def test_a_learner_the_figure_did_not_run_is_one_line(figure, capsys):

@@ -14,7 +14,9 @@ corrections it widens the posterior by less than 0.04 in θ, below the grid's sp
 
 Writes ``reference-<learner>.csv`` in the figure's folder (per run and iteration: the
 reference's mean and covariance, its NEES against θ*, the learner's NEES, and
-``ref_kl`` = KL(reference ‖ learner's N(θ̂, P))) and prints the means over runs.
+``ref_kl`` = KL(reference ‖ learner's N(θ̂, P))), prints the means over runs, and writes the
+last iteration's summary with 95% intervals over runs to ``reference-<learner>.json`` (NEES /
+reference NEES, ``ref_kl``; with ``--one-step`` and ``--restart``, where the gap enters).
 """
 
 from __future__ import annotations
@@ -354,6 +356,9 @@ def main(argv: list[str] | None = None) -> int:
         means = [np.mean([r[key] for r in at]) for key in ("ref_nees", "nees", "ref_kl")]
         print(f"{t:>3} {means[0]:9.2f} {means[1]:13.2f} {means[2]:8.3f}")
     final = final_summary(records)
+    (args.folder / f"reference-{args.learner}.json").write_text(
+        json.dumps({"learner": args.learner, **final}, indent=1) + "\n"
+    )
     print(
         f"t = {final['iteration']}: NEES / reference NEES = {final['ratio']:.2f} "
         f"[{final['ratio_ci95'][0]:.2f}, {final['ratio_ci95'][1]:.2f}], ref_kl = "
