@@ -226,3 +226,28 @@ def test_a_push_during_the_motion_teaches_the_learner_and_is_logged(
         assert (folder / "push.png").stat().st_size > 10_000
     finally:
         tab.close()
+
+
+def test_a_relevance_aware_learner_shows_its_belief_in_the_correction(
+    playwright_browser, tmp_path
+):
+    """KF-CR on the page: after a drag and a submit, the belief panel says how far the learner
+    believed the correction (β̂ and ρ), the same numbers the log's ``relevance`` event holds."""
+    log = StudyLog(tmp_path / "study.sqlite")
+    session = Session.start(parse_study(STUDY, name="t"), log, learner="KF-CR", participant="r")
+    server, page = serve(session, port=_free_port())
+    tab = drive.open_page(playwright_browser, f"http://127.0.0.1:{server.get_port()}")
+    try:
+        drags = page.drags
+        drive.until_landed(lambda: drive.drag_cup(tab, 60), lambda: page.drags > drags)
+        drive.click(tab, "Submit correction")
+        drive.wait_for(lambda: page.submitted == 1, "the correction reaching the learner")
+        (event,) = log.events(session.id, "relevance")
+        shown = f"β̂ = {event['detail']['beta']:.2f}"
+        drive.wait_for(lambda: shown in tab.content(), "β̂ on the page")
+        assert shown in drive.status(tab)  # in the status line too, where the eye is
+        tab.screenshot(path=str(tmp_path / "relevance.png"))
+    finally:
+        tab.close()
+        server.stop()
+        log.close()

@@ -156,7 +156,20 @@ def write(settings, results: Sequence[FigureResult], folder: Path) -> dict:
         for c, r in zip(settings.columns, results, strict=True)
     }
     plot_relevance(rows, seen, title, [folder / f"{FIGURE}-beta.png"], boundary(settings))
-    return summary
+    return summary | {"pooled_auc": pooled_auc(settings, results)}
+
+
+def pooled_auc(settings, results: Sequence[FigureResult]) -> dict[str, float | None]:
+    """Per learner with β̂, its ROC AUC over every person's corrections together (a person
+    without labels counts as relevant): whether β̂ ranks the partly explainable corrections
+    of a person who also minds something else above the unexplainable ones."""
+    out = {}
+    for learner in settings.columns[0].settings.study.learners:
+        parts = [judged(r.records, learner) for r in results]
+        beta = np.concatenate([p["beta"] for p in parts])
+        if beta.size:
+            out[learner] = roc_auc(beta, np.concatenate([p["relevant"] for p in parts]))
+    return out
 
 
 @dataclass(frozen=True)

@@ -110,6 +110,16 @@ def belief_png(theta: np.ndarray, cov: np.ndarray | None, features, stated=None)
     return buffer.getvalue()
 
 
+def relevance_note(row: dict) -> str:
+    """For a relevance-aware learner, how far it believed the correction (β̂), for the
+    status line; else nothing."""
+    if not row.get("relevance"):
+        return ""
+    beta = row["relevance"]["beta"]
+    verdict = "explained by my features" if beta >= 0.5 else "not explained by my features"
+    return f" (β̂ = {beta:.2f}: {verdict})"
+
+
 class Page:
     """The page of one session on a viser server (see the module)."""
 
@@ -387,7 +397,7 @@ class Page:
             self.submitted += 1
             skipped = f" (update skipped: {row['update_skipped']})" if row["update_skipped"] else ""
             self._say(
-                f"Correction {row['iteration'] + 1} recorded{skipped}; "
+                f"Correction {row['iteration'] + 1} recorded{skipped}{relevance_note(row)}; "
                 f"next plan in {time.perf_counter() - t0:.2f} s."
             )
 

@@ -19,7 +19,14 @@ import time
 
 import numpy as np
 
-from corrections_sim.interact.page import CORRECTION_RGB, HANDLE_SCALE, PLAN_RGB, Page, cup_path
+from corrections_sim.interact.page import (
+    CORRECTION_RGB,
+    HANDLE_SCALE,
+    PLAN_RGB,
+    Page,
+    cup_path,
+    relevance_note,
+)
 from corrections_sim.interact.session import Refused, Session
 from corrections_sim.people.physical import spring_force
 from corrections_sim.scene.robot import cup_pose
@@ -228,7 +235,8 @@ class PhysicalPage(Page):
         self.pushes += 1
         self._show_belief()
         replanned = "the rest replanned (green)" if plan is not None else "no new plan found"
-        self._say(f"Push felt and learnt: the deformed path is orange, {replanned}.")
+        note = relevance_note(row)
+        self._say(f"Push felt and learnt{note}: the deformed path is orange, {replanned}.")
         return row
 
     def _show_motion(self, motion, force) -> None:
