@@ -184,6 +184,15 @@ def test_the_command_line_runs_a_headless_session_and_replays_it(tmp_path, capsy
     assert "pseudonym" in capsys.readouterr().err
     assert main(["fig4", "--db", str(db)]) == 2
     assert "--db: does not apply to fig4" in capsys.readouterr().err
+    own = tmp_path / "own.toml"
+    own.write_text('theta_star = [1.0, -1.0, -2.0]\nuser_features = ["laptop", "table", "human"]\n')
+    with StudyLog(db) as log:
+        before = log.session_ids()
+    assert main(["interact", str(own), "--db", str(db), "--headless"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: user_features: a headless session") and err.count("\n") == 1
+    with StudyLog(db) as log:
+        assert log.session_ids() == before  # refused before a session was started
 
 
 def test_an_active_warm_started_session_resumes_exactly_after_skips(tmp_path):

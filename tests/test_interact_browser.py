@@ -228,9 +228,7 @@ def test_a_push_during_the_motion_teaches_the_learner_and_is_logged(
         tab.close()
 
 
-def test_a_relevance_aware_learner_shows_its_belief_in_the_correction(
-    playwright_browser, tmp_path
-):
+def test_a_relevance_aware_learner_shows_its_belief_in_the_correction(playwright_browser, tmp_path):
     """KF-CR on the page: after a drag and a submit, the belief panel says how far the learner
     believed the correction (β̂ and ρ), the same numbers the log's ``relevance`` event holds."""
     log = StudyLog(tmp_path / "study.sqlite")

@@ -307,3 +307,25 @@ def test_labels_and_relevance_reach_the_records():
     assert all(0.0 < r["relevance"] <= 1.0 and 0.0 <= r["relevance_residual"] <= 1.0 for r in mine)
     assert all("relevance" not in r for r in after if r["learner"] == "KF-C")
     assert not math.isnan(sum(r["estimate_error"] for r in after))
+
+
+def test_the_learners_part_of_theta_star_must_be_the_persons():
+    """Settings built in code: the learners' θ* is the person's on the learners' features."""
+    import dataclasses
+
+    settings = schema.parse_study(BASE)
+    wrong = dataclasses.replace(settings.study, theta_star=(1.0, 1.0))
+    with pytest.raises(ValueError, match=r"^theta_star: the learners' part \[1.0, 1.0\]"):
+        dataclasses.replace(settings, study=wrong)
+
+
+def test_a_simulated_session_refuses_a_person_with_own_features(tmp_path):
+    from corrections_sim.interact.log import StudyLog
+    from corrections_sim.interact.session import Session, simulate
+
+    settings = schema.parse_study({**BASE, "environments": ["s0-t0-l1", "s1-t1-l0"]})
+    with StudyLog(tmp_path / "s.sqlite") as log:
+        session = Session.start(settings, log, learner="KF-C")
+        with pytest.raises(ValueError, match=r"^user_features: a simulated session"):
+            simulate(session, settings.study.user, settings.study.theta_star, 1)
+        assert log.corrections(session.id) == []

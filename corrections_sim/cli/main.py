@@ -485,6 +485,12 @@ def run_interact(args: argparse.Namespace) -> list[Path]:
             corrector = "person"
             if args.headless:
                 corrector = settings.study.user_params()
+                if settings.user_features:
+                    raise UsageError(
+                        "user_features: a headless session plans the simulated person over the "
+                        "robot's features; simulate a person with their own in a study "
+                        "(run study FILE)"
+                    )
             learner = args.learner or "KF-CL"
             physical = args.mode == "physical"
             if physical and args.drag_model:

@@ -136,7 +136,8 @@ def example(settings) -> dict:
     book = PlanBook(planner, warm_start=study.warm_start)
     belief = agent.initial(study.prior(), study.noise())
     mine = book.plan(belief.theta, env)
-    star = planner.solve(np.asarray(study.theta_star, float), env)
+    person = figure.person_target([env])
+    star = person.plans[0]
     rng = np.random.default_rng(study.seed)
     ctx = LearnerContext(
         book=book,
@@ -155,9 +156,7 @@ def example(settings) -> dict:
         learnt.append(agent.update(ctx, belief, env, mine, phi).belief)
         return book.plan(learnt[0].theta, env).trajectory if study.online else None
 
-    situation = Situation(
-        mine.trajectory, star.trajectory, env, figure.features, np.asarray(study.theta_star, float)
-    )
+    situation = Situation(mine.trajectory, star.trajectory, env, figure.features, person.theta_star)
     outcome = study.user.perform(situation, rng, replan)
     cup = lambda q: dynamics.cup_kinematics(q)[0]  # noqa: E731
     dense = lambda traj: dynamics.TimedTrajectory(traj, outcome.trace.times[-1]).at(  # noqa: E731

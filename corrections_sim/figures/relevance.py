@@ -64,7 +64,7 @@ def judged(records: Sequence[dict], learner: str) -> dict[str, np.ndarray]:
         for r in records
         if r["learner"] == learner
         and r["iteration"] > 0
-        and analysis._number(r.get("relevance")) == analysis._number(r.get("relevance"))
+        and np.isfinite(analysis._number(r.get("relevance")))
     ]
     label = [analysis._number(r.get("relevant", 1.0)) for r in rows]
     return {

@@ -192,7 +192,8 @@ def plan_episodes(record: RunRecord, iterations: Sequence[int], planner: Planner
         VideoInputError: the run's user does not edit trajectories (the noisy user shows
             features), or the run names an environment that is not one of the 48.
     """
-    study = figure_settings(record).study
+    figure = figure_settings(record)
+    study = figure.study
     user = study.user
     if user.stochastic:
         raise VideoInputError(
@@ -200,7 +201,6 @@ def plan_episodes(record: RunRecord, iterations: Sequence[int], planner: Planner
             "corrections cannot be replayed; only runs of a deterministic user can be animated"
         )
     envs = {e.name: e for e in paper_environments()}
-    theta_star = np.array(study.theta_star, float)
     study_features = planner.config.features
     episodes = []
     for t in iterations:
@@ -210,7 +210,8 @@ def plan_episodes(record: RunRecord, iterations: Sequence[int], planner: Planner
         env = envs[name]
         before, after = record.thetas[t - 1], record.thetas[t]
         robot = planner.solve(before, env).trajectory
-        intended = planner.solve(theta_star, env).trajectory
+        person = figure.person_target([env])
+        intended = person.plans[0].trajectory
         episodes.append(
             Episode(
                 iteration=t,
@@ -220,7 +221,7 @@ def plan_episodes(record: RunRecord, iterations: Sequence[int], planner: Planner
                 robot=robot,
                 intended=intended,
                 correction=user.correct(
-                    Situation(robot, intended, env, study_features, theta_star),
+                    Situation(robot, intended, env, study_features, person.theta_star),
                     np.random.default_rng(0),
                 ),
                 learned=planner.solve(after, env).trajectory,

@@ -595,6 +595,11 @@ def simulate(session: Session, user: User, theta_star, corrections: int) -> list
     """``corrections`` corrections of ``session`` by the simulated ``user`` whose preference is
     ``theta_star``, through the same steps as a person's (the user's noise from its own
     seeded generator); returns the logged rows."""
+    if session.settings.user_features:
+        raise ValueError(
+            "user_features: a simulated session plans the person over the robot's features; "
+            "a person with features of their own is simulated in a study (run study FILE)"
+        )
     theta_star = np.asarray(theta_star, dtype=float)
     session.state(theta_star)
     rng = np.random.default_rng(np.random.SeedSequence([session.seed, 22]))

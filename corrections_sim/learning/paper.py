@@ -240,6 +240,20 @@ class PerceptronFromCorrectionAware(Perceptron):
     rate_from = "KF-C"
 
 
+def _require_model(model) -> None:
+    """Refuse a ``model`` parameter that is not a correction model."""
+    if not isinstance(model, CorrectionModel):
+        raise ParameterError("model", f"expected a correction model, got {model!r}")
+
+
+def _model_fits(model: CorrectionModel, n_waypoints: int) -> None:
+    """The correction model's own check for T = ``n_waypoints``, under the key ``model.…``."""
+    try:
+        model.check(n_waypoints)
+    except ParameterError as exc:
+        raise ParameterError(f"model.{exc.name}", exc.message) from None
+
+
 def correction_observer(
     book: PlanBook, env: Environment, robot: np.ndarray, model: CorrectionModel, names
 ) -> Observe:
@@ -280,14 +294,10 @@ class CorrectionAwareKalman(UnscentedKalman):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        if not isinstance(self.model, CorrectionModel):
-            raise ParameterError("model", f"expected a correction model, got {self.model!r}")
+        _require_model(self.model)
 
     def check(self, n_waypoints: int) -> None:
-        try:
-            self.model.check(n_waypoints)
-        except ParameterError as exc:
-            raise ParameterError(f"model.{exc.name}", exc.message) from None
+        _model_fits(self.model, n_waypoints)
 
     def observer(self, ctx: LearnerContext, belief: Belief, env: Environment) -> Observe:
         robot = ctx.book.plan(belief.theta, env).trajectory
@@ -509,15 +519,11 @@ class RelevanceAwarePerceptron(_RelevanceAware, Perceptron):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        if not isinstance(self.model, CorrectionModel):
-            raise ParameterError("model", f"expected a correction model, got {self.model!r}")
+        _require_model(self.model)
         self.relevance(2)
 
     def check(self, n_waypoints: int) -> None:
-        try:
-            self.model.check(n_waypoints)
-        except ParameterError as exc:
-            raise ParameterError(f"model.{exc.name}", exc.message) from None
+        _model_fits(self.model, n_waypoints)
 
     def update(
         self, ctx: LearnerContext, belief: Belief, env: Environment, plan: Plan, phi_h: np.ndarray

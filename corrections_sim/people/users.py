@@ -306,9 +306,10 @@ class ModelUser(CorrectingUser):
 @dataclass(frozen=True)
 class DistractedUser(BiasedUser):
     """The biased user, whose correction is, a ``fraction`` of the time, a nudge that carries
-    no preference: the worst waypoint moves as far as the biased correction would have moved
-    it, in a uniformly random joint-space direction (something the robot cannot represent, or
-    nothing at all). Each correction is labelled relevant or not (``relevant`` in the records).
+    no preference: each waypoint the biased correction would have moved (the worst one, or
+    ``waypoints`` of them) moves as far, in one uniformly random joint-space direction
+    (something the robot cannot represent, or nothing at all). Each correction is labelled
+    relevant or not (``relevant`` in the records).
 
     Attributes:
         fraction: the probability in [0, 1] that a correction is such a nudge.

@@ -68,8 +68,7 @@ def prepare(settings: FigureSettings) -> Shared:
     s = settings.study
     planner = shared_planner(settings.planner_config())
     envs = settings.envs()
-    person = shared_planner(settings.user_planner_config()) if settings.user_features else planner
-    target = Target.solve(person, s.person(), envs)
+    target = settings.person_target(envs)
     book = PlanBook(planner)
     evaluate(book, target, envs, np.array(s.theta0, float))
     return Shared(target=target, prior=book.entries(), solves=len(envs) + book.solves)

@@ -10,7 +10,7 @@ study file's schema (:mod:`corrections_sim.study.schema`) names the key path of 
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -22,7 +22,8 @@ from corrections_sim.components import ParameterError
 from corrections_sim.learning.base import LEARNERS, Learner, make_learner
 from corrections_sim.learning.kalman import SigmaPoints
 from corrections_sim.people.users import USERS, BiasedUser, User
-from corrections_sim.planning.planner import PlannerConfig
+from corrections_sim.planning.planner import PlannerConfig, shared_planner
+from corrections_sim.planning.plans import Target
 from corrections_sim.scene.environments import Environment
 from corrections_sim.study import environments
 
@@ -276,6 +277,12 @@ class FigureSettings:
                     f"theta_star: expected {len(self.user_features)} weights for the person's "
                     f"features {list(self.user_features)}, got {len(self.study.user_theta)}"
                 )
+            known = tuple(self.study.user_theta[self.user_features.index(n)] for n in self.features)
+            if known != tuple(self.study.theta_star):
+                raise ValueError(
+                    f"theta_star: the learners' part {list(self.study.theta_star)} is not the "
+                    f"person's weights on {list(self.features)}, {list(known)}"
+                )
         elif self.study.user_theta:
             raise ValueError("theta_star: the person's own weights need user_features")
         self.study.check(self.planner_config().n_waypoints)
@@ -287,6 +294,13 @@ class FigureSettings:
         """The planner the simulated person plans with: the learners' over the person's own
         features (the same smoothness, waypoints and solver)."""
         return PlannerConfig(features=self.user_features or self.features, **dict(self.planner))
+
+    def person_target(self, envs: Sequence[Environment] | None = None) -> Target:
+        """The person's side: their θ* and plans ξ*(θ*, E) over their own features, in
+        ``envs`` (default: the study's). Every figure that needs the person's plans solves
+        them here, so a person with features of their own is planned alike everywhere."""
+        planner = shared_planner(self.user_planner_config())
+        return Target.solve(planner, self.study.person(), self.envs() if envs is None else envs)
 
     def envs(self) -> tuple[Environment, ...]:
         """The study's environments (memoized per process)."""
