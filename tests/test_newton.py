@@ -82,6 +82,44 @@ def test_newtons_answers_are_the_reference_optimum_or_better(solved, planners):
         assert np.allclose(found.features, feature_counts(traj, env.params(), ("laptop", "table")))
 
 
+def test_the_compiled_loop_is_the_python_loop(solved, planners):
+    """``newton.c`` (one C call, W assembled by waypoint) against the Python loop on every
+    fixture problem: the same outcome (certified, or why not) and the same answer to round-off
+    (measured 2e-13). Some answers need the reduced Hessian (W indefinite, checked in Python)."""
+    path = planners["newton"]._newton_path()
+    assert path._native is not None
+    outcomes = {}
+    for theta, env, start, _, found in solved:
+        p = planners["newton"]._params(theta, env)
+        compiled_outcome, answer = path.attempt(start[1:-1].ravel(), p)
+        python_outcome, expected = path._solve_python(start[1:-1].ravel(), p)
+        assert compiled_outcome == python_outcome
+        outcomes[compiled_outcome] = outcomes.get(compiled_outcome, 0) + 1
+        assert (answer is None) == (found is None) == (expected is None)
+        if answer is not None:
+            assert answer.steps == expected.steps
+            assert np.max(np.abs(answer.x - expected.x)) < 1e-10
+            assert answer.objective == pytest.approx(expected.objective, abs=1e-10)
+            assert np.allclose(answer.features, expected.features, atol=1e-10)
+    assert outcomes.keys() == {"certified", "stalled", "gate"}  # 241, 43, 16
+
+
+def test_the_compiled_loop_assembles_the_nlps_terms(planners):
+    """W, ∇f and f assembled by waypoint in C (with the clearances' curvature only where μ is
+    nonzero) are the whole NLP's: from the solver's plan of the same θ the loop certifies it
+    (steps of 1e-4 rad at most) with the objective the monolithic evaluation gives."""
+    planner = planners["newton"]
+    path = planner._newton_path()
+    env = paper_environments()[7]
+    plan = planners["solver"].solve(np.array([0.8, -0.4]), env)
+    p = planner._params(np.array([0.8, -0.4]), env)
+    outcome, answer = path.attempt(plan.trajectory[1:-1].ravel(), p)
+    assert outcome == "certified"
+    f, grad, c, _, _ = path.terms(answer.x, p, np.zeros(path.n_c))
+    assert answer.objective == pytest.approx(f, abs=1e-12)
+    assert np.max(np.abs(answer.x - plan.trajectory[1:-1].ravel())) < 1e-4
+
+
 def test_every_certified_answer_is_a_strict_local_minimum_of_the_nlp(solved, planners):
     """Checked again from scratch at the answer: feasible, stationary with multipliers >= 0
     on the tight clearances, and no feasible descent along their null space."""

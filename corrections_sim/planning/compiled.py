@@ -66,24 +66,32 @@ class Compiled:
         return [o.copy() for o in outs]
 
 
-def compile_library(functions: list[ca.Function], library: Path) -> None:
-    """C code of ``functions`` compiled by gcc into ``library`` (atomically)."""
+def compile_library(
+    functions: list[ca.Function], library: Path, with_source: tuple[str, bytes] | None = None
+) -> None:
+    """C code of ``functions`` compiled by gcc into ``library`` (atomically), with one more C
+    source ``with_source`` = (file name, text) that may call them."""
     library.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=library.parent) as scratch:
-        source = Path(scratch) / "newton.c"
+        source = Path(scratch) / "generated.c"
         generator = ca.CodeGenerator(source.name, {"with_header": False})
         for fn in functions:
             generator.add(fn)
         generator.generate(f"{scratch}{os.sep}")
-        build_shared_library(source, library)
+        sources = [source]
+        if with_source is not None:
+            sources.append(Path(scratch) / with_source[0])
+            sources[-1].write_bytes(with_source[1])
+        build_shared_library(sources, library)
 
 
-def build_shared_library(source: Path, library: Path) -> None:
-    """gcc ``source`` (C) into ``library``: built beside ``source`` and moved into place at
+def build_shared_library(sources: Path | list[Path], library: Path) -> None:
+    """gcc ``sources`` (C) into ``library``: built beside the first and moved into place at
     once, so a process that finds the library never loads half a file."""
-    tmp = source.parent / library.name
+    sources = [sources] if isinstance(sources, Path) else sources
+    tmp = sources[0].parent / library.name
     subprocess.run(
-        ["gcc", "-O1", "-fPIC", "-shared", str(source), "-o", str(tmp), "-lm"],
+        ["gcc", "-O1", "-fPIC", "-shared", *map(str, sources), "-o", str(tmp), "-lm"],
         check=True,
         capture_output=True,
     )

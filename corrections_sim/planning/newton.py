@@ -26,19 +26,30 @@ convert its outputs, more than the evaluation itself. A step factors W by LAPACK
 Cholesky (half-bandwidth 7 in the waypoint ordering) and solves the few active clearances'
 Schur complement J W⁻¹ Jᵀ; where W is not positive definite (it need only be so on the null
 space of J_𝒜), the step solves the KKT system by dense LU instead.
+
+With the library compiled, the whole loop runs in one C call (``newton.c``, compiled into
+the same library, LAPACK taken as function pointers from SciPy's ``cython_lapack``): the
+same steps, tests and constants as :meth:`NewtonPath._solve_python`, which stays the loop of
+an uncompiled planner (``jit = False``) and the one the compiled loop is tested against. Two
+rare cases go back to Python: a KKT point where W is not positive definite (the reduced
+Hessian is checked here) and a start whose multipliers need least squares (Python's loop).
 """
 
 from __future__ import annotations
 
+import ctypes
 import hashlib
 import inspect
+import threading
 from dataclasses import dataclass
 from functools import partial
+from importlib import resources
 from pathlib import Path
 from typing import NamedTuple
 
 import casadi as ca
 import numpy as np
+from scipy.linalg import cython_lapack
 from scipy.linalg.lapack import dpbtrf, dpbtrs, dposv
 
 from corrections_sim.planning import compiled
@@ -67,6 +78,76 @@ SLOW_AFTER, SLOW = 3, 1e-1
 #: 600 warm problems from fig. 4, 7% of those above it were accepted (35 problems, median
 #: |Δθ| 0.7), 99% of those below 0.1.
 GATE = 1.0
+
+#: The compiled loop's C source, built into the Newton library beside the CasADi functions.
+_SOURCE = "newton.c"
+#: The compiled loop's outcomes (``newton.c``'s enum), by name; :meth:`NewtonPath.attempt`
+#: reports them, and the Python loop the same names.
+OUTCOMES = {
+    0: "certified",
+    1: "reduced",  # a KKT point whose W is not positive definite: checked here
+    2: "lstsq",  # the start's multipliers need least squares: Python's loop
+    -1: "gate",
+    -2: "stalled",
+    -3: "singular",
+    -4: "infeasible",
+    -5: "evaluation",
+    -6: "indefinite",
+}
+
+
+class _Problem(ctypes.Structure):
+    """``newton.c``'s ``NewtonProblem``: sizes, sparsity, limits, constants, LAPACK."""
+
+    _fields_ = [
+        *((name, ctypes.c_int) for name in ("n", "n_c", "k", "nnz_j", "nnz_h")),
+        *((name, ctypes.c_void_p) for name in ("j_row", "j_col", "h_row", "h_col")),
+        ("n_env", ctypes.c_int),
+        ("smoothness", ctypes.c_double),
+        *((name, ctypes.c_void_p) for name in ("lower", "upper")),
+        *(
+            (name, ctypes.c_double)
+            for name in ("active", "at_bound", "stationarity", "feasibility", "gate", "slow")
+        ),
+        *((name, ctypes.c_int) for name in ("max_steps", "steps_per_set", "slow_after")),
+        *((name, ctypes.c_void_p) for name in ("dpbtrf", "dpbtrs", "dposv", "dgesv")),
+    ]
+
+
+class _Report(ctypes.Structure):
+    """``newton.c``'s ``NewtonReport``."""
+
+    _fields_ = [
+        ("steps", ctypes.c_int),
+        ("objective", ctypes.c_double),
+        ("residual", ctypes.c_double),
+    ]
+
+
+def _layout(n_waypoints: int) -> tuple[tuple[np.ndarray, np.ndarray], ...]:
+    """(row, column) of the Jacobian's and of W's lower-triangle nonzeros in the order
+    ``newton.c`` assembles them (its comment on BLOCK): per free waypoint i, J's 2 × 7 block
+    column by column; W's 7 × 7 block's lower triangle column by column, then the 7 entries
+    coupling it with waypoint i + 1."""
+    j, h = [], []
+    for i in range(n_waypoints):
+        at = 7 * i
+        j += [(2 * i + r, at + a) for a in range(7) for r in range(2)]
+        h += [(at + b, at + a) for a in range(7) for b in range(a, 7)]
+        if i + 1 < n_waypoints:
+            h += [(at + 7 + a, at + a) for a in range(7)]
+    return tuple(tuple(np.array(v, dtype=np.intc) for v in zip(*t, strict=True)) for t in (j, h))
+
+
+def _lapack(name: str) -> int:
+    """The address of SciPy's ``cython_lapack`` routine ``name`` (its LP64 Fortran ABI)."""
+    capsule = cython_lapack.__pyx_capi__[name]
+    api = ctypes.pythonapi
+    api.PyCapsule_GetName.restype = ctypes.c_char_p
+    api.PyCapsule_GetName.argtypes = [ctypes.py_object]
+    api.PyCapsule_GetPointer.restype = ctypes.c_void_p
+    api.PyCapsule_GetPointer.argtypes = [ctypes.py_object, ctypes.c_char_p]
+    return api.PyCapsule_GetPointer(capsule, api.PyCapsule_GetName(capsule))
 
 
 class _Start(NamedTuple):
@@ -122,8 +203,31 @@ class NewtonPath:
         ends = waypoint_feature_function(names)
         phi = terms.features + ends(terms.q_start, terms.env) + ends(terms.q_goal, terms.env)
         features = ca.Function("newton_features", [terms.x, p], [phi])
+        # By waypoint, for the compiled loop (newton.c): its features, clearances, their
+        # Jacobian and θ·φ's gradient and Hessian; the clearances' Hessian apart.
+        q, mu_i = ca.SX.sym("q", 7), ca.SX.sym("mu_i", 2)
+        phi_i, c_i = terms.waypoint(q, terms.env)
+        reward_i = ca.dot(theta, phi_i)
+        waypoint = ca.Function(
+            "newton_waypoint",
+            [q, p],
+            [
+                ca.densify(e)
+                for e in (
+                    phi_i,
+                    c_i,
+                    ca.jacobian(c_i, q),
+                    ca.gradient(reward_i, q),
+                    ca.hessian(reward_i, q)[0],
+                )
+            ],
+        )
+        clearance = ca.Function(
+            "newton_clearance", [q, p, mu_i], [ca.densify(ca.hessian(ca.dot(mu_i, c_i), q)[0])]
+        )
         if library is not None and not library.is_file():
-            compile_library([first, fn, features], library)
+            source = resources.files(__package__).joinpath(_SOURCE).read_bytes()
+            compile_library([first, fn, features, waypoint, clearance], library, (_SOURCE, source))
         self._first = Compiled(first, library)
         self._eval = Compiled(fn, library)
         self._features = Compiled(features, library)
@@ -137,6 +241,55 @@ class NewtonPath:
             raise ValueError(f"the Hessian's half-bandwidth exceeds {BANDWIDTH}")
         self._band_at = np.ravel_multi_index((rows - cols, cols), (BANDWIDTH + 1, self.n))
         self.lower, self.upper = np.asarray(lower, float), np.asarray(upper, float)
+        self.k = len(names)
+        self._native = None
+        if library is not None:
+            n_env = terms.env.shape[0]
+            self._native = self._load_native(library, n_env, smoothness)
+
+    def _load_native(self, library: Path, n_env: int, smoothness: float):
+        """``newton.c``'s solve from ``library``, its problem filled in (arrays kept alive)."""
+        lib = ctypes.CDLL(str(library))
+        solve = lib.newton_solve
+        solve.restype = ctypes.c_int
+        solve.argtypes = [ctypes.c_void_p] * 10
+        (j_row, j_col), (h_row, h_col) = _layout(self.n // 7)
+        self._keep = (j_row, j_col, h_row, h_col, self.lower, self.upper)
+        problem = _Problem(
+            n=self.n, n_c=self.n_c, k=self.k, nnz_j=j_row.size, nnz_h=h_row.size,
+            j_row=j_row.ctypes.data, j_col=j_col.ctypes.data,
+            h_row=h_row.ctypes.data, h_col=h_col.ctypes.data,
+            n_env=n_env, smoothness=smoothness,
+            lower=self.lower.ctypes.data, upper=self.upper.ctypes.data,
+            active=ACTIVE, at_bound=AT_BOUND, stationarity=STATIONARITY,
+            feasibility=FEASIBILITY, gate=GATE, slow=SLOW,
+            max_steps=MAX_STEPS, steps_per_set=STEPS_PER_SET, slow_after=SLOW_AFTER,
+            dpbtrf=_lapack("dpbtrf"), dpbtrs=_lapack("dpbtrs"),
+            dposv=_lapack("dposv"), dgesv=_lapack("dgesv"),
+        )  # fmt: skip
+        n_double, n_int = ctypes.c_longlong(), ctypes.c_longlong()
+        if lib.newton_workspace(ctypes.byref(problem), ctypes.byref(n_double), ctypes.byref(n_int)):
+            raise RuntimeError(f"{library}: the compiled Newton loop refused its workspace")
+        self._problem, self._sizes = problem, (n_double.value, n_int.value)
+        self._local = threading.local()
+        return solve
+
+    def _workspace(self):
+        """This thread's buffers for the compiled loop."""
+        b = getattr(self._local, "buffers", None)
+        if b is None:
+            n_double, n_int = self._sizes
+            b = self._local.buffers = (
+                np.zeros(n_double),
+                np.zeros(n_int, dtype=np.int64),
+                np.zeros(self.n),
+                np.zeros(self.n_c),
+                np.zeros(self.n_c, dtype=np.intc),
+                np.zeros(self.k),
+                _Report(),
+                np.zeros(self.n),
+            )
+        return b
 
     def _jacobian(self, nonzeros: np.ndarray) -> np.ndarray:
         jac = np.zeros(self.n_c * self.n)
@@ -202,10 +355,43 @@ class NewtonPath:
     def solve(self, x0: np.ndarray, p: np.ndarray) -> NewtonSolution | None:
         """Newton from the free waypoints ``x0`` for parameters ``p`` = (θ, e, q_start,
         q_goal); None when the answer cannot be certified as a strict local minimum."""
+        return self.attempt(x0, p)[1]
+
+    def attempt(self, x0: np.ndarray, p: np.ndarray) -> tuple[str, NewtonSolution | None]:
+        """:meth:`solve` with its outcome's name (:data:`OUTCOMES`: "certified", or why not)."""
+        if self._native is None:
+            return self._solve_python(x0, p)
+        work, iwork, x, mu, active, phi, report, start = self._workspace()
+        start[:] = x0
+        p = np.ascontiguousarray(p, dtype=float)
+        code = self._native(
+            ctypes.byref(self._problem), start.ctypes.data, p.ctypes.data, work.ctypes.data,
+            iwork.ctypes.data, x.ctypes.data, mu.ctypes.data, active.ctypes.data,
+            phi.ctypes.data, ctypes.byref(report),
+        )  # fmt: skip
+        outcome = OUTCOMES[code]
+        if outcome == "certified":
+            return outcome, NewtonSolution(x.copy(), report.objective, report.steps, phi.copy())
+        if outcome == "lstsq":
+            return self._solve_python(x0, p)
+        if outcome == "reduced":  # W indefinite at a KKT point: its reduced Hessian decides
+            held = (start - self.lower < AT_BOUND) | (self.upper - start < AT_BOUND)
+            free, on = np.flatnonzero(~held), np.flatnonzero(active)
+            _, _, _, jac, hess_nz = self.terms(x, p, mu)
+            if not _reduced_positive(self.hessian(hess_nz, free), jac[np.ix_(on, free)]):
+                return "indefinite", None
+            answer = NewtonSolution(
+                x.copy(), report.objective, report.steps, self._features(x, p)[0]
+            )
+            return "certified", answer
+        return outcome, None
+
+    def _solve_python(self, x0: np.ndarray, p: np.ndarray) -> tuple[str, NewtonSolution | None]:
+        """The loop in Python (an uncompiled planner's; the compiled one's oracle)."""
         x, on_lower, held, free, active, mu, residual = self._start(x0, p)
         all_free = free.size == self.n
         if residual > GATE:
-            return None  # θ moved too far for a few Newton steps (measured: 7% would pass)
+            return "gate", None  # θ moved too far for a few Newton steps (7% would pass)
         f, grad, c, jac, hess_nz = self.terms(x, p, mu)
         since_change = 0
         for step in range(MAX_STEPS + 1):
@@ -228,12 +414,12 @@ class NewtonPath:
                 or since_change == STEPS_PER_SET
                 or (step >= SLOW_AFTER and max(residual, infeasible) > SLOW)
             ):
-                return None  # not converging quadratically: a step too far from the start
+                return "stalled", None  # not quadratic: a step too far from the start
             found = _kkt_step(
                 self._band(hess_nz, free), partial(self.hessian, hess_nz, free), ja, g, c[active]
             )
             if found is None:
-                return None
+                return "singular", None
             d, mu_active = found
             if all_free:
                 x += d
@@ -243,7 +429,7 @@ class NewtonPath:
             mu[active] = mu_active
             since_change += 1
             f, grad, c, jac, hess_nz = self.terms(x, p, mu)
-        return None
+        return "stalled", None
 
     @staticmethod
     def _change(active: np.ndarray, mu: np.ndarray, c: np.ndarray) -> int | None:
@@ -260,24 +446,32 @@ class NewtonPath:
     def _certify(self, x, p, f, grad, jac, hess_nz, active, mu, free, held, on_lower, steps):
         """The KKT point as a solution if it is a strict local minimum (second order)."""
         if np.any(x < self.lower) or np.any(x > self.upper):
-            return None
+            return "infeasible", None
         # Multipliers of the joints held on a limit: ∂L/∂x ≥ 0 on a lower one, ≤ 0 on an upper.
         if held.any():
             bound = (grad - jac[active].T @ mu[active])[held]
             if np.any(np.where(on_lower[held], bound, -bound) < -STATIONARITY):
-                return None
-        if _band_cholesky(self._band(hess_nz, free)) is None:
-            # W itself is not positive definite; it need only be so on the null space of J_𝒜.
-            ja = jac[np.ix_(active, free)]
-            if not ja.shape[0]:
-                return None
-            q, _ = np.linalg.qr(ja.T, mode="complete")
-            z = q[:, ja.shape[0] :]
-            try:
-                np.linalg.cholesky(z.T @ self.hessian(hess_nz, free) @ z)
-            except np.linalg.LinAlgError:
-                return None
-        return NewtonSolution(x=x, objective=f, steps=steps, features=self._features(x, p)[0])
+                return "infeasible", None
+        if _band_cholesky(self._band(hess_nz, free)) is None and not _reduced_positive(
+            self.hessian(hess_nz, free), jac[np.ix_(active, free)]
+        ):
+            return "indefinite", None
+        answer = NewtonSolution(x=x, objective=f, steps=steps, features=self._features(x, p)[0])
+        return "certified", answer
+
+
+def _reduced_positive(w: np.ndarray, ja: np.ndarray) -> bool:
+    """Whether W (free rows and columns) is positive definite on the null space of the
+    active clearances' Jacobian ``ja`` (never with no active clearance: W itself was not)."""
+    if not ja.shape[0]:
+        return False
+    q, _ = np.linalg.qr(ja.T, mode="complete")
+    z = q[:, ja.shape[0] :]
+    try:
+        np.linalg.cholesky(z.T @ w @ z)
+    except np.linalg.LinAlgError:
+        return False
+    return True
 
 
 def _inf_norm(v: np.ndarray) -> float:
@@ -352,6 +546,7 @@ def library_key(build_key: str) -> str:
     """The compiled Newton functions' file name key: the solver's build key, this module and
     how it is compiled (:mod:`~corrections_sim.planning.compiled`)."""
     h = hashlib.sha256(build_key.encode())
+    h.update(resources.files(__package__).joinpath(_SOURCE).read_bytes())
     for module in (inspect.getmodule(NewtonPath), compiled):
         h.update(inspect.getsource(module).encode())
     return h.hexdigest()[:20]

@@ -343,6 +343,9 @@ class TrajectoryTerms:
         smoothness: S(ξ) = Σ_i ‖q^{i+1} − q^i‖² over the whole path, SX scalar.
         constraints: per free waypoint the soft-min table gap and laptop keep-out level,
             SX (2 (T − 2),); all must be >= 0.
+        waypoint: one waypoint's share, (q (7,), env) -> (its features (k,), its two
+            constraints (2,)), the same expressions; features and constraints are their sums
+            and concatenation over the free waypoints (the Newton loop evaluates by waypoint).
     """
 
     x: ca.SX
@@ -352,6 +355,7 @@ class TrajectoryTerms:
     features: ca.SX
     smoothness: ca.SX
     constraints: ca.SX
+    waypoint: ca.Function
 
 
 def trajectory_terms(cfg: PlannerConfig) -> TrajectoryTerms:
@@ -374,6 +378,17 @@ def trajectory_terms(cfg: PlannerConfig) -> TrajectoryTerms:
         constraints.append(_soft_min(table_gaps))
         constraints.append(_soft_min(laptop_gaps))
     path = ca.horzcat(q_start, qs, q_goal)
+    q = ca.SX.sym("q", N_ARM_JOINTS)
+    poses = symbolic_fk(q, frames)
+    table_gaps, laptop_gaps = _gaps(poses, env)
+    waypoint = ca.Function(
+        "waypoint_terms",
+        [q, env],
+        [
+            symbolic_features(*poses["panda_hand"], env, cfg.features),
+            ca.vertcat(_soft_min(table_gaps), _soft_min(laptop_gaps)),
+        ],
+    )
     return TrajectoryTerms(
         x=x,
         env=env,
@@ -382,6 +397,7 @@ def trajectory_terms(cfg: PlannerConfig) -> TrajectoryTerms:
         features=phi_sum,
         smoothness=ca.sumsqr(path[:, 1:] - path[:, :-1]),
         constraints=ca.vertcat(*constraints),
+        waypoint=waypoint,
     )
 
 
