@@ -82,6 +82,10 @@ typedef struct {
     const double *lower, *upper;
     double active, at_bound, stationarity, feasibility, gate, slow;
     int max_steps, steps_per_set, slow_after;
+    /* The continuation after a failed attempt: stages of residual at most stage_residual, at
+     * most max_stages of them, each solved to stage_tolerance (0 stages: none). */
+    double stage_residual, stage_tolerance;
+    int max_stages;
     dpbtrf_t dpbtrf;
     dpbtrs_t dpbtrs;
     dposv_t dposv;
@@ -89,7 +93,7 @@ typedef struct {
 } NewtonProblem;
 
 typedef struct {
-    int steps;
+    int steps, stages;
     double objective, residual; /* residual: the start's (the gate's quantity) */
 } NewtonReport;
 
@@ -114,7 +118,7 @@ int newton_workspace(const NewtonProblem *pr, long long *n_double, long long *n_
     casadi_int_t iw, w;
     if (casadi_work(&iw, &w)) return 1;
     long long n = pr->n, nc = pr->n_c, nk = n + nc;
-    *n_double = w + 4 * n + 4 * nc + pr->nnz_j + pr->nnz_h + 2 * LDAB * n + nc * n +
+    *n_double = w + 5 * n + 4 * nc + pr->nnz_j + pr->nnz_h + 2 * LDAB * n + nc * n +
                 (nc + 1) * n + nc * nc + nk * nk + nk + pr->k + 2 + 14 + NJ + 2 * NJ * NJ;
     *n_int = iw + (4 * n + 2 * nc + nk + 1) / 2 + 1; /* the ints packed two to a slot */
     return 0;
@@ -130,6 +134,7 @@ typedef struct {
     int *on_lower, *held, *free_at, *free, nf; /* free_at[i]: position among the free or -1 */
     int *act, m;                               /* the active clearances, ascending */
     int *row_at;                               /* a clearance's position in act, or -1 */
+    double *tilt, tilt_scale; /* the continuation's objective f − tilt_scale · tiltᵀx */
     /* scratch */
     double *g, *ja, *band, *factor, *rhs, *schur, *r, *kkt, *kkt_rhs, *d;
     double *phi_i, *c_i, *jac_i, *grad_i, *hess_i; /* one waypoint's newton_waypoint */
@@ -197,7 +202,7 @@ static double inf_norm(const double *v, int n) {
 /* g = ∇f on the free joints, ja = J on the active rows and free columns (m × nf). */
 static void gather(Solve *s) {
     const NewtonProblem *pr = s->pr;
-    for (int i = 0; i < s->nf; i++) s->g[i] = s->grad[s->free[i]];
+    for (int i = 0; i < s->nf; i++) s->g[i] = s->grad[s->free[i]] - s->tilt_scale * s->tilt[i];
     memset(s->ja, 0, sizeof(double) * (size_t)s->m * s->nf);
     for (int j = 0; j < pr->n_c; j++) s->row_at[j] = -1;
     for (int a = 0; a < s->m; a++) s->row_at[s->act[a]] = a;
@@ -345,15 +350,138 @@ static void toggle(Solve *s, int j) {
     }
 }
 
+/* The start: x0 with joints on a limit held there, the guessed active set, its multipliers
+ * for the new θ (least squares) and the terms there; the stationarity residual it leaves in
+ * *residual and, in s->tilt, the residual vector on the free joints. */
+static int start(Solve *s, const double *x0, double *residual) {
+    const NewtonProblem *pr = s->pr;
+    int n = pr->n, nc = pr->n_c;
+    memcpy(s->x, x0, sizeof(double) * n);
+    s->nf = 0;
+    for (int i = 0; i < n; i++) {
+        s->on_lower[i] = s->x[i] - pr->lower[i] < pr->at_bound;
+        int on_upper = pr->upper[i] - s->x[i] < pr->at_bound;
+        s->held[i] = s->on_lower[i] || on_upper;
+        if (s->on_lower[i]) s->x[i] = pr->lower[i];
+        else if (on_upper) s->x[i] = pr->upper[i];
+        s->free_at[i] = s->held[i] ? -1 : s->nf;
+        if (!s->held[i]) s->free[s->nf++] = i;
+    }
+    memset(s->mu, 0, sizeof(double) * nc);
+    s->tilt_scale = 0.0;
+    if (eval_point(s)) return NEWTON_EVAL;
+    s->m = 0;
+    for (int j = 0; j < nc; j++)
+        if (s->c[j] < pr->active) s->act[s->m++] = j;
+    gather(s);
+    int m = s->m, nf = s->nf;
+    if (m == 1) {
+        double rg = 0.0, rr = 0.0;
+        for (int i = 0; i < nf; i++) rg += s->ja[i] * s->g[i], rr += s->ja[i] * s->ja[i];
+        s->mu[s->act[0]] = rr > 0 ? rg / rr : 0.0;
+    } else if (m > 1) { /* normal equations (a few rows); least squares by the caller if singular */
+        for (int a = 0; a < m; a++) {
+            double v = 0.0;
+            for (int i = 0; i < nf; i++) v += s->ja[a + (size_t)m * i] * s->g[i];
+            s->r[a] = v;
+            for (int l = 0; l < m; l++) {
+                double u = 0.0;
+                for (int i = 0; i < nf; i++)
+                    u += s->ja[a + (size_t)m * i] * s->ja[l + (size_t)m * i];
+                s->schur[a + (size_t)m * l] = u;
+            }
+        }
+        char up = 'U';
+        int mm = m, one = 1, info = 0;
+        pr->dposv(&up, &mm, &one, s->schur, &mm, s->r, &mm, &info);
+        if (info) return NEWTON_LSTSQ;
+        for (int a = 0; a < m; a++) s->mu[s->act[a]] = s->r[a];
+    }
+    *residual = 0.0;
+    for (int i = 0; i < nf; i++) {
+        double v = s->g[i];
+        for (int a = 0; a < m; a++) v -= s->ja[a + (size_t)m * i] * s->mu[s->act[a]];
+        s->tilt[i] = v;
+        *residual = fabs(v) > *residual ? fabs(v) : *residual;
+    }
+    return add_clearance_curvature(s) ? NEWTON_EVAL : NEWTON_CERTIFIED; /* W at the start */
+}
+
+/* Whether the KKT point is a strict local minimum (W's banded Cholesky, or the caller's
+ * reduced Hessian), inside the joint limits with the held joints pressed onto theirs. */
+static int certify(Solve *s, double *x_out, double *mu_out, int *active_out, double *phi_out) {
+    const NewtonProblem *pr = s->pr;
+    int n = pr->n, nc = pr->n_c;
+    for (int i = 0; i < n; i++)
+        if (s->x[i] < pr->lower[i] || s->x[i] > pr->upper[i]) return NEWTON_INFEASIBLE;
+    double *bound = s->d; /* ∂L/∂x on every joint (held ones included) */
+    for (int i = 0; i < n; i++) bound[i] = s->grad[i];
+    for (int t = 0; t < pr->nnz_j; t++)
+        if (s->row_at[pr->j_row[t]] >= 0) bound[pr->j_col[t]] -= s->jac[t] * s->mu[pr->j_row[t]];
+    for (int i = 0; i < n; i++)
+        if (s->held[i] && (s->on_lower[i] ? bound[i] : -bound[i]) < -pr->stationarity)
+            return NEWTON_INFEASIBLE;
+    memcpy(x_out, s->x, sizeof(double) * n);
+    memcpy(mu_out, s->mu, sizeof(double) * nc);
+    for (int j = 0; j < nc; j++) active_out[j] = 0;
+    for (int a = 0; a < s->m; a++) active_out[s->act[a]] = 1;
+    fill_band(s, s->band);
+    if (band_cholesky(s, s->band)) return s->m ? NEWTON_REDUCED : NEWTON_INDEFINITE;
+    const double *arg[MAX_PTR] = {s->x, s->p};
+    double *res[MAX_PTR] = {phi_out};
+    return newton_features(arg, res, s->iw, s->w, 0) ? NEWTON_EVAL : NEWTON_CERTIFIED;
+}
+
+/* Newton steps on the KKT system from the current state until the (tilted) stationarity and
+ * the active clearances are within the tolerances with no active-set change left to make
+ * (NEWTON_CERTIFIED: converged), else why not. *steps counts the steps taken. */
+static int newton_loop(Solve *s, double stationarity_tol, double feasibility_tol, int *steps) {
+    const NewtonProblem *pr = s->pr;
+    int since_change = 0;
+    for (int step = 0; step <= pr->max_steps; step++) {
+        gather(s);
+        double residual = stationarity(s), infeasible = 0.0;
+        for (int a = 0; a < s->m; a++)
+            infeasible = fabs(s->c[s->act[a]]) > infeasible ? fabs(s->c[s->act[a]]) : infeasible;
+        if (residual <= stationarity_tol && infeasible <= feasibility_tol) {
+            int change = active_change(s);
+            if (change < 0) return NEWTON_CERTIFIED;
+            toggle(s, change);
+            s->mu[change] = 0.0;
+            gather(s);
+            since_change = 0;
+        } else if (step == pr->max_steps || since_change == pr->steps_per_set ||
+                   (step >= pr->slow_after &&
+                    (residual > infeasible ? residual : infeasible) > pr->slow)) {
+            return NEWTON_STALLED;
+        }
+        if (kkt_step(s)) return NEWTON_SINGULAR;
+        for (int i = 0; i < s->nf; i++) s->x[s->free[i]] += s->d[i];
+        double *mu_new = s->r + s->m;
+        memset(s->mu, 0, sizeof(double) * pr->n_c);
+        for (int a = 0; a < s->m; a++) s->mu[s->act[a]] = mu_new[a];
+        since_change++;
+        (*steps)++;
+        if (eval_terms(s)) return NEWTON_EVAL;
+    }
+    return NEWTON_STALLED;
+}
+
 /* Start from x0 (n) with parameters p; on NEWTON_CERTIFIED x_out, mu_out (n_c), phi_out (k)
- * and the report are filled, on NEWTON_REDUCED x_out, mu_out and active_out (n_c flags), on
- * NEWTON_LSTSQ the start's x_out and active_out. */
+ * and the report are filled, on NEWTON_REDUCED x_out, mu_out and active_out (n_c flags).
+ * The plain attempt first (the gate, then the loop); where it fails and the continuation is
+ * on, the start walks to the new θ in stages: x0 is a KKT point of min f − r₀ᵀx (r₀ the
+ * start's residual), and stage i of N solves min f − (1 − i/N) r₀ᵀx from stage i − 1's
+ * answer, the last to the full tolerances. report->stages says how many it took (0: none). */
 int newton_solve(const NewtonProblem *pr, const double *x0, const double *p, double *work,
                  casadi_int_t *iwork, double *x_out, double *mu_out, int *active_out,
                  double *phi_out, NewtonReport *report) {
     int n = pr->n, nc = pr->n_c, nk = n + nc;
     casadi_int_t iw_need, w_need;
     if (casadi_work(&iw_need, &w_need)) return NEWTON_EVAL;
+    if (n % NJ || nc != 2 * (n / NJ) || pr->nnz_h != PER_WAYPOINT * (n / NJ) - NJ ||
+        pr->nnz_j != 2 * n)
+        return NEWTON_EVAL; /* not the layout newton.py builds */
     Solve s = {0};
     s.pr = pr;
     s.p = p;
@@ -363,6 +491,7 @@ int newton_solve(const NewtonProblem *pr, const double *x0, const double *p, dou
     s.grad = w, w += n;
     s.g = w, w += n;
     s.d = w, w += n;
+    s.tilt = w, w += n;
     s.c = w, w += nc;
     s.mu = w, w += nc;
     s.r = w, w += 2 * nc;
@@ -391,109 +520,32 @@ int newton_solve(const NewtonProblem *pr, const double *x0, const double *p, dou
     s.row_at = ints, ints += nc;
     s.ipiv = ints, ints += nk;
 
-    /* The start: joints on a limit held there, the guessed active set and its multipliers. */
-    memcpy(s.x, x0, sizeof(double) * n);
-    s.nf = 0;
-    for (int i = 0; i < n; i++) {
-        s.on_lower[i] = s.x[i] - pr->lower[i] < pr->at_bound;
-        int on_upper = pr->upper[i] - s.x[i] < pr->at_bound;
-        s.held[i] = s.on_lower[i] || on_upper;
-        if (s.on_lower[i]) s.x[i] = pr->lower[i];
-        else if (on_upper) s.x[i] = pr->upper[i];
-        s.free_at[i] = s.held[i] ? -1 : s.nf;
-        if (!s.held[i]) s.free[s.nf++] = i;
-    }
-    memset(s.mu, 0, sizeof(double) * nc);
-    if (pr->n % NJ || pr->n_c != 2 * (pr->n / NJ) || pr->nnz_h != PER_WAYPOINT * (n / NJ) - NJ ||
-        pr->nnz_j != 2 * n)
-        return NEWTON_EVAL; /* not the layout above */
-    if (eval_point(&s)) return NEWTON_EVAL;
-    s.m = 0;
-    for (int j = 0; j < nc; j++)
-        if (s.c[j] < pr->active) s.act[s.m++] = j;
-    for (int j = 0; j < nc; j++) active_out[j] = 0;
-    for (int a = 0; a < s.m; a++) active_out[s.act[a]] = 1;
-    gather(&s);
-    int m = s.m, nf = s.nf;
-    if (m == 1) {
-        double rg = 0.0, rr = 0.0;
-        for (int i = 0; i < nf; i++) rg += s.ja[i] * s.g[i], rr += s.ja[i] * s.ja[i];
-        s.mu[s.act[0]] = rr > 0 ? rg / rr : 0.0;
-    } else if (m > 1) { /* normal equations (a few rows); least squares by the caller if singular */
-        for (int a = 0; a < m; a++) {
-            double v = 0.0;
-            for (int i = 0; i < nf; i++) v += s.ja[a + (size_t)m * i] * s.g[i];
-            s.r[a] = v;
-            for (int l = 0; l < m; l++) {
-                double u = 0.0;
-                for (int i = 0; i < nf; i++) u += s.ja[a + (size_t)m * i] * s.ja[l + (size_t)m * i];
-                s.schur[a + (size_t)m * l] = u;
-            }
+    report->steps = report->stages = 0;
+    int code = start(&s, x0, &report->residual);
+    if (code != NEWTON_CERTIFIED) return code;
+    double r0 = report->residual;
+    if (r0 <= pr->gate) {
+        code = newton_loop(&s, pr->stationarity, pr->feasibility, &report->steps);
+        if (code == NEWTON_CERTIFIED) {
+            report->objective = s.f;
+            return certify(&s, x_out, mu_out, active_out, phi_out);
         }
-        char up = 'U';
-        int mm = m, one = 1, info = 0;
-        pr->dposv(&up, &mm, &one, s.schur, &mm, s.r, &mm, &info);
-        if (info) {
-            memcpy(x_out, s.x, sizeof(double) * n);
-            return NEWTON_LSTSQ;
-        }
-        for (int a = 0; a < m; a++) s.mu[s.act[a]] = s.r[a];
+    } else {
+        code = NEWTON_GATE;
     }
-    report->residual = stationarity(&s);
-    report->steps = 0;
-    if (report->residual > pr->gate) return NEWTON_GATE;
-
-    if (add_clearance_curvature(&s)) return NEWTON_EVAL; /* W at the start, for its μ */
-    int since_change = 0;
-    for (int step = 0; step <= pr->max_steps; step++) {
-        gather(&s);
-        double residual = stationarity(&s), infeasible = 0.0;
-        for (int a = 0; a < s.m; a++)
-            infeasible = fabs(s.c[s.act[a]]) > infeasible ? fabs(s.c[s.act[a]]) : infeasible;
-        if (residual <= pr->stationarity && infeasible <= pr->feasibility) {
-            int change = active_change(&s);
-            if (change < 0) {
-                /* The certificate: inside the limits, held joints pressed onto theirs, W's
-                 * banded Cholesky (or the caller's reduced Hessian). */
-                for (int i = 0; i < n; i++)
-                    if (s.x[i] < pr->lower[i] || s.x[i] > pr->upper[i]) return NEWTON_INFEASIBLE;
-                for (int i = 0; i < n; i++) s.d[i] = s.grad[i];
-                for (int t = 0; t < pr->nnz_j; t++)
-                    if (s.row_at[pr->j_row[t]] >= 0)
-                        s.d[pr->j_col[t]] -= s.jac[t] * s.mu[pr->j_row[t]];
-                for (int i = 0; i < n; i++)
-                    if (s.held[i] && (s.on_lower[i] ? s.d[i] : -s.d[i]) < -pr->stationarity)
-                        return NEWTON_INFEASIBLE;
-                memcpy(x_out, s.x, sizeof(double) * n);
-                memcpy(mu_out, s.mu, sizeof(double) * nc);
-                for (int j = 0; j < nc; j++) active_out[j] = 0;
-                for (int a = 0; a < s.m; a++) active_out[s.act[a]] = 1;
-                report->steps = step;
-                report->objective = s.f;
-                fill_band(&s, s.band);
-                if (band_cholesky(&s, s.band)) return s.m ? NEWTON_REDUCED : NEWTON_INDEFINITE;
-                const double *arg[MAX_PTR] = {s.x, s.p};
-                double *res[MAX_PTR] = {phi_out};
-                if (newton_features(arg, res, s.iw, s.w, 0)) return NEWTON_EVAL;
-                return NEWTON_CERTIFIED;
-            }
-            toggle(&s, change);
-            s.mu[change] = 0.0;
-            gather(&s);
-            since_change = 0;
-        } else if (step == pr->max_steps || since_change == pr->steps_per_set ||
-                   (step >= pr->slow_after &&
-                    (residual > infeasible ? residual : infeasible) > pr->slow)) {
-            return NEWTON_STALLED;
-        }
-        if (kkt_step(&s)) return NEWTON_SINGULAR;
-        for (int i = 0; i < s.nf; i++) s.x[s.free[i]] += s.d[i];
-        double *mu_new = s.r + s.m;
-        memset(s.mu, 0, sizeof(double) * nc);
-        for (int a = 0; a < s.m; a++) s.mu[s.act[a]] = mu_new[a];
-        since_change++;
-        report->steps = step + 1;
-        if (eval_terms(&s)) return NEWTON_EVAL;
+    int stages = (int)ceil(r0 / pr->stage_residual);
+    if (pr->max_stages <= 0 || stages > pr->max_stages || code == NEWTON_EVAL) return code;
+    if (stages < 2) stages = 2;
+    int restarted = start(&s, x0, &r0);
+    if (restarted != NEWTON_CERTIFIED) return restarted;
+    for (int i = 1; i <= stages; i++) {
+        s.tilt_scale = 1.0 - (double)i / stages;
+        int last = i == stages;
+        report->stages = i;
+        code = newton_loop(&s, last ? pr->stationarity : pr->stage_tolerance,
+                           last ? pr->feasibility : pr->stage_tolerance, &report->steps);
+        if (code != NEWTON_CERTIFIED) return code;
     }
-    return NEWTON_STALLED;
+    report->objective = s.f;
+    return certify(&s, x_out, mu_out, active_out, phi_out);
 }

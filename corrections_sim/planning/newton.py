@@ -78,6 +78,13 @@ SLOW_AFTER, SLOW = 3, 1e-1
 #: 600 warm problems from fig. 4, 7% of those above it were accepted (35 problems, median
 #: |Δθ| 0.7), 99% of those below 0.1.
 GATE = 1.0
+#: The continuation where the attempt fails (the compiled loop only): the start walks to the
+#: new θ through objectives tilted by its residual r₀, f − (1 − s) r₀ᵀx, in ⌈‖r₀‖∞ /
+#: STAGE_RESIDUAL⌉ stages (at most MAX_STAGES; 0 turns it off), each solved to
+#: STAGE_TOLERANCE and the last to the full tolerances.
+STAGE_RESIDUAL = 0.1
+STAGE_TOLERANCE = 1e-3
+MAX_STAGES = 16
 
 #: The compiled loop's C source, built into the Newton library beside the CasADi functions.
 _SOURCE = "newton.c"
@@ -110,6 +117,9 @@ class _Problem(ctypes.Structure):
             for name in ("active", "at_bound", "stationarity", "feasibility", "gate", "slow")
         ),
         *((name, ctypes.c_int) for name in ("max_steps", "steps_per_set", "slow_after")),
+        ("stage_residual", ctypes.c_double),
+        ("stage_tolerance", ctypes.c_double),
+        ("max_stages", ctypes.c_int),
         *((name, ctypes.c_void_p) for name in ("dpbtrf", "dpbtrs", "dposv", "dgesv")),
     ]
 
@@ -119,6 +129,7 @@ class _Report(ctypes.Structure):
 
     _fields_ = [
         ("steps", ctypes.c_int),
+        ("stages", ctypes.c_int),
         ("objective", ctypes.c_double),
         ("residual", ctypes.c_double),
     ]
@@ -167,12 +178,14 @@ class _Start(NamedTuple):
 @dataclass(frozen=True)
 class NewtonSolution:
     """An accepted Newton re-solve: free waypoints x (7 (T − 2),), objective f, Newton
-    steps, and Φ(ξ, E) of the whole trajectory (start and goal included), shape (k,)."""
+    steps, Φ(ξ, E) of the whole trajectory (start and goal included), shape (k,), and the
+    continuation's stages it took (0: answered by the plain attempt)."""
 
     x: np.ndarray
     objective: float
     steps: int
     features: np.ndarray
+    stages: int = 0
 
 
 class NewtonPath:
@@ -264,6 +277,8 @@ class NewtonPath:
             active=ACTIVE, at_bound=AT_BOUND, stationarity=STATIONARITY,
             feasibility=FEASIBILITY, gate=GATE, slow=SLOW,
             max_steps=MAX_STEPS, steps_per_set=STEPS_PER_SET, slow_after=SLOW_AFTER,
+            stage_residual=STAGE_RESIDUAL, stage_tolerance=STAGE_TOLERANCE,
+            max_stages=MAX_STAGES,
             dpbtrf=_lapack("dpbtrf"), dpbtrs=_lapack("dpbtrs"),
             dposv=_lapack("dposv"), dgesv=_lapack("dgesv"),
         )  # fmt: skip
@@ -271,6 +286,8 @@ class NewtonPath:
         if lib.newton_workspace(ctypes.byref(problem), ctypes.byref(n_double), ctypes.byref(n_int)):
             raise RuntimeError(f"{library}: the compiled Newton loop refused its workspace")
         self._problem, self._sizes = problem, (n_double.value, n_int.value)
+        self._plain = _Problem.from_buffer_copy(problem)
+        self._plain.max_stages = 0  # the attempt alone, no continuation
         self._local = threading.local()
         return solve
 
@@ -357,21 +374,28 @@ class NewtonPath:
         q_goal); None when the answer cannot be certified as a strict local minimum."""
         return self.attempt(x0, p)[1]
 
-    def attempt(self, x0: np.ndarray, p: np.ndarray) -> tuple[str, NewtonSolution | None]:
-        """:meth:`solve` with its outcome's name (:data:`OUTCOMES`: "certified", or why not)."""
+    def attempt(
+        self, x0: np.ndarray, p: np.ndarray, continuation: bool = True
+    ) -> tuple[str, NewtonSolution | None]:
+        """:meth:`solve` with its outcome's name (:data:`OUTCOMES`: "certified", or why not);
+        ``continuation = False``: the plain attempt alone, as the Python loop does it."""
         if self._native is None:
             return self._solve_python(x0, p)
         work, iwork, x, mu, active, phi, report, start = self._workspace()
         start[:] = x0
         p = np.ascontiguousarray(p, dtype=float)
+        problem = self._problem if continuation else self._plain
         code = self._native(
-            ctypes.byref(self._problem), start.ctypes.data, p.ctypes.data, work.ctypes.data,
+            ctypes.byref(problem), start.ctypes.data, p.ctypes.data, work.ctypes.data,
             iwork.ctypes.data, x.ctypes.data, mu.ctypes.data, active.ctypes.data,
             phi.ctypes.data, ctypes.byref(report),
         )  # fmt: skip
         outcome = OUTCOMES[code]
         if outcome == "certified":
-            return outcome, NewtonSolution(x.copy(), report.objective, report.steps, phi.copy())
+            answer = NewtonSolution(
+                x.copy(), report.objective, report.steps, phi.copy(), report.stages
+            )
+            return outcome, answer
         if outcome == "lstsq":
             return self._solve_python(x0, p)
         if outcome == "reduced":  # W indefinite at a KKT point: its reduced Hessian decides
@@ -380,9 +404,8 @@ class NewtonPath:
             _, _, _, jac, hess_nz = self.terms(x, p, mu)
             if not _reduced_positive(self.hessian(hess_nz, free), jac[np.ix_(on, free)]):
                 return "indefinite", None
-            answer = NewtonSolution(
-                x.copy(), report.objective, report.steps, self._features(x, p)[0]
-            )
+            phi = self._features(x, p)[0]
+            answer = NewtonSolution(x.copy(), report.objective, report.steps, phi, report.stages)
             return "certified", answer
         return outcome, None
 

@@ -678,11 +678,12 @@ class Planner:
         """
         theta = check_theta(theta, self.config.k)
         T = self.config.n_waypoints
+        warm = inits is not None and len(inits) == 1 and self.config.warm == "newton"
         inits = initial_guesses(env, T, self.config.n_starts) if inits is None else inits
         starts = [init[1:-1].ravel() for init in check_inits(inits, T)]
         p = self._params(theta, env)
         t0 = time.perf_counter()
-        if len(starts) == 1 and inits is not None and self.config.warm == "newton":
+        if warm:  # a warm start (one given trajectory), never the cold guesses
             plan = self._newton_solve(theta, env, starts[0], p, t0)
             if plan is not None:
                 return plan
