@@ -513,8 +513,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument(
         "--warm",
         choices=WARM_MODES,
-        help="fig4: how warm starts are re-solved (default: the planner's, solver); newton "
-        "also times the slice with solver, side by side",
+        help="fig4: how warm starts are re-solved (default: the planner's, newton); newton "
+        "also times the slice with solver (the reference path), side by side",
     )
     args = parser.parse_args(argv)
     if args.what == "warm":

@@ -250,7 +250,9 @@ def test_the_warm_mode_is_checked_and_named_in_a_study():
         PlannerConfig(warm="fast")
     s = learning.load_settings("fig4", quick=True, overrides={"set": ["planner.warm=newton"]})
     assert s.planner_config().warm == "newton"
-    assert learning.load_settings("fig4", quick=True).planner_config().warm == "solver"
+    assert learning.load_settings("fig4", quick=True).planner_config().warm == "newton"
+    s = learning.load_settings("fig4", quick=True, overrides={"set": ["planner.warm=solver"]})
+    assert s.planner_config().warm == "solver"
     with pytest.raises(ValueError, match="planner.warm"):
         learning.load_settings("fig4", quick=True, overrides={"set": ["planner.warm=fast"]})
 

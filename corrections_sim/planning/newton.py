@@ -1,4 +1,5 @@
-r"""Warm re-solves by Newton steps on the active set (``PlannerConfig.warm = "newton"``).
+r"""Warm re-solves by Newton steps on the active set (``PlannerConfig.warm = "newton"``, the
+default).
 
 When θ moves a little, ξ*(θ, E) moves a little and keeps its active constraints. From the
 previous plan x₀ (the free waypoints) this path guesses the active set 𝒜 (clearances with
@@ -33,6 +34,11 @@ same steps, tests and constants as :meth:`NewtonPath._solve_python`, which stays
 an uncompiled planner (``jit = False``) and the one the compiled loop is tested against. Two
 rare cases go back to Python: a KKT point where W is not positive definite (the reduced
 Hessian is checked here) and a start whose multipliers need least squares (Python's loop).
+The compiled loop alone adds the continuation for big steps (:data:`MAX_STAGES`): where the
+attempt gives up, the start walks to the new θ through objectives tilted by its residual.
+The compiled loop assembles f, ∇f, c, J and W by waypoint instead (``newton_waypoint``, and
+the clearances' curvature ``newton_clearance`` only where a multiplier is nonzero: 85% of
+the whole function's operations are that curvature).
 """
 
 from __future__ import annotations
@@ -150,15 +156,19 @@ def _layout(n_waypoints: int) -> tuple[tuple[np.ndarray, np.ndarray], ...]:
     return tuple(tuple(np.array(v, dtype=np.intc) for v in zip(*t, strict=True)) for t in (j, h))
 
 
+#: CPython's capsule accessors, with their own prototypes (ctypes.pythonapi's are left alone).
+_CAPSULE_NAME = ctypes.PYFUNCTYPE(ctypes.c_char_p, ctypes.py_object)(
+    ("PyCapsule_GetName", ctypes.pythonapi)
+)
+_CAPSULE_POINTER = ctypes.PYFUNCTYPE(ctypes.c_void_p, ctypes.py_object, ctypes.c_char_p)(
+    ("PyCapsule_GetPointer", ctypes.pythonapi)
+)
+
+
 def _lapack(name: str) -> int:
     """The address of SciPy's ``cython_lapack`` routine ``name`` (its LP64 Fortran ABI)."""
     capsule = cython_lapack.__pyx_capi__[name]
-    api = ctypes.pythonapi
-    api.PyCapsule_GetName.restype = ctypes.c_char_p
-    api.PyCapsule_GetName.argtypes = [ctypes.py_object]
-    api.PyCapsule_GetPointer.restype = ctypes.c_void_p
-    api.PyCapsule_GetPointer.argtypes = [ctypes.py_object, ctypes.c_char_p]
-    return api.PyCapsule_GetPointer(capsule, api.PyCapsule_GetName(capsule))
+    return _CAPSULE_POINTER(capsule, _CAPSULE_NAME(capsule))
 
 
 class _Start(NamedTuple):

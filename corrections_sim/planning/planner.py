@@ -20,9 +20,11 @@ no start of it converges collision-free, IPOPT gets the same starts (the fallbac
 loaded the machine is.
 
 A warm start (one initial trajectory, e.g. the run's plan at a nearby θ) is first re-solved
-by Newton steps on its active set (``PlannerConfig.warm = "newton"``,
-:mod:`~corrections_sim.planning.newton`): about three steps, accepted only as a certified
-strict local minimum that MuJoCo finds collision-free, otherwise the solver runs as above.
+by Newton steps on its active set (``PlannerConfig.warm = "newton"``, the default;
+:mod:`~corrections_sim.planning.newton`): about three steps in one compiled call, and for a
+big θ step a continuation in stages, accepted only as a certified strict local minimum that
+MuJoCo (or the clearance certificate) finds collision-free, otherwise the solver runs as
+above from the same start (``warm = "solver"`` always does: the reference path).
 """
 
 from __future__ import annotations
@@ -162,7 +164,7 @@ class PlannerConfig:
     tol: float = 1e-6
     jit: bool = True
     solver: str = "fatrop"
-    warm: str = "solver"
+    warm: str = "newton"
     certificate: bool = True
 
     def __post_init__(self) -> None:

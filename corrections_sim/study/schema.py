@@ -64,12 +64,7 @@ from corrections_sim.study.settings import (
 
 #: The planner's settings a study takes (the ``[planner]`` table), with their defaults; passed
 #: to :class:`~corrections_sim.planning.planner.PlannerConfig` by name (which checks them).
-PLANNER_SETTINGS: dict[str, Any] = {
-    "n_starts": 1,
-    "solver": "fatrop",
-    "warm": "solver",
-    "certificate": True,
-}
+PLANNER_SETTINGS: dict[str, Any] = dict(FigureSettings.__dataclass_fields__["planner"].default)
 #: Every key of a study, with its default (None: required, or computed) and meaning: the one
 #: list the parser, the error messages and the reference page read.
 STUDY_KEYS: dict[str, tuple[Any, str]] = {
@@ -122,8 +117,9 @@ STUDY_KEYS: dict[str, tuple[Any, str]] = {
     "planner": (
         dict(PLANNER_SETTINGS),
         "the planner: n_starts (cold starts per solve, 1-10; 10 where θ may take any sign), "
-        "solver (fatrop or ipopt), warm (how a "
-        "warm start is re-solved: solver, or newton: Newton steps on its active set first), "
+        "solver (fatrop or ipopt), warm (how a warm start is re-solved: newton, Newton steps "
+        "in one compiled call first and the solver where they cannot certify an answer; or "
+        "solver, the solver alone, the reference path), "
         "certificate (true: skip MuJoCo's check of a plan the compiled clearance bound "
         "proves collision-free; never changes a number)",
     ),

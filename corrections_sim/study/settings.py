@@ -257,7 +257,7 @@ class FigureSettings:
     planner: tuple[tuple[str, Any], ...] = (
         ("n_starts", 1),
         ("solver", "fatrop"),
-        ("warm", "solver"),
+        ("warm", "newton"),
         ("certificate", True),
     )
     features: tuple[str, ...] = ("laptop", "table")
