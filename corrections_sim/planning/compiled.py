@@ -57,7 +57,8 @@ class Compiled:
     def __call__(self, *inputs: np.ndarray) -> list[np.ndarray]:
         """The outputs' nonzeros (copies), in CasADi's column-major order."""
         if self._call is None:
-            return [np.array(o.nonzeros()) for o in self._fn(*inputs)]
+            out = self._fn(*inputs)  # one output comes back alone, not in a list
+            return [np.array(o.nonzeros()) for o in ([out] if self._fn.n_out() == 1 else out)]
         ins, outs, arg, res, iw, w = self._buffers()
         for buffer, value in zip(ins, inputs, strict=True):
             buffer[:] = value
