@@ -46,6 +46,7 @@ typedef void (*dgesv_t)(int *, int *, double *, int *, int *, double *, int *, i
 /* Outcomes (newton.py's NEWTON_* mirror them). */
 enum {
     NEWTON_CERTIFIED = 0,   /* a strict local minimum: x, μ, f, Φ filled */
+    NEWTON_OK = 0,          /* internal: a start made, or a stage converged */
     NEWTON_REDUCED = 1,     /* a KKT point whose W is not positive definite: the caller checks
                                the reduced Hessian (x, μ, active filled) */
     NEWTON_LSTSQ = 2,       /* the start's multipliers need a least-squares solve */
@@ -119,7 +120,7 @@ int newton_workspace(const NewtonProblem *pr, long long *n_double, long long *n_
     if (casadi_work(&iw, &w)) return 1;
     long long n = pr->n, nc = pr->n_c, nk = n + nc;
     *n_double = w + 5 * n + 4 * nc + pr->nnz_j + pr->nnz_h + 2 * LDAB * n + nc * n +
-                (nc + 1) * n + nc * nc + nk * nk + nk + pr->k + 2 + 14 + NJ + 2 * NJ * NJ;
+                (nc + 1) * n + nc * nc + nk * nk + nk + pr->k + 2 + 2 * NJ + NJ + NJ * NJ;
     *n_int = iw + (4 * n + 2 * nc + nk + 1) / 2 + 1; /* the ints packed two to a slot */
     return 0;
 }
@@ -212,12 +213,13 @@ static void gather(Solve *s) {
     }
 }
 
-/* ‖g − J_𝒜ᵀ μ_𝒜‖∞ on the free joints. */
-static double stationarity(const Solve *s) {
+/* ‖g − J_𝒜ᵀ μ_𝒜‖∞ on the free joints; the vector itself into ``out`` unless it is NULL. */
+static double stationarity(const Solve *s, double *out) {
     double worst = 0.0;
     for (int i = 0; i < s->nf; i++) {
         double v = s->g[i];
         for (int a = 0; a < s->m; a++) v -= s->ja[a + (size_t)s->m * i] * s->mu[s->act[a]];
+        if (out) out[i] = v;
         worst = fabs(v) > worst ? fabs(v) : worst;
     }
     return worst;
@@ -397,14 +399,8 @@ static int start(Solve *s, const double *x0, double *residual) {
         if (info) return NEWTON_LSTSQ;
         for (int a = 0; a < m; a++) s->mu[s->act[a]] = s->r[a];
     }
-    *residual = 0.0;
-    for (int i = 0; i < nf; i++) {
-        double v = s->g[i];
-        for (int a = 0; a < m; a++) v -= s->ja[a + (size_t)m * i] * s->mu[s->act[a]];
-        s->tilt[i] = v;
-        *residual = fabs(v) > *residual ? fabs(v) : *residual;
-    }
-    return add_clearance_curvature(s) ? NEWTON_EVAL : NEWTON_CERTIFIED; /* W at the start */
+    *residual = stationarity(s, s->tilt);
+    return add_clearance_curvature(s) ? NEWTON_EVAL : NEWTON_OK; /* W at the start */
 }
 
 /* Whether the KKT point is a strict local minimum (W's banded Cholesky, or the caller's
@@ -434,18 +430,18 @@ static int certify(Solve *s, double *x_out, double *mu_out, int *active_out, dou
 
 /* Newton steps on the KKT system from the current state until the (tilted) stationarity and
  * the active clearances are within the tolerances with no active-set change left to make
- * (NEWTON_CERTIFIED: converged), else why not. *steps counts the steps taken. */
+ * (NEWTON_OK: converged), else why not. *steps counts the steps taken. */
 static int newton_loop(Solve *s, double stationarity_tol, double feasibility_tol, int *steps) {
     const NewtonProblem *pr = s->pr;
     int since_change = 0;
     for (int step = 0; step <= pr->max_steps; step++) {
         gather(s);
-        double residual = stationarity(s), infeasible = 0.0;
+        double residual = stationarity(s, NULL), infeasible = 0.0;
         for (int a = 0; a < s->m; a++)
             infeasible = fabs(s->c[s->act[a]]) > infeasible ? fabs(s->c[s->act[a]]) : infeasible;
         if (residual <= stationarity_tol && infeasible <= feasibility_tol) {
             int change = active_change(s);
-            if (change < 0) return NEWTON_CERTIFIED;
+            if (change < 0) return NEWTON_OK;
             toggle(s, change);
             s->mu[change] = 0.0;
             gather(s);
@@ -522,11 +518,11 @@ int newton_solve(const NewtonProblem *pr, const double *x0, const double *p, dou
 
     report->steps = report->stages = 0;
     int code = start(&s, x0, &report->residual);
-    if (code != NEWTON_CERTIFIED) return code;
+    if (code != NEWTON_OK) return code;
     double r0 = report->residual;
     if (r0 <= pr->gate) {
         code = newton_loop(&s, pr->stationarity, pr->feasibility, &report->steps);
-        if (code == NEWTON_CERTIFIED) {
+        if (code == NEWTON_OK) {
             report->objective = s.f;
             return certify(&s, x_out, mu_out, active_out, phi_out);
         }
@@ -537,14 +533,14 @@ int newton_solve(const NewtonProblem *pr, const double *x0, const double *p, dou
     if (pr->max_stages <= 0 || stages > pr->max_stages || code == NEWTON_EVAL) return code;
     if (stages < 2) stages = 2;
     int restarted = start(&s, x0, &r0);
-    if (restarted != NEWTON_CERTIFIED) return restarted;
+    if (restarted != NEWTON_OK) return restarted;
     for (int i = 1; i <= stages; i++) {
         s.tilt_scale = 1.0 - (double)i / stages;
         int last = i == stages;
         report->stages = i;
         code = newton_loop(&s, last ? pr->stationarity : pr->stage_tolerance,
                            last ? pr->feasibility : pr->stage_tolerance, &report->steps);
-        if (code != NEWTON_CERTIFIED) return code;
+        if (code != NEWTON_OK) return code;
     }
     report->objective = s.f;
     return certify(&s, x_out, mu_out, active_out, phi_out);

@@ -360,6 +360,15 @@ class TrajectoryTerms:
     waypoint: ca.Function
 
 
+def _waypoint_terms(q: ca.SX, env: ca.SX, features: tuple[str, ...]) -> tuple[ca.SX, ...]:
+    """One waypoint's features, soft-min table gap and laptop keep-out level."""
+    poses = symbolic_fk(q, tuple(dict.fromkeys(s.frame for s in ARM_SPHERES)))
+    rot_h, pos_h = poses["panda_hand"]
+    phi = symbolic_features(rot_h, pos_h, env, features)
+    table_gaps, laptop_gaps = _gaps(poses, env)
+    return phi, _soft_min(table_gaps), _soft_min(laptop_gaps)
+
+
 def trajectory_terms(cfg: PlannerConfig) -> TrajectoryTerms:
     """Build the symbols and expressions every trajectory NLP of ``cfg`` shares."""
     n_free = cfg.n_waypoints - 2
@@ -369,28 +378,16 @@ def trajectory_terms(cfg: PlannerConfig) -> TrajectoryTerms:
     q_goal = ca.SX.sym("q_goal", N_ARM_JOINTS)
     qs = ca.reshape(x, N_ARM_JOINTS, n_free)
 
-    frames = tuple(dict.fromkeys(s.frame for s in ARM_SPHERES))
     phi_sum = ca.SX.zeros(cfg.k)
     constraints = []
     for i in range(n_free):
-        poses = symbolic_fk(qs[:, i], frames)
-        rot_h, pos_h = poses["panda_hand"]
-        phi_sum += symbolic_features(rot_h, pos_h, env, cfg.features)
-        table_gaps, laptop_gaps = _gaps(poses, env)
-        constraints.append(_soft_min(table_gaps))
-        constraints.append(_soft_min(laptop_gaps))
+        phi, table, laptop = _waypoint_terms(qs[:, i], env, cfg.features)
+        phi_sum += phi
+        constraints += [table, laptop]
     path = ca.horzcat(q_start, qs, q_goal)
     q = ca.SX.sym("q", N_ARM_JOINTS)
-    poses = symbolic_fk(q, frames)
-    table_gaps, laptop_gaps = _gaps(poses, env)
-    waypoint = ca.Function(
-        "waypoint_terms",
-        [q, env],
-        [
-            symbolic_features(*poses["panda_hand"], env, cfg.features),
-            ca.vertcat(_soft_min(table_gaps), _soft_min(laptop_gaps)),
-        ],
-    )
+    phi, table, laptop = _waypoint_terms(q, env, cfg.features)
+    waypoint = ca.Function("waypoint_terms", [q, env], [phi, ca.vertcat(table, laptop)])
     return TrajectoryTerms(
         x=x,
         env=env,
