@@ -4,8 +4,10 @@ For each learner: a session on fig. 4's paper settings (the 48 environments), se
 in this process and driven in Debian's chromium by Playwright with the mouse, as a person with
 a stated preference θ = (+1, −1) over (laptop, table) would: at the waypoint shown, drag the
 cup part of the way toward the laptop (x, then y) and lift it off the table top (z), then
-submit. Latency is from the click on "Submit" to the next plan's title in the page's DOM
-(browser side), and the server's own time for the learner's update and the next plan.
+submit. Latency is from the mouse press on "Submit" to the DOM change that shows the next
+plan's title, both on the browser's own clock (a MutationObserver in the page); beside it the
+same span as the driver sees it (polled every 50 ms, each poll a round trip to the browser),
+and the server's own time for the learner's update and the next plan.
 
 Every session is logged to ``--db``; ``run replay DB`` replays it through any learners.
 """
@@ -26,6 +28,25 @@ from corrections_sim.interact.session import Session
 from corrections_sim.study.schema import load_study
 
 STATED = (1.0, -1.0)
+#: Environments in a row the scripted person may fail to correct (each skipped) before the
+#: benchmark gives up with an error rather than loop.
+MAX_SKIPS_IN_A_ROW = 5
+
+#: In the page, before a submit: the browser's own clock at the mouse press and at the first
+#: DOM change that shows the next plan's title (argument: the title's start), so the latency
+#: is the page's and not the driver's polling (every 50 ms, each poll a round trip).
+_WATCH = """title => {
+  const t = window.__latency = {click: null, shown: null};
+  document.addEventListener("mousedown", () => { t.click = performance.now(); },
+                            {capture: true, once: true});
+  const seen = new MutationObserver(() => {
+    if (t.shown === null && document.body.textContent.includes(title)) {
+      t.shown = performance.now();
+      seen.disconnect();
+    }
+  });
+  seen.observe(document.body, {childList: true, subtree: true, characterData: true});
+}"""
 
 
 def _port() -> int:
@@ -67,27 +88,39 @@ def bench_learner(browser, log: StudyLog, learner: str, corrections: int, shot: 
         drive.set_number(tab, 1, STATED[1])
         drive.click(tab, "State my preference")
         drive.wait_for(lambda: log.session(session.id).stated_theta is not None, "stated θ")
-        browser_s, server_s, parts, skipped, missed_drags = [], [], [], 0, 0
+        browser_s, polled_s, server_s, parts, skipped, missed_drags = [], [], [], [], 0, 0
+        in_a_row = 0
         while len(browser_s) < corrections:
             accepted, missed = _correct(tab, page, session)
             missed_drags += missed
             if not accepted:
                 skipped += 1
+                in_a_row += 1
+                if in_a_row > MAX_SKIPS_IN_A_ROW:
+                    raise RuntimeError(
+                        f"{learner}: the scripted person could not correct {in_a_row} "
+                        f"environments in a row (session {session.id}: its refused events and "
+                        "skips are in the log)"
+                    )
                 title = f"Correction {session.iteration + 1}: environment"
                 drive.click(tab, "Skip this environment")
                 drive.wait_for(lambda t=title: t in drive.status(tab), "the next plan")
                 continue
+            in_a_row = 0
             nxt = f"Correction {session.iteration + 2}:"
             # A plain mouse click on the button, as a person's (Playwright's click() would
             # first wait for the element to be stable over animation frames).
             button = tab.get_by_role("button", name="Submit correction").bounding_box()
             drive.wait_for(lambda: not page.submit_button.disabled, "submit enabled")
+            tab.evaluate(_WATCH, nxt)
             t1 = time.perf_counter()
             tab.mouse.click(button["x"] + button["width"] / 2, button["y"] + button["height"] / 2)
             drive.wait_for(lambda n=nxt: n in drive.status(tab), "the next plan", timeout=120)
             t2 = time.perf_counter()
             arrived, sent = page.last_submit
-            browser_s.append(t2 - t1)
+            seen = tab.evaluate("window.__latency")
+            browser_s.append((seen["shown"] - seen["click"]) / 1000)
+            polled_s.append(t2 - t1)
             server_s.append(sent - arrived)
             parts.append((arrived - t1, sent - arrived, t2 - sent))
         if shot is not None:
@@ -102,6 +135,7 @@ def bench_learner(browser, log: StudyLog, learner: str, corrections: int, shot: 
         "session": session.id,
         "ready_s": ready,
         "browser_s": browser_s,
+        "polled_s": polled_s,
         "server_s": server_s,
         "skipped": skipped,
         "missed": missed_drags,
@@ -125,12 +159,17 @@ def run_bench(learners: list[str], corrections: int, db: Path, shot: Path | None
         for i, learner in enumerate(learners):
             r = bench_learner(browser, log, learner, corrections, shot if i == 0 else None)
             b, s = np.array(r["browser_s"]), np.array(r["server_s"])
+            polled = np.array(r["polled_s"])
             click, _, show = np.median(r["parts"], axis=0)
             lines.append(
                 f"{learner:8} median {np.median(b):5.2f} p90 {np.percentile(b, 90):5.2f} "
                 f"max {b.max():5.2f}   median {np.median(s):5.2f} max {s.max():5.2f} "
                 f"{r['skipped']:6d} {np.round(r['theta'], 3)!s:>18} {r['error']:16.3f}"
                 f"   (session {r['session']})"
+            )
+            lines.append(
+                f"{'':8} as the driver polls it: median {np.median(polled):.2f} p90 "
+                f"{np.percentile(polled, 90):.2f} max {polled.max():.2f} s"
             )
             lines.append(
                 f"{'':8} median parts: click reaches the server {click:.2f} s, server "

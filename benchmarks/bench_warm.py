@@ -67,10 +67,9 @@ def capture(runs: int, seed: int, learners: Sequence[str] = LEARNERS) -> list[Wa
     original = plans.PlanBook._solve
 
     def watched(book, theta, env):
-        near = book._by_env.get(env.key()) if book.warm_start else None
-        if near:
-            distances = [float(np.sum((t - theta) ** 2)) for t, _ in near]
-            t_from, plan = near[int(np.argmin(distances))]
+        near = book.nearest(theta, env)
+        if near is not None:
+            t_from, plan = near
             found.append(
                 WarmProblem(
                     np.array(theta, float), index[env.key()], t_from.copy(), plan.trajectory

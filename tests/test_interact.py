@@ -222,6 +222,34 @@ def test_an_active_warm_started_session_resumes_exactly_after_skips(tmp_path):
         )
 
 
+def test_an_active_learner_does_not_offer_a_skipped_environment_again(tmp_path):
+    # Eq. (A1) does not depend on the draw: without leaving out what the person skipped, AL
+    # would show the same environment after every skip, for ever.
+    settings = parse_study(
+        {"environments": ENVIRONMENTS, "theta_star": [1.0, -1.0], "learners": ["AL"]},
+        name="skips",
+    )
+    with StudyLog(tmp_path / "s.sqlite") as log:
+        session = Session.start(settings, log, learner="AL")
+        offered = [session.proposal().env_index]
+        for _ in range(len(ENVIRONMENTS) - 1):
+            session.skip()
+            offered.append(session.proposal().env_index)
+        assert sorted(offered) == list(range(len(ENVIRONMENTS)))  # each once, then none left
+        session.skip()
+        assert session.proposal().env_index in range(len(ENVIRONMENTS))  # the run's draw
+        # A correction clears what was declined: the learner's own choice is back.
+        simulate(session, make_user("biased"), (1.0, -1.0), 1)
+        assert session.declined == set()
+        resumed = Session.resume(log, session.id)
+        assert resumed.proposal().env_index == session.proposal().env_index
+        session.skip()
+        resumed.skip()
+        assert resumed.proposal().env_index == session.proposal().env_index
+        resumed = Session.resume(log, session.id)  # two skips after a correction, replayed
+        assert resumed.declined == session.declined and len(session.declined) == 1
+
+
 def test_a_physical_session_logs_each_push_replans_and_resumes(tmp_path, settings):
     with StudyLog(tmp_path / "p.sqlite") as log:
         session = Session.start(

@@ -9,7 +9,7 @@ import pytest
 
 from corrections_sim.learning.paper import correction_observer
 from corrections_sim.people.users import BiasedUser, NoisyOptimalUser
-from corrections_sim.planning.planner import Planner, PlannerConfig, PlanningError
+from corrections_sim.planning.planner import Plan, Planner, PlannerConfig, PlanningError
 from corrections_sim.planning.plans import PlanBook, Target, evaluate
 from corrections_sim.scene.environments import Environment, paper_environments
 from corrections_sim.study import schema
@@ -173,6 +173,26 @@ def test_plan_book_solves_each_problem_once(planner, envs):
     )
     assert book.plan(np.array([0.5, -0.5]), twin) is first
     assert book.solves == 3
+
+
+def test_plan_book_starts_from_the_first_solved_of_the_nearest_thetas(planner, envs):
+    """The warm start's neighbour, one vectorized search, is the one a θ-by-θ search finds
+    (ties on a grid of θ included: the first solved wins)."""
+    rng = np.random.default_rng(3)
+    thetas = rng.integers(-3, 4, size=(60, 2)) / 2.0  # many equal distances
+    plans = {}
+    for i, t in enumerate(thetas):
+        plan = Plan(np.full((3, 7), float(i)), np.zeros(2), 0.0, "known", 0, 0.0, 1)
+        plans.setdefault((t.tobytes(), envs[0].key()), plan)
+    book = PlanBook(planner, plans, warm_start=True)
+    solved = [(np.frombuffer(key[0]), plan) for key, plan in plans.items()]
+    for query in rng.integers(-4, 5, size=(40, 2)) / 2.0 + rng.choice([0.0, 0.25], (40, 2)):
+        one_by_one = [float(np.sum((t - query) ** 2)) for t, _ in solved]
+        theta, plan = book.nearest(query, envs[0])
+        assert plan is solved[int(np.argmin(one_by_one))][1]
+        np.testing.assert_array_equal(theta, solved[int(np.argmin(one_by_one))][0])
+    assert book.nearest(thetas[0], envs[1]) is None  # no plan in that environment yet
+    assert PlanBook(planner, plans).nearest(thetas[0], envs[0]) is None  # no warm starts
 
 
 def test_plan_book_observe_is_the_memoized_batch_of_features(planner, envs):

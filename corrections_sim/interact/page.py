@@ -14,7 +14,6 @@ nothing).
 
 from __future__ import annotations
 
-import io
 import threading
 import time
 from collections.abc import Callable
@@ -70,8 +69,9 @@ def project(
     return float(x), float(y)
 
 
-def belief_png(theta: np.ndarray, cov: np.ndarray | None, features, stated=None) -> bytes:
-    """θ̂ with its uncertainty: the 1σ and 2σ ellipses for k = 2, bars with ±σ otherwise."""
+def render_belief(theta: np.ndarray, cov: np.ndarray | None, features, stated=None) -> np.ndarray:
+    """θ̂ with its uncertainty: the 1σ and 2σ ellipses for k = 2, bars with ±σ otherwise; an
+    RGB image (H, W, 3) straight from the canvas (no PNG in between: the page encodes it)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -104,10 +104,10 @@ def belief_png(theta: np.ndarray, cov: np.ndarray | None, features, stated=None)
         ax.axhline(0, color="0.5", lw=0.6)
     ax.tick_params(labelsize=7)
     fig.tight_layout()
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png")
+    fig.canvas.draw()
+    rgb = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
     plt.close(fig)
-    return buffer.getvalue()
+    return rgb
 
 
 def relevance_note(row: dict) -> str:
@@ -297,10 +297,7 @@ class Page:
         s = self.session
         b = s.belief
         cov = b.cov if s.has_covariance else None
-        png = belief_png(b.theta, cov, s.features, self.stated)
-        from PIL import Image
-
-        self.belief_image.image = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
+        self.belief_image.image = render_belief(b.theta, cov, s.features, self.stated)
         sigma = np.sqrt(np.diag(b.cov)) if cov is not None else None
         rows = "\n".join(
             f"| {name} | {b.theta[i]:+.3f} | "

@@ -185,6 +185,8 @@ class Session:
         #: β̂ and ρ of the last correction, for a relevance-aware learner (else None).
         self.last_relevance: dict | None = None
         self.draws = 0
+        #: environments skipped since the last correction (a choosing learner leaves them out)
+        self.declined: set[int] = set()
         self.ended = False
         self._pending: Proposal | None = None
         self._lock = threading.RLock()
@@ -254,6 +256,7 @@ class Session:
             try:
                 plan = self.book.plan(self.belief.theta, self.envs[index])
             except PlanningError:
+                self.declined.add(index)
                 continue  # logged as a skip when it happened
             row = by_draw.get(draw)
             if row is None:
@@ -262,6 +265,7 @@ class Session:
                         f"session {self.id}: draw {draw} is neither a correction "
                         "nor a skip in the log"
                     )
+                self.declined.add(index)
                 continue
             if index != int(row["env_index"]):
                 raise ValueError(
@@ -283,6 +287,7 @@ class Session:
             if step is not None:
                 self.belief = step.belief
             self.iteration += 1
+            self.declined.clear()
         self.draws = last + 1
 
     @property
@@ -345,6 +350,7 @@ class Session:
             sigma=self._sigma,
             iteration=self.iteration,
             corrected=corrected,
+            declined=frozenset(self.declined),
         )
 
     def _check_open(self) -> None:
@@ -383,6 +389,7 @@ class Session:
             {"draw": self.draws, "env_index": env_index, "reason": reason},
         )
         self.draws += 1
+        self.declined.add(env_index)
         self._pending = None
 
     def skip(self, reason: str = "skipped by the person") -> None:
@@ -517,6 +524,7 @@ class Session:
             self.belief = after
             self.iteration += 1
             self.draws = pending.draw + 1
+            self.declined.clear()
             self._pending = None
             return row
 

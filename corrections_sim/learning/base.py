@@ -70,6 +70,9 @@ class LearnerContext:
         iteration: t, the correction being processed (0-based).
         corrected: the corrected trajectory ξ_h (T, 7) when the person showed one (a learner
             that judges whether a correction is explainable reads it), else None.
+        declined: indices of the environments passed over since the last correction (a person
+            skipped them, or their plan failed); a learner that chooses Eᵗ itself leaves them
+            out, or it would offer the same environment again.
     """
 
     book: PlanBook
@@ -82,6 +85,7 @@ class LearnerContext:
     sigma: SigmaPoints
     iteration: int = 0
     corrected: np.ndarray | None = None
+    declined: frozenset[int] = frozenset()
 
 
 class Learner(abc.ABC):

@@ -203,7 +203,8 @@ class ExtendedKalman(Learner):
 
 class _Active:
     """Mix-in: Eᵗ = argmin_E ‖P_{t+1}(E)‖_F, eq. (A1), over the environments whose plans
-    exist (one that fails is no candidate; if none is left, the run's draw)."""
+    exist and that were not declined since the last correction (one that fails, or that the
+    person skipped, is no candidate; if none is left, the run's draw)."""
 
     active = True
     stream = 1
@@ -211,6 +212,8 @@ class _Active:
     def choose(self, ctx: LearnerContext, belief: Belief, draw: int) -> int:
         candidates, covs = [], []
         for i, env in enumerate(ctx.envs):
+            if i in ctx.declined:
+                continue
             try:
                 observe = self.observer(ctx, belief, env)
                 noise = self.filter_noise(ctx, belief)

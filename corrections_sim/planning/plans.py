@@ -42,11 +42,11 @@ class PlanBook:
         self.planner = planner
         self.warm_start = warm_start
         self._plans: dict[tuple[bytes, bytes], Plan | PlanningError] = dict(known or {})
-        # Per environment, the converged plans in the order they were solved: (θ (k,), plan).
-        self._by_env: dict[bytes, list[tuple[np.ndarray, Plan]]] = {}
+        # Per environment, the converged plans in the order they were solved.
+        self._by_env: dict[bytes, _History] = {}
         for (theta, env_key), plan in self._plans.items():
             if isinstance(plan, Plan):
-                self._by_env.setdefault(env_key, []).append((np.frombuffer(theta), plan))
+                self._by_env.setdefault(env_key, _History()).add(np.frombuffer(theta), plan)
         self.solves = 0
         self.failures = 0
 
@@ -58,13 +58,17 @@ class PlanBook:
         """Everything solved so far (plans and failures), to seed other books with."""
         return dict(self._plans)
 
+    def nearest(self, theta: np.ndarray, env: Environment) -> tuple[np.ndarray, Plan] | None:
+        """The warm start of (θ, E): the solved (θ', plan) in E whose θ' is nearest θ
+        (Euclidean; the first solved wins a tie), or None without warm starts or plans in E."""
+        history = self._by_env.get(env.key()) if self.warm_start else None
+        return history.nearest(np.asarray(theta, float)) if history else None
+
     def _solve(self, theta: np.ndarray, env: Environment) -> Plan:
-        near = self._by_env.get(env.key()) if self.warm_start else None
-        if near:
-            distances = [float(np.sum((t - theta) ** 2)) for t, _ in near]
-            start = near[int(np.argmin(distances))][1].trajectory
+        near = self.nearest(theta, env)
+        if near is not None:
             try:
-                return self.planner.solve(theta, env, inits=[start])
+                return self.planner.solve(theta, env, inits=[near[1].trajectory])
             except PlanningError:
                 self.solves += 1  # the warm start failed; the cold starts get their chance
         return self.planner.solve(theta, env)
@@ -77,7 +81,7 @@ class PlanBook:
             self.solves += 1
             try:
                 hit = self._solve(theta, env)
-                self._by_env.setdefault(key[1], []).append((theta.copy(), hit))
+                self._by_env.setdefault(key[1], _History()).add(theta.copy(), hit)
             except PlanningError as exc:
                 self.failures += 1
                 hit = exc
@@ -93,6 +97,29 @@ class PlanBook:
             return np.array([self.plan(t, env).features for t in np.atleast_2d(thetas)])
 
         return h
+
+
+class _History:
+    """One environment's converged plans in the order they were solved, their θ stacked for
+    the nearest-θ search."""
+
+    def __init__(self) -> None:
+        self.thetas = np.empty((0, 0))
+        self.plans: list[Plan] = []
+
+    def __len__(self) -> int:
+        return len(self.plans)
+
+    def add(self, theta: np.ndarray, plan: Plan) -> None:
+        row = np.asarray(theta, float)[None, :]
+        self.thetas = row if not self.plans else np.concatenate([self.thetas, row])
+        self.plans.append(plan)
+
+    def nearest(self, theta: np.ndarray) -> tuple[np.ndarray, Plan]:
+        # Row by row the same sums as one θ at a time (k < 8 terms add in order), and argmin
+        # takes the first of equals.
+        i = int(np.argmin(np.sum((self.thetas - theta) ** 2, axis=1)))
+        return self.thetas[i], self.plans[i]
 
 
 @dataclass(frozen=True)
