@@ -24,6 +24,9 @@ def serve(session: Session, host: str = "127.0.0.1", port: int = 8080, *, speed:
     server = viser.ViserServer(host=host, port=port, verbose=False)
     server.gui.configure_theme(control_width="large", show_share_button=False)
     server.gui.main_panel.dock_right()
+    # No shadow maps: a second render pass per light that people rarely miss in this scene and
+    # that chromium's software WebGL pays at every frame (measured: 5 → see docs/physical.md).
+    server.scene.configure_default_lights(enabled=True, cast_shadow=False)
     if session.physical:
         model = session.correction
         page = PhysicalPage(

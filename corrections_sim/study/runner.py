@@ -95,14 +95,25 @@ def run_one(
     )
 
 
-def mean_estimate_point(
-    settings: FigureSettings, shared: Shared, theta: tuple[float, ...]
-) -> tuple[float, float, int, int]:
-    """(regret, paper regret, failed environments, solves) of one θ; a worker task."""
+def mean_estimate_chain(
+    settings: FigureSettings, shared: Shared, thetas: tuple[tuple[float, ...], ...]
+) -> list[tuple[float, float, int, int]]:
+    """(regret, paper regret, failed environments, solves) of each θ, in order; a worker task.
+
+    One book for the whole chain (one learner's mean θ̂ᵗ, t = 0, 1, ...), seeded with the
+    prior's plans: with the study's ``warm_start`` each θ's plans start from the nearest θ
+    solved before in the chain, as a run evaluates its own θ̂ᵗ; without, every plan is cold.
+    """
     load_plugins(settings.plugins)
-    book = PlanBook(shared_planner(settings.planner_config()), shared.prior)
-    regret, paper, failed = evaluate(book, shared.target, settings.envs(), np.array(theta))
-    return regret, paper, failed, book.solves
+    planner = shared_planner(settings.planner_config())
+    book = PlanBook(planner, shared.prior, warm_start=settings.study.warm_start)
+    envs = settings.envs()
+    out = []
+    for theta in thetas:
+        before = book.solves
+        regret, paper, failed = evaluate(book, shared.target, envs, np.array(theta))
+        out.append((regret, paper, failed, book.solves - before))
+    return out
 
 
 def _mean_thetas(
@@ -223,14 +234,20 @@ def run(
         for rec in results[key].records
     ]
     points = _mean_thetas(settings, records) if mean_estimate else []
-    values = list(
-        executor.map(
-            mean_estimate_point,
-            [settings] * len(points),
-            [shared] * len(points),
-            [theta for *_, theta in points],
+    # One chain a learner (its mean θ̂ᵗ in order of t), the learners side by side.
+    chains: dict[str, list[tuple[float, ...]]] = {}
+    for learner, _, _, theta in points:
+        chains.setdefault(learner, []).append(theta)
+    values = [
+        value
+        for chain in executor.map(
+            mean_estimate_chain,
+            [settings] * len(chains),
+            [shared] * len(chains),
+            [tuple(thetas) for thetas in chains.values()],
         )
-    )
+        for value in chain
+    ]
     mean_rows = [
         {
             "learner": learner,
