@@ -452,3 +452,34 @@ def test_bp_learns_without_an_innovation_covariance(planner, envs, target):
 def test_bad_remedy_settings_are_refused_by_their_keys(overrides, match):
     with pytest.raises(ValueError, match=match):
         settings(**overrides)
+
+
+def test_the_mean_estimate_chain_is_the_cold_evaluation_without_warm_starts():
+    """Each learner's mean θ̂ᵗ is evaluated in one chain: without ``warm_start`` every θ is
+    the cold evaluation it was point by point (a θ met again is not solved again); with it,
+    warm from the θ before, here at the cold answer to the solver's tolerance."""
+    from corrections_sim.planning.planner import shared_planner
+    from corrections_sim.study import runner
+
+    spec = {
+        "environments": ["s0-t0-l1", "s1-t1-l0", "s2-t0-l1"],
+        "theta_star": [1.0, -1.0],
+        "learners": ["KF"],
+        "seed": 5,
+    }
+    thetas = ((0.3, -0.2), (0.35, -0.3), (0.3, -0.2))
+    cold = schema.parse_study(spec, name="chain")
+    shared = runner.prepare(cold)
+    chain = runner.mean_estimate_chain(cold, shared, thetas)
+    planner = shared_planner(cold.planner_config())
+    for theta, (regret, paper, failed, _) in zip(thetas, chain, strict=True):
+        book = PlanBook(planner, shared.prior)
+        alone = evaluate(book, shared.target, cold.envs(), np.array(theta))
+        assert (regret, paper, failed) == alone
+    assert [c[3] for c in chain] == [3, 3, 0]
+
+    warm = schema.parse_study({**spec, "warm_start": True}, name="chain")
+    for (regret, *_), (cold_regret, *_) in zip(
+        runner.mean_estimate_chain(warm, runner.prepare(warm), thetas), chain, strict=True
+    ):
+        assert abs(regret - cold_regret) <= 1e-4 * abs(cold_regret)
