@@ -278,6 +278,10 @@ class ArmSimulation:
         self._state_spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
         self._control_spec = mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_XFRC_APPLIED
         self._nstate = mujoco.mj_stateSize(self.model, self._state_spec)
+        # One rollout object for every look, on the calling thread: the module function makes
+        # one per call and checks, tiles and allocates the arrays each time (a third of the
+        # look's rollout time); advance() hands it arrays already in the shapes it takes.
+        self._rollout = mj_rollout.Rollout(nthread=0)
         self._qpos = slice(1, 1 + self.model.nq)
         self._qvel = slice(1 + self.model.nq, 1 + self.model.nq + self.model.nv)
         self._tau_filtered = np.zeros(N_ARM_JOINTS)
@@ -373,12 +377,18 @@ class ArmSimulation:
         control[:, self.model.nu + 6 * self._cup : self.model.nu + 6 * self._cup + 6] = xfrc
         state0 = np.empty(self._nstate)
         mujoco.mj_getState(self.model, self.data, state0, self._state_spec)
-        states, sensors = mj_rollout.rollout(
-            self.model,
-            self.data,
+        states = np.empty((1, n_steps, self._nstate))
+        sensors = np.empty((1, n_steps, self.model.nsensordata))
+        self._rollout.rollout(
+            [self.model],
+            [self.data],
             state0[None],
             control[None],
-            control_spec=self._control_spec,
+            control_spec=int(self._control_spec),
+            skip_checks=True,
+            nstep=n_steps,
+            state=states,
+            sensordata=sensors,
         )
         states, sensors = states[0], sensors[0]
         mujoco.mj_setState(self.model, self.data, states[-1], self._state_spec)
