@@ -202,3 +202,76 @@ def test_replanning_to_the_same_plan_changes_nothing(task, rng):
     outcome = make_user("physical").perform(task, rng, lambda deformed, q, t: task.robot)
     assert outcome.extras["replanned"] == 1.0
     np.testing.assert_allclose(outcome.executed, outcome.executed_kept, atol=5e-4)
+
+
+def _same_chunks(a, b) -> bool:
+    fields = ("times", "q", "qvel", "cup", "tau_sensed", "tau_applied", "force", "contacts")
+    return len(a) == len(b) and all(
+        np.array_equal(getattr(x, f), getattr(y, f), equal_nan=True)
+        for x, y in zip(a, b, strict=True)
+        for f in fields
+    )
+
+
+def _through_the_table(task) -> dynamics.TimedTrajectory:
+    """The robot's plan with the shoulder lowered: the arm runs into the table (contacts)."""
+    low = task.robot.copy()
+    low[:, 1] += 0.6
+    return dynamics.TimedTrajectory(low, 5.0)
+
+
+def test_looks_in_one_rollout_are_the_looks_one_at_a_time(task):
+    """advance_looks is advance called look by look, to the last bit: the clock, physics with
+    contacts (the solver's warm start carried across looks), sensing noise, the filter."""
+    reference = _through_the_table(task)
+    runs = []
+    for batched in (False, True):
+        sim = dynamics.ArmSimulation(task.env, torque_noise=0.2)
+        sim.reset(reference.waypoints[0])
+        rng = np.random.default_rng(3)
+        if batched:
+            chunks = sim.advance_looks(reference, 10, 150, None, rng)
+            chunks += sim.advance_looks(reference, 10, 350, None, rng)
+        else:
+            chunks = [sim.advance(reference, 10, None, rng) for _ in range(500)]
+        runs.append((chunks, sim.time, sim.q(), sim._tau_filtered.copy(), rng.random()))
+    (a, *rest_a), (b, *rest_b) = runs
+    assert sum(c.contacts > 0 for c in a) > 50  # the table is in the way
+    assert _same_chunks(a, b)
+    assert all(np.array_equal(x, y) for x, y in zip(rest_a, rest_b, strict=True))
+    # Without sensing, the same motion; nothing sensed.
+    sim = dynamics.ArmSimulation(task.env, torque_noise=0.2)
+    sim.reset(reference.waypoints[0])
+    quiet = sim.advance_looks(reference, 10, 500, None, np.random.default_rng(3), sense=False)
+    assert all(np.array_equal(x.q, y.q) for x, y in zip(a, quiet, strict=True))
+    assert np.all(np.isnan(quiet[-1].tau_sensed))
+
+
+@pytest.mark.parametrize("into_the_table", [False, True])
+def test_coasting_is_looking_one_at_a_time(task, into_the_table):
+    """The person's quiet looks run in one rollout: the same motion as look(None) each time.
+    Into the table the robot feels the contact, so the coast is run again look by look and
+    stops where the robot finds it over."""
+    runs = []
+    for coasting in (False, True):
+        rng = np.random.default_rng(11)
+        motion = physical.PushedMotion(task.robot, task.env, 5.0, rng, torque_noise=0.1)
+        if into_the_table:
+            motion.reference = _through_the_table(task)
+        found = []
+        while not motion.done:
+            left = sum(1 for _ in motion.look_starts())
+            if coasting:
+                released = motion.coast(min(left, 120))
+            else:
+                released = motion.look(None)
+            if released:
+                found.append(motion.time)
+        runs.append((motion.chunks, found, motion.pushed, rng.random(), motion.q()))
+    (a, found_a, pushed_a, draw_a, q_a), (b, found_b, pushed_b, draw_b, q_b) = runs
+    assert _same_chunks(a, b) and _same_chunks(pushed_a, pushed_b)
+    assert found_a == found_b and draw_a == draw_b and np.array_equal(q_a, q_b)
+    assert len(a) == 500
+    assert (len(found_a) == 1) == into_the_table  # the table felt, then let go of
+    if into_the_table:  # after that nothing is sensed (one push a task)
+        assert np.all(np.isnan(a[-1].tau_sensed))

@@ -149,7 +149,8 @@ class PushTrace:
 
     Attributes:
         times: (n,) s. cup: (n, 3) m. force: the person's force (n, 3), N.
-        tau_sensed: the robot's sensed τ_h (n, 7), N·m. tau_applied: Jᵀ F (n, 7), N·m (the truth).
+        tau_sensed: the robot's sensed τ_h (n, 7), N·m (NaN once the push is found over: no one
+            learns from what it senses later). tau_applied: Jᵀ F (n, 7), N·m (the truth).
         q: measured joint positions (n, 7).
     """
 
@@ -347,14 +348,20 @@ class PushedMotion:
 
     def look(self, force: np.ndarray | None) -> bool:
         """Advance one look with ``force`` (3,), N, at the cup (None: nobody pushes); True when
-        the robot has just found the push over (then :meth:`deformation` is what it learns)."""
-        out = self.sim.advance(self.reference, self.steps, force, self.rng)
+        the robot has just found the push over (then :meth:`deformation` is what it learns).
+        Once it has, the robot's sensing is no longer computed (one push a task: what it
+        senses later is learnt from by nobody); the trace's τ_h is NaN from there."""
+        sense = self.released is None
+        out = self.sim.advance(self.reference, self.steps, force, self.rng, sense=sense)
         self.chunks.append(out)
         if force is not None:
             self.effort += float(np.linalg.norm(force)) * self.look_time
             self.push_time += self.look_time
-        if self.released is not None:
-            return False  # one push a task: what the robot senses later is not this correction
+        return sense and self._found_release(out)
+
+    def _found_release(self, out: dynamics.Chunk) -> bool:
+        """The robot's reading of one look before the release: a push goes on while ‖τ_h‖
+        is above ``detect`` at the look's end, and is over after :data:`RELEASE_WAIT` below."""
         if float(np.linalg.norm(out.tau_sensed[-1])) > self.detect:
             self.pushed.append(out)
             self._quiet_since = None
@@ -363,6 +370,42 @@ class PushedMotion:
                 self._quiet_since = self.sim.time
             if self.sim.time - self._quiet_since >= RELEASE_WAIT:
                 self.released = self.sim.time
+                return True
+        return False
+
+    def look_starts(self):
+        """The times the looks still to come start at, s, to the end of the motion (the
+        simulation's own clock arithmetic, so that a caller can count the looks before a
+        given moment exactly)."""
+        t = self.sim.time
+        while t < self.duration - 1e-9:
+            yield t
+            t = dynamics.look_after(t, self.sim.dt, self.steps)
+
+    def coast(self, looks: int) -> bool:
+        """``looks`` looks with nobody pushing, as many :meth:`look` (None) calls would give
+        them to the last bit, but in one rollout where nothing can happen between them: True
+        when the robot found the push over (after that look; the rest are not run). Before a
+        push the looks are checked afterwards; if the robot felt anything (a contact, a
+        push) they are run again one by one from a snapshot, noise draws included."""
+        if looks <= 0:
+            return False
+        if looks == 1 or (self.pushed and self.released is None):
+            return self._one_by_one(looks)
+        sense = self.released is None
+        if sense:
+            saved, drawn = self.sim.snapshot(), self.rng.bit_generator.state
+        out = self.sim.advance_looks(self.reference, self.steps, looks, None, self.rng, sense=sense)
+        if sense and any(float(np.linalg.norm(c.tau_sensed[-1])) > self.detect for c in out):
+            self.sim.restore(saved)
+            self.rng.bit_generator.state = drawn
+            return self._one_by_one(looks)
+        self.chunks.extend(out)
+        return False
+
+    def _one_by_one(self, looks: int) -> bool:
+        for _ in range(looks):
+            if self.look(None):
                 return True
         return False
 
@@ -462,7 +505,17 @@ def _perform(
         return cap_force(force, person.force_cap)
 
     while not motion.done:
-        if motion.look(person_force(motion.time, motion.cup())) and replan is not None:
+        # Looks the person sits out (before the push, after it) run in one rollout.
+        quiet = 0
+        for t in motion.look_starts():
+            if person.envelope(t, start, end) != 0.0:
+                break
+            quiet += 1
+        if quiet:
+            released = motion.coast(quiet)
+        else:
+            released = motion.look(person_force(motion.time, motion.cup()))
+        if released and replan is not None:
             _, deformed = motion.deformation()
             rest = replan(deformed, motion.q(), motion.time)
             if rest is not None:
@@ -498,13 +551,16 @@ def _relative_rms(pushed: list[dynamics.Chunk]) -> float:
 
 
 def _finish(sim, reference, rng, chunk) -> tuple[np.ndarray, np.ndarray, tuple]:
-    """Play ``reference`` to its end, no push: the looks' times and q, and the final state."""
-    times, qs = [], []
-    while sim.time < reference.t_end - 1e-9:
-        out = sim.advance(reference, chunk, None, rng)
-        times.append(out.times[0])
-        qs.append(out.q[0])
-    return np.array(times), np.vstack(qs), (sim.time, sim.q())
+    """Play ``reference`` to its end, no push, nothing sensed (nobody learns from it), in one
+    rollout: the looks' times and q, and the final state."""
+    looks, t = 0, sim.time
+    while t < reference.t_end - 1e-9:
+        looks += 1
+        t = dynamics.look_after(t, sim.dt, chunk)
+    out = sim.advance_looks(reference, chunk, looks, None, rng, sense=False) if looks else []
+    times = np.array([c.times[0] for c in out])
+    qs = np.vstack([c.q[0] for c in out]) if out else np.empty((0, sim.model.nq))
+    return times, qs, (sim.time, sim.q())
 
 
 def _after(trace: PushTrace, kept: tuple) -> tuple[np.ndarray, np.ndarray, tuple]:

@@ -271,6 +271,7 @@ class ArmSimulation:
         self.torque_noise = float(torque_noise)
         self.filter_hz = float(filter_hz)
         self.data = mujoco.MjData(self.model)
+        self._scratch = mujoco.MjData(self.model)
         self.own = robot_model(self.model)
         self._own_data = mujoco.MjData(self.own)
         self.dt = float(self.model.opt.timestep)
@@ -311,17 +312,25 @@ class ArmSimulation:
         """Where the cup's centre of mass is now (3,), m (what a person sees)."""
         return np.array(self.data.xipos[self._cup])
 
-    def snapshot(self) -> None:
-        """Remember the arm's state, its sensing filter and the clock (see :meth:`restore`)."""
+    def snapshot(self) -> tuple:
+        """Remember the arm's state (with the contact solver's warm start), its sensing filter
+        and the clock, and return them (see :meth:`restore`)."""
         state = np.empty(self._nstate)
         mujoco.mj_getState(self.model, self.data, state, self._state_spec)
-        self._saved = (state, self._tau_filtered.copy(), self.time)
+        self._saved = (
+            state,
+            self.data.qacc_warmstart.copy(),
+            self._tau_filtered.copy(),
+            self.time,
+        )
+        return self._saved
 
-    def restore(self) -> None:
-        """Go back to the last :meth:`snapshot`."""
-        state, filtered, time = self._saved
+    def restore(self, saved: tuple | None = None) -> None:
+        """Go back to ``saved`` (default: the last :meth:`snapshot`)."""
+        state, warmstart, filtered, time = self._saved if saved is None else saved
         mujoco.mj_setState(self.model, self.data, state, self._state_spec)
         mujoco.mj_forward(self.model, self.data)
+        self.data.qacc_warmstart[:] = warmstart
         self._tau_filtered = filtered.copy()
         self.time = time
 
@@ -364,17 +373,41 @@ class ArmSimulation:
         n_steps: int,
         force: np.ndarray | None = None,
         rng: np.random.Generator | None = None,
+        *,
+        sense: bool = True,
     ) -> Chunk:
         """Run ``n_steps`` physics steps tracking ``reference``, with ``force`` (3,), newtons,
-        applied at the cup's centre of mass throughout (None: no push)."""
-        times = self.time + self.dt * np.arange(n_steps)
+        applied at the cup's centre of mass throughout (None: no push). Without ``sense`` the
+        robot's τ_h is not computed (NaN; its filter is left as it was): for motions nobody
+        learns from."""
+        return self.advance_looks(reference, n_steps, 1, force, rng, sense=sense)[0]
+
+    def advance_looks(
+        self,
+        reference: TimedTrajectory,
+        look_steps: int,
+        looks: int,
+        force: np.ndarray | None = None,
+        rng: np.random.Generator | None = None,
+        *,
+        sense: bool = True,
+    ) -> list[Chunk]:
+        """``looks`` calls of :meth:`advance` with ``look_steps`` steps each, in one rollout:
+        the same chunks to the last bit (the same clock, controls, physics, sensing, noise
+        draws and contacts at each look's end), without the Python between looks."""
+        dt = self.dt
+        blocks, t = [], self.time
+        for _ in range(looks):
+            blocks.append(t + dt * np.arange(look_steps))
+            t = look_after(t, dt, look_steps)
+        times = np.concatenate(blocks)
+        n_steps = times.shape[0]
         ctrl = self.controls(reference, times)
-        xfrc = np.zeros((n_steps, 6))
-        if force is not None:
-            xfrc[:, :3] = force
         control = np.zeros((n_steps, self.model.nu + self.model.nbody * 6))
         control[:, : self.model.nu] = ctrl
-        control[:, self.model.nu + 6 * self._cup : self.model.nu + 6 * self._cup + 6] = xfrc
+        if force is not None:
+            at = self.model.nu + 6 * self._cup
+            control[:, at : at + 3] = force
         state0 = np.empty(self._nstate)
         mujoco.mj_getState(self.model, self.data, state0, self._state_spec)
         states = np.empty((1, n_steps, self._nstate))
@@ -387,6 +420,7 @@ class ArmSimulation:
             control_spec=int(self._control_spec),
             skip_checks=True,
             nstep=n_steps,
+            initial_warmstart=self.data.qacc_warmstart[None],
             state=states,
             sensordata=sensors,
         )
@@ -398,22 +432,43 @@ class ArmSimulation:
         q = np.vstack([state0[self._qpos], states[:-1, self._qpos]])
         qvel_after = states[:, self._qvel]
         qvel = np.vstack([state0[self._qvel], qvel_after[:-1]])
-        qacc = (qvel_after - qvel) / self.dt
+        qacc = (qvel_after - qvel) / dt
         tau_motor = sensors[:, :N_ARM_JOINTS]
         cup = sensors[:, N_ARM_JOINTS : N_ARM_JOINTS + 3]
-        sensed = self._sense(q, qvel, qacc, tau_motor, rng)
+        if sense:
+            sensed = self._sense(q, qvel, qacc, tau_motor, rng)
+        else:
+            sensed = np.full_like(q, np.nan)
         applied = self._applied_torque(q, force)
-        self.time = float(times[-1] + self.dt)
-        return Chunk(
-            times=times,
-            q=q,
-            qvel=qvel,
-            cup=cup,
-            tau_sensed=sensed,
-            tau_applied=applied,
-            force=np.broadcast_to(np.zeros(3) if force is None else force, (n_steps, 3)).copy(),
-            contacts=int(self.data.ncon),
-        )
+        pushed = np.broadcast_to(np.zeros(3) if force is None else force, (n_steps, 3)).copy()
+        self.time = t
+        # Contacts at each look's end: the state the next look starts from, as advance() finds
+        # them after setting it (the last look's are the live data's).
+        contacts = [self._contacts(states[(k + 1) * look_steps - 1]) for k in range(looks - 1)]
+        contacts.append(int(self.data.ncon))
+        return [
+            Chunk(
+                times=times[rows],
+                q=q[rows],
+                qvel=qvel[rows],
+                cup=cup[rows],
+                tau_sensed=sensed[rows],
+                tau_applied=applied[rows],
+                force=pushed[rows],
+                contacts=contacts[k],
+            )
+            for k, rows in enumerate(
+                slice(k * look_steps, (k + 1) * look_steps) for k in range(looks)
+            )
+        ]
+
+    def _contacts(self, state: np.ndarray) -> int:
+        """How many contacts the scene has at ``state`` (a scratch copy of the data)."""
+        scratch = self._scratch
+        mujoco.mj_setState(self.model, scratch, state, self._state_spec)
+        mujoco.mj_kinematics(self.model, scratch)
+        mujoco.mj_collision(self.model, scratch)
+        return int(scratch.ncon)
 
     def _sense(self, q, qvel, qacc, tau_motor, rng) -> np.ndarray:
         """τ_h per step (n, 7): the robot's inverse dynamics of the measured motion minus the
@@ -451,6 +506,12 @@ class ArmSimulation:
         return np.array([jac.T @ force for jac in jacobians])
 
 
+def look_after(t: float, dt: float, steps: int) -> float:
+    """The clock after a look of ``steps`` physics steps of ``dt`` s from ``t``, float for
+    float as :meth:`ArmSimulation.advance` keeps it (so that looks can be counted ahead)."""
+    return t + dt * (steps - 1) + dt
+
+
 @dataclass(frozen=True, eq=False)
 class Chunk:
     """What ``n`` physics steps produced, one row per step: the state it started from and the
@@ -460,7 +521,8 @@ class Chunk:
         times: (n,) seconds.
         q, qvel: measured joint positions and velocities (n, 7).
         cup: the cup's position (n, 3), metres (what a person sees).
-        tau_sensed: the interaction torque the robot senses, τ_h (n, 7), N·m.
+        tau_sensed: the interaction torque the robot senses, τ_h (n, 7), N·m (NaN where
+            sensing was off).
         tau_applied: Jᵀ F of the applied force (n, 7), N·m (the truth, for checks only).
         force: the applied force (n, 3), N.
         contacts: contacts at the chunk's last step.
