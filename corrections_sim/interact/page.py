@@ -33,6 +33,11 @@ PLAN_RGB = (40, 110, 220)
 CORRECTION_RGB = (235, 120, 20)
 AVERSE_RGB = (30, 160, 80)
 HANDLE_SCALE = 0.16
+#: The scene's material: five-tone shading under the default lights. The standard material
+#: samples the environment map at every pixel, which chromium's software WebGL (a machine
+#: without a GPU) pays at every frame: the physical page during a motion drew 9–12 frames/s
+#: with it, 24–31 with this (measured, docs/physical.md).
+MESH_MATERIAL = "toon5"
 
 
 def cup_path(trajectory: np.ndarray, substeps: int = 6) -> np.ndarray:
@@ -213,7 +218,11 @@ class Page:
         """The scene's visual pieces, kept by geom for posing the arm."""
         self.meshes = {
             piece.geom: scene.add_mesh_simple(
-                f"/world/{piece.name}", piece.vertices, piece.faces, color=piece.rgb
+                f"/world/{piece.name}",
+                piece.vertices,
+                piece.faces,
+                color=piece.rgb,
+                material=MESH_MATERIAL,
             )
             for piece in pieces()
         }
