@@ -275,3 +275,27 @@ def test_coasting_is_looking_one_at_a_time(task, into_the_table):
     assert (len(found_a) == 1) == into_the_table  # the table felt, then let go of
     if into_the_table:  # after that nothing is sensed (one push a task)
         assert np.all(np.isnan(a[-1].tau_sensed))
+
+
+def test_a_push_that_holds_the_arm_at_a_joint_limit_stays_finite_and_is_found(task):
+    """The elbow planned 10 mrad short of its limit and pushed outward (120 N, past what the
+    page's handle gives) for 3 s: the limit holds it (MuJoCo's soft constraint lets it in by
+    about a milliradian), nothing goes non-finite, and the robot still finds the push and
+    lets go of it."""
+    straight = task.robot.copy()
+    upper = dynamics.dynamics_model().jnt_range[3, 1]
+    straight[:, 3] = upper - 0.01
+    motion = physical.PushedMotion(straight, task.env, 5.0, np.random.default_rng(0))
+    elbow = []
+    while not motion.done:
+        cup = motion.cup()
+        outward = cup * np.array([1.0, 1.0, 0.0]) / np.linalg.norm(cup[:2])
+        motion.look(120.0 * outward if 0.5 < motion.time < 3.5 else None)
+        elbow.append(motion.q()[3])
+    assert upper - 0.005 < max(elbow) < upper + 0.01
+    assert motion.released is not None and motion.pushed
+    held, deformed = motion.deformation()
+    trace = motion.trace()
+    assert np.all(np.isfinite(deformed)) and np.all(np.isfinite(trace.q))
+    assert np.all(np.isfinite(trace.tau_sensed[: len(trace.times) // 2]))
+    assert np.all(np.isfinite(feature_counts(deformed, task.env, FEATURES)))
