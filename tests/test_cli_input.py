@@ -195,3 +195,16 @@ def test_an_interrupted_session_speaks_of_the_session():
 def test_physical_session_options_are_checked(argv, names, tmp_path, capsys):
     assert _main([*argv, "--db", str(tmp_path / "s.sqlite")]) == 2
     _one_line(capsys.readouterr().err, *names)
+
+
+def test_a_replay_sets_learners_parameters_only(tmp_path, capsys):
+    import shutil
+
+    db = tmp_path / "p.sqlite"
+    shutil.copy(Path(__file__).parents[1] / "results/interact/physical.sqlite", db)
+    assert _main(["replay", str(db), "--set", "user.step=0.5", "--out", str(tmp_path)]) == 2
+    _one_line(capsys.readouterr().err, "--set user.step=0.5", "learners")
+    argv = ["replay", str(db), "--learners", "KF-C", "--set", "learners.KF-C.model=physical"]
+    assert _main([*argv, "--out", str(tmp_path)]) == 0
+    summary = json.loads((tmp_path / "replay-1" / "summary.json").read_text())
+    assert summary["settings"]["learners"]["KF-C"]["model"]["name"] == "physical"

@@ -323,3 +323,33 @@ def test_a_relevance_aware_session_shows_and_logs_beta_and_replays_it(tmp_path):
         assert session.last_relevance == rows[-1]["relevance"]
         _, _, facts = replay(log, session.id, ["KF-CR"])
         assert facts["max_gap_to_log"] == 0.0
+
+
+def test_a_physical_session_replays_through_learners_told_that_people_push(tmp_path):
+    """The committed browser session of four pushes, replayed: KF-C with its default
+    one-waypoint model and told that people push (``params``, the command line's ``--set
+    learners.KF-C.model=physical``) learn differently, and the latter's parameters are the
+    replay's; the session's own KF-CL still gives the logged θ̂ back."""
+    import shutil
+    from pathlib import Path
+
+    from corrections_sim import components
+    from corrections_sim.people.corrections import CORRECTIONS
+
+    db = tmp_path / "physical.sqlite"
+    shutil.copy(Path(__file__).parents[1] / "results/interact/physical.sqlite", db)
+    with StudyLog(db) as log:
+        session = log.session_ids()[-1]
+        _, _, plain = replay(log, session, ["KF-C", "KF-CL"], regret=False)
+        told, _, pushes = replay(
+            log, session, ["KF-C", "KF-CL"], regret=False, params={"KF-C": {"model": "physical"}}
+        )
+        with pytest.raises(ValueError, match=r"^learners\.BP: set, but not replayed"):
+            replay(log, session, ["KF-C"], regret=False, params={"BP": {"lapse": 0.1}})
+    assert components.name_of(CORRECTIONS, told.study.learners["KF-C"].model) == "physical"
+    assert plain["max_gap_to_log"] == pushes["max_gap_to_log"] == 0.0
+    a, b = plain["final"]["KF-C"]["theta"], pushes["final"]["KF-C"]["theta"]
+    assert not np.allclose(a, b)
+    # Told how a push deforms the plan, KF-C ends nearer the session's own push-aware KF-CL.
+    own = np.asarray(pushes["final"]["KF-CL"]["theta"])
+    assert np.linalg.norm(np.asarray(b) - own) < np.linalg.norm(np.asarray(a) - own)

@@ -548,6 +548,27 @@ def run_interact(args: argparse.Namespace) -> list[Path]:
     return [db]
 
 
+def _learner_sets(items) -> dict[str, dict]:
+    """``--set learners.NAME.KEY=VALUE`` items as {NAME: {KEY: value}} (a replay changes its
+    learners only: the environments, features and prior are the session's)."""
+    from corrections_sim.study.schema import parse_value
+
+    out: dict[str, dict] = {}
+    for item in items:
+        path, sep, text = item.partition("=")
+        parts = path.strip().split(".")
+        if not sep or len(parts) < 3 or parts[0] != "learners" or not all(parts):
+            raise UsageError(
+                f"--set {item}: a replay sets learners' parameters only, "
+                "e.g. learners.KF-CR.model=physical"
+            )
+        node = out.setdefault(parts[1], {})
+        for key in parts[2:-1]:
+            node = node.setdefault(key, {})
+        node[parts[-1]] = parse_value(text.strip())
+    return out
+
+
 def run_replay(args: argparse.Namespace) -> list[Path]:
     """A logged session replayed through learners, written as a study (curves.csv, the
     plot, summary.json) in OUT/replay-<session>/."""
@@ -565,7 +586,9 @@ def run_replay(args: argparse.Namespace) -> list[Path]:
         session = args.session if args.session is not None else (ids[-1] if ids else None)
         if session is None:
             raise UsageError(f"{db}: no sessions")
-        settings, result, facts = replay(log, session, args.learners)
+        settings, result, facts = replay(
+            log, session, args.learners, params=_learner_sets(args.set or ())
+        )
     except (LogError, ValueError) as exc:
         raise UsageError(str(exc).splitlines()[0]) from None
     out = _writable_dir(_out(args))
@@ -617,7 +640,7 @@ TOOL_OPTIONS: dict[str, tuple[str, ...]] = {
         "theta0",
         "cov0",
     ),
-    "replay": ("study_file", "out", "session", "learners"),
+    "replay": ("study_file", "out", "session", "learners", "set"),
 }
 
 

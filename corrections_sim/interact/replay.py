@@ -15,10 +15,11 @@ plans cold and every plan is a pure function of (θ, E).
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
+from corrections_sim import components
 from corrections_sim.interact.log import StudyLog
 from corrections_sim.interact.session import build_learner, learner_rng, settings_from_log
 from corrections_sim.learning.base import LEARNERS, LearnerContext
@@ -53,6 +54,7 @@ def replay(
     learners: Sequence[str] | None = None,
     *,
     regret: bool = True,
+    params: Mapping[str, Mapping] | None = None,
 ) -> tuple[FigureSettings, FigureResult, dict]:
     """(settings of the replay, its records as a study's result, facts for the summary).
 
@@ -61,6 +63,10 @@ def replay(
             session's own).
         regret: evaluate the regret against the stated θ (48 solves per learner and
             iteration for the paper's environments); without a stated θ there is none.
+        params: per learner name, parameters that replace those it would have (the
+            session's own learner's logged ones, else the study's, else its defaults), e.g.
+            ``{"KF-CR": {"model": "physical"}}``: a physical session replayed through
+            learners told that people push.
 
     Raises:
         LogError: no such session.
@@ -72,17 +78,25 @@ def replay(
         raise ValueError(f"session {session_id}: no corrections to replay")
     settings = settings_from_log(row.settings)
     names = list(learners) if learners else [*DEFAULT_LEARNERS, row.learner]
-    for name in names:
+    params = dict(params or {})
+    for name in [*names, *params]:
         if name not in LEARNERS:
             raise ValueError(f"learner {name!r}: unknown; choose from {', '.join(LEARNERS)}")
+    for name in params:
+        if name not in names:
+            raise ValueError(f"learners.{name}: set, but not replayed (--learners)")
     # Each rate source before the learner that needs it (added if not asked for); the
     # session's own learner with its logged parameters, the others with the study's.
     agents: dict = {}
 
     def add(name: str) -> None:
         if name not in agents:
-            params = row.learner_params if name == row.learner else None
-            agent = build_learner(settings, name, params)
+            given = row.learner_params if name == row.learner else None
+            if name in params:
+                if given is None and name in settings.study.learners:
+                    given = components.params(settings.study.learners[name])
+                given = {**(given or {}), **params[name]}
+            agent = build_learner(settings, name, given)
             if agent.rate_source() is not None:
                 add(agent.rate_source())
             agents[name] = agent
