@@ -802,7 +802,8 @@ def parser() -> argparse.ArgumentParser:
         action="append",
         metavar="KEY.PATH=VALUE",
         help="set any key of the study, e.g. user.step=0.5, learners.KF-C.model=deform, "
-        "filter.observation_noise=0.1 (repeatable; a value is read as TOML, else as text)",
+        "filter.observation_noise=0.1 (repeatable; a value is read as TOML, else as text); "
+        "replay sets its learners' keys only (learners.NAME.KEY)",
     )
     g.add_argument("--user-step", type=float, help="= --set user.step=S")
     g.add_argument("--user-waypoints", type=int, help="= --set user.waypoints=N")
