@@ -347,19 +347,31 @@ class ArmSimulation:
     def feedforward(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         """τ_ff = M(q_d) q̈_d + c(q_d, q̇_d) per row (n, 7): the plan's inverse dynamics
         without gravity (compensated at the measured state) and without passive damping."""
-        own, d = self.own, self._own_data
-        out = np.empty_like(q)
+        own = self.own
         gravity = own.opt.gravity.copy()
         own.opt.gravity[:] = 0.0
         try:
-            for i in range(q.shape[0]):
-                d.qpos[:] = q[i]
-                d.qvel[:] = qd[i]
-                d.qacc[:] = qdd[i]
-                mujoco.mj_inverse(own, d)
-                out[i] = d.qfrc_inverse + d.qfrc_passive
+            return self._inverse_rows(q, qd, qdd, passive=True)
         finally:
             own.opt.gravity[:] = gravity
+
+    def _inverse_rows(self, q, qvel, qacc, *, passive: bool) -> np.ndarray:
+        """The robot's own inverse dynamics at each row (n, 7) of (q, q̇, q̈), plus its passive
+        forces if ``passive``. One MuJoCo call a row: the views of the data are taken once."""
+        own, d = self.own, self._own_data
+        qpos, qvel_d, qacc_d = d.qpos, d.qvel, d.qacc
+        tau, passive_force = d.qfrc_inverse, d.qfrc_passive
+        inverse = mujoco.mj_inverse
+        out = np.empty_like(q)
+        for i in range(q.shape[0]):
+            qpos[:] = q[i]
+            qvel_d[:] = qvel[i]
+            qacc_d[:] = qacc[i]
+            inverse(own, d)
+            if passive:
+                np.add(tau, passive_force, out=out[i])
+            else:
+                out[i] = tau
         return out
 
     def controls(self, reference: TimedTrajectory, times: np.ndarray) -> np.ndarray:
@@ -473,14 +485,7 @@ class ArmSimulation:
     def _sense(self, q, qvel, qacc, tau_motor, rng) -> np.ndarray:
         """τ_h per step (n, 7): the robot's inverse dynamics of the measured motion minus the
         torque its motors gave, plus sensor noise, low-pass filtered."""
-        own, d = self.own, self._own_data
-        raw = np.empty_like(q)
-        for i in range(q.shape[0]):
-            d.qpos[:] = q[i]
-            d.qvel[:] = qvel[i]
-            d.qacc[:] = qacc[i]
-            mujoco.mj_inverse(own, d)
-            raw[i] = d.qfrc_inverse
+        raw = self._inverse_rows(q, qvel, qacc, passive=False)
         raw -= tau_motor
         if self.torque_noise > 0:
             if rng is None:
@@ -491,8 +496,8 @@ class ArmSimulation:
         alpha = 1.0 - np.exp(-2.0 * np.pi * self.filter_hz * self.dt)
         out = np.empty_like(raw)
         y = self._tau_filtered
-        for i in range(raw.shape[0]):
-            y = y + alpha * (raw[i] - y)
+        for i, x in enumerate(raw):
+            y = y + alpha * (x - y)
             out[i] = y
         self._tau_filtered = y
         return out
