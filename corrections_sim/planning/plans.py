@@ -62,7 +62,7 @@ class PlanBook:
         """The warm start of (θ, E): the solved (θ', plan) in E whose θ' is nearest θ
         (Euclidean; the first solved wins a tie), or None without warm starts or plans in E."""
         history = self._by_env.get(env.key()) if self.warm_start else None
-        return history.nearest(np.asarray(theta, float)) if history else None
+        return None if history is None else history.nearest(np.asarray(theta, float))
 
     def _solve(self, theta: np.ndarray, env: Environment) -> Plan:
         near = self.nearest(theta, env)
@@ -106,9 +106,6 @@ class _History:
     def __init__(self) -> None:
         self.thetas = np.empty((0, 0))
         self.plans: list[Plan] = []
-
-    def __len__(self) -> int:
-        return len(self.plans)
 
     def add(self, theta: np.ndarray, plan: Plan) -> None:
         row = np.asarray(theta, float)[None, :]
