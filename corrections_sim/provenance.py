@@ -50,6 +50,24 @@ def git_commit(folder: Path | None = None) -> dict | None:
     return {"commit": commit, "modified": bool(status.strip())}
 
 
+def machine() -> dict[str, str]:
+    """What the floating point of a computation depends on beyond the code: the processor, the
+    system and the numerical packages. Two computations with the same code and the same
+    ``machine()`` give the same bits; across processors BLAS kernels, libm and so the
+    solvers' iterations may round differently."""
+    import platform
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return {"cpu": cpu, "system": platform.platform(), **versions()}
+
+
 def plain(value):
     """``value`` as JSON data: dataclasses as dicts, tuples as lists, NaN and ±inf as None
     (strict JSON has no NaN), numpy scalars and arrays as Python numbers and lists."""

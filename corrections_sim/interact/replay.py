@@ -8,8 +8,11 @@ stated a preference θ, the estimate error, regret and NEES against it; one run 
 
 A PP-type learner whose rate comes from another learner's gains gets them from that learner
 replayed on the same corrections (added to the replay if it was not asked for). The session's
-own learner replayed gives back the logged θ̂ (checked: ``max_gap_to_log``), since a session
-plans cold and every plan is a pure function of (θ, E).
+own learner replayed gives back the logged θ̂ (checked: ``max_gap_to_log``): exactly on the
+machine that logged a session planned from cold starts (every plan a pure function of (θ, E)),
+within :data:`~corrections_sim.interact.session.LOG_TOLERANCE` on another processor, and at the
+solver's tolerance for a session planned warm (the replay plans cold). The summary says
+whether the machine is the one that logged the session (``same_machine``).
 """
 
 from __future__ import annotations
@@ -19,9 +22,14 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from corrections_sim import components
+from corrections_sim import components, provenance
 from corrections_sim.interact.log import StudyLog
-from corrections_sim.interact.session import build_learner, learner_rng, settings_from_log
+from corrections_sim.interact.session import (
+    LOG_TOLERANCE,
+    build_learner,
+    learner_rng,
+    settings_from_log,
+)
 from corrections_sim.learning.base import LEARNERS, LearnerContext
 from corrections_sim.learning.perceptron import learning_rate_schedule
 from corrections_sim.metrics import estimate_error
@@ -189,6 +197,8 @@ def replay(
         "corrections": n,
         "stated_theta": None if stated is None else stated.tolist(),
         "max_gap_to_log": gap_to_log,
+        "log_tolerance": LOG_TOLERANCE,
+        "same_machine": same_machine(log, session_id),
         "final": {
             name: {
                 "theta": [r[f"theta_{i}"] for i in range(k)],
@@ -199,6 +209,17 @@ def replay(
         },
     }
     return replayed, result, facts
+
+
+def same_machine(log: StudyLog, session_id: int) -> bool | None:
+    """Whether every machine the session was logged on (its ``machine`` events: the start and
+    each resume) is this one, as :func:`corrections_sim.provenance.machine` tells them apart;
+    None for a log without them (made before they were logged)."""
+    logged = [e["detail"] for e in log.events(session_id, "machine")]
+    if not logged:
+        return None
+    here = provenance.machine()
+    return all(m == here for m in logged)
 
 
 def write(settings: FigureSettings, result: FigureResult, facts: dict, folder) -> dict:
