@@ -179,7 +179,11 @@ def test_a_command_help_lists_its_own_options_only(capsys):
 
 
 def test_an_interrupted_session_speaks_of_the_session():
-    assert "--resume SESSION" in cli._nothing_kept(cli.parser().parse_args(["interact"]))
+    """An interrupt's message gives the command that resumes the very session."""
+    args = cli.parser().parse_args(["interact", "--db", "x.sqlite"])
+    assert "no session" in cli._nothing_kept(args)
+    args.interact_session = 4
+    assert "--resume 4 --db x.sqlite" in cli._nothing_kept(args)
     assert "figs. 4-6" in cli._nothing_kept(cli.parser().parse_args(["fig4"]))
 
 

@@ -20,6 +20,7 @@ import pytest
 
 from corrections_sim.interact import drive
 from corrections_sim.interact.log import StudyLog
+from corrections_sim.interact.page import project
 from corrections_sim.interact.server import serve
 from corrections_sim.interact.session import Session
 from corrections_sim.study.schema import parse_study
@@ -245,6 +246,118 @@ def test_a_relevance_aware_learner_shows_its_belief_in_the_correction(playwright
         drive.wait_for(lambda: shown in tab.content(), "β̂ on the page")
         assert shown in drive.status(tab)  # in the status line too, where the eye is
         tab.screenshot(path=str(tmp_path / "relevance.png"))
+    finally:
+        tab.close()
+        server.stop()
+        log.close()
+
+
+def _button(tab, label: str):
+    return tab.get_by_role("button", name=label)
+
+
+def _moving_for(page, seconds: float) -> bool:
+    motion = page.motion
+    return page._in_motion and motion is not None and motion.time > seconds
+
+
+def _still_served(url: str) -> bool:
+    with urllib.request.urlopen(url, timeout=30) as answer:
+        return answer.status == 200
+
+
+def test_done_during_the_plans_animation_shows_the_deployment_and_the_page_stays(
+    playwright_browser, tmp_path
+):
+    """Drag page: "Done" pressed while "Play the plan" animates ends the session, and the
+    page shows the deployment (it used to be left at "Connecting…": the server exited)."""
+    log = StudyLog(tmp_path / "study.sqlite")
+    session = Session.start(parse_study(STUDY, name="t"), log, learner="KF-C", participant="d")
+    server, page = serve(session, port=_free_port())
+    url = f"http://127.0.0.1:{server.get_port()}"
+    tab = drive.open_page(playwright_browser, url)
+    try:
+        drive.click(tab, "Play the plan")
+        drive.wait_for(lambda: page._playing, "the animation")
+        drive.click(tab, "Done: deploy")
+        drive.wait_for(lambda: "Session ended after 0 corrections" in drive.status(tab), "the end")
+        text = drive.status(tab)
+        assert "Deployed in" in text and "risk-averse" in text and "close this tab" in text
+        assert page.finished.is_set() and not page.left.is_set()
+        for label in ("Play the plan", "Skip this environment", "Done: deploy"):
+            assert _button(tab, label).is_disabled()
+        assert _still_served(url)
+        tab.screenshot(path=str(tmp_path / "ended.png"))
+        assert (tmp_path / "ended.png").stat().st_size > 10_000
+        assert "Connecting" not in drive.status(tab)
+    finally:
+        tab.close()
+    drive.wait_for(page.left.is_set, "the server told that the tab closed")
+    server.stop()
+    log.close()
+
+
+def test_a_hand_catches_the_moving_handle_holds_past_the_end_and_done_waits(
+    playwright_browser, tmp_path
+):
+    """Physical page at the default speed, the moments of a motion: Play, Skip and Done are
+    disabled while the arm moves; a pointer that reads where the handle is drawn and reaches
+    it at a hand's pace (0.3 s) catches it in at least 9 of 10 tries; a hand that holds on
+    past the end of the motion has pushed; Done at rest shows the deployment."""
+    log = StudyLog(tmp_path / "study.sqlite")
+    session = Session.start(
+        parse_study(STUDY, name="t"),
+        log,
+        learner="KF-C",
+        params={"model": "physical"},
+        correction="physical",
+        participant="hand",
+    )
+    server, page = serve(session, port=_free_port())
+    url = f"http://127.0.0.1:{server.get_port()}"
+    tab = drive.open_page(playwright_browser, url, physical=True)
+    play = "Play: push the cup while it moves"
+    try:
+        tries, caught = 0, 0
+        while tries < 10:
+            drive.wait_for(lambda: not _button(tab, play).is_disabled(), "Play", timeout=60)
+            drive.click(tab, play)
+            drive.wait_for(lambda: _moving_for(page, 0.3), "the motion")
+            for label in (play, "Skip this environment", "Done: deploy"):
+                drive.wait_for(lambda b=label: _button(tab, b).is_disabled(), label, timeout=5)
+            while tries < 10 and page.motion.time < page.duration - 1.0:
+                before = page.grabs
+                drive.reach_and_grab(tab, drive.handle_arrow(page.handle.position))
+                tries += 1
+                try:
+                    drive.wait_for(lambda b=before: page.grabs > b, "the grab", timeout=3)
+                    caught += 1
+                except TimeoutError:
+                    pass
+        print(f"caught {caught} of {tries}, pushes {page.pushes}")
+        assert caught >= 9, f"caught {caught} of {tries}"
+        # Hold on past the end of a motion: the end is the release, and the push is learnt.
+        drive.wait_for(lambda: not _button(tab, play).is_disabled(), "Play", timeout=60)
+        pushes = page.pushes
+        drive.click(tab, play)
+        drive.wait_for(lambda: _moving_for(page, 3.5), "the motion")
+        box = tab.locator("canvas").first.bounding_box()
+        x, y = project(drive.handle_arrow(page.handle.position), box["width"], box["height"])
+        tab.mouse.move(box["x"] + x, box["y"] + y)
+        tab.mouse.down()
+        for i in range(1, 6):
+            tab.mouse.move(box["x"] + x, box["y"] + y - 8 * i)
+        drive.wait_for(lambda: page.motion.done, "the end of the motion", timeout=30)
+        drive.wait_for(lambda: page.pushes == pushes + 1, "the held push, learnt", timeout=30)
+        tab.mouse.up()
+        row = log.corrections(session.id)[-1]
+        assert row["drag"]["released_at"] == pytest.approx(page.duration, abs=0.02)
+        drive.wait_for(lambda: "learnt" in drive.status(tab), "the push's outcome")
+        drive.wait_for(lambda: not _button(tab, "Done: deploy").is_disabled(), "Done at rest")
+        drive.click(tab, "Done: deploy")
+        drive.wait_for(lambda: "Session ended after" in drive.status(tab), "the end on the page")
+        assert "Deployed in" in drive.status(tab) and _still_served(url)
+        tab.screenshot(path=str(tmp_path / "physical-ended.png"))
     finally:
         tab.close()
         server.stop()

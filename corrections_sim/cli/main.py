@@ -464,86 +464,206 @@ def _db(args: argparse.Namespace) -> Path:
     )
 
 
+#: After "Done", the server keeps the page (the deployment) up until its tab closes, at most
+#: this many seconds (Ctrl-C stops it at once).
+AFTER_DONE = 600.0
+
+
+def _check_interact_options(args: argparse.Namespace) -> None:
+    """What can be refused before anything is opened or written (no database file, no
+    session row, no server)."""
+    from corrections_sim.interact.log import check_participant
+
+    if args.participant is not None:
+        try:
+            check_participant(args.participant)
+        except ValueError as exc:
+            raise UsageError(f"--participant: {exc}") from None
+    if args.resume is not None:
+        given = [
+            label
+            for label, value in (
+                ("FILE", args.study_file),
+                ("--learner", args.learner),
+                ("--headless", args.headless),
+                ("--mode", args.mode),
+                ("--participant", args.participant),
+                ("--drag-model", args.drag_model),
+                ("--user", args.user),
+                ("--iterations", args.iterations),
+                ("--seed", args.seed),
+                ("--set", args.set),
+                ("--theta-star", args.theta_star),
+                ("--theta0", args.theta0),
+                ("--cov0", args.cov0),
+            )
+            if value
+        ]
+        if given:
+            raise UsageError(
+                f"--resume: the session's own settings apply; drop {', '.join(given)} "
+                "(give --db, and --host, --port or --speed if they change)"
+            )
+        db = _db(args)
+        if not db.is_file():
+            raise UsageError(f"--db {db}: no such file; --resume reads the session's log")
+        from corrections_sim.interact.log import LogError, StudyLog
+
+        try:
+            with StudyLog(db) as log:
+                row = log.session(args.resume)
+        except LogError as exc:
+            raise UsageError(str(exc)) from None
+        if row.ended is not None:
+            raise UsageError(f"--resume {args.resume}: the session ended at {row.ended}")
+        return
+    physical = args.mode == "physical"
+    if physical and args.drag_model:
+        raise UsageError("--drag-model: a physical session deforms by the push; drop it")
+    if args.speed is not None and not physical:
+        raise UsageError("--speed: plays a physical session's motions; add --mode physical")
+
+
+def _host(args: argparse.Namespace) -> str:
+    """Where the page is served: --host as given (an empty one is refused, not defaulted)."""
+    return "127.0.0.1" if args.host is None else args.host
+
+
+def _session_speed(log, session, given: float | None) -> float:
+    """A physical page's speed: the one given, else the one its page last played at (a
+    resumed session keeps its speed), else real time."""
+    if given is not None:
+        if not session.physical:
+            raise UsageError(f"--speed: session {session.id} is dragged, not pushed; drop it")
+        return given
+    pages = log.events(session.id, "page")
+    return float(pages[-1]["detail"]["speed"]) if pages else 1.0
+
+
 def run_interact(args: argparse.Namespace) -> list[Path]:
     """A session of corrections: in a browser page (prints its URL; ends with "Done" or
     Ctrl-C, every confirmed correction already logged), or headless by a simulated user."""
     from corrections_sim.interact.log import LogError, StudyLog
-    from corrections_sim.interact.session import Session, simulate
+    from corrections_sim.interact.session import simulate
 
-    db = _db(args)
+    _check_interact_options(args)
+    plan = None if args.resume is not None else _session_plan(args)
+    server = None
+    if not args.headless:
+        from corrections_sim.interact.server import AddressError, open_server
+
+        # Before the log is touched: a busy port or an unusable host writes nothing.
+        try:
+            server = open_server(_host(args), args.port or 8080)
+        except AddressError as exc:
+            raise UsageError(str(exc)) from None
     try:
-        log = StudyLog(db)
-    except (LogError, OSError) as exc:
-        raise UsageError(f"--db {db}: {exc}") from None
-    try:
-        if args.resume is not None:
-            if args.study_file or args.learner or args.headless or args.mode:
-                raise UsageError("--resume: the session's own settings apply; give only --db")
-            session = Session.resume(log, args.resume)
-        else:
-            settings = _interact_settings(args)
-            corrector = "person"
+        db = _db(args)
+        try:
+            log = StudyLog(db)
+        except (LogError, OSError) as exc:
+            raise UsageError(f"--db {db}: {exc}") from None
+        try:
+            session = _open_session(args, log, plan)
+            args.interact_session = session.id  # for an interrupt's message
             if args.headless:
-                corrector = settings.study.user_params()
-                if settings.user_features:
-                    raise UsageError(
-                        "user_features: a headless session plans the simulated person over the "
-                        "robot's features; simulate a person with their own in a study "
-                        "(run study FILE)"
-                    )
-            learner = args.learner or "KF-CL"
-            physical = args.mode == "physical"
-            if physical and args.drag_model:
-                raise UsageError("--drag-model: a physical session deforms by the push; drop it")
-            if args.speed is not None and not physical:
-                raise UsageError("--speed: plays a physical session's motions; add --mode physical")
-            session = Session.start(
-                settings,
-                log,
-                learner=learner,
-                params=_physical_learner(settings, learner, args) if physical else None,
-                correction="physical" if physical else (args.drag_model or "waypoint"),
-                participant=args.participant or ("simulated" if args.headless else "anonymous"),
-                corrector=corrector,
-            )
-    except (LogError, ValueError) as exc:
-        raise UsageError(str(exc).splitlines()[0]) from None
+                return _run_headless(args, session, simulate, db)
+            speed = _session_speed(log, session, args.speed)
+        except (LogError, ValueError) as exc:
+            log.close()
+            raise UsageError(str(exc).splitlines()[0]) from None
+        return _serve_session(args, server, session, log, db, speed)
+    except BaseException:
+        if server is not None:
+            from corrections_sim.interact.server import stop
+
+            stop(server)
+        raise
+
+
+def _session_plan(args: argparse.Namespace) -> dict:
+    """What a new session is started with (Session.start's arguments), checked before the
+    server or the log is opened: a bad study file, learner, model or option writes nothing."""
+    from corrections_sim.interact.session import Session
+
+    settings = _interact_settings(args)
+    corrector = "person"
     if args.headless:
-        s = session.settings.study
-        count = args.iterations or s.iterations
-        rows = simulate(session, s.user, s.theta_star, count)
-        session.finish()
-        print(
-            f"session {session.id}: {len(rows)} corrections by the simulated {s.user_name} "
-            f"user; θ̂ = {np.round(session.belief.theta, 4).tolist()}",
-            file=sys.stderr,
-        )
-        return [db]
-    import threading
-
-    from corrections_sim.interact.server import serve
-
-    finished = threading.Event()
+        corrector = settings.study.user_params()
+        if settings.user_features:
+            raise UsageError(
+                "user_features: a headless session plans the simulated person over the "
+                "robot's features; simulate a person with their own in a study "
+                "(run study FILE)"
+            )
+    learner = args.learner or "KF-CL"
+    physical = args.mode == "physical"
+    plan = {
+        "settings": settings,
+        "learner": learner,
+        "params": _physical_learner(settings, learner, args) if physical else None,
+        "correction": "physical" if physical else (args.drag_model or "waypoint"),
+    }
     try:
-        server, page = serve(
-            session, args.host or "127.0.0.1", args.port or 8080, speed=args.speed or 1.0
-        )
-    except OSError as exc:
-        raise UsageError(f"--port {args.port or 8080}: {exc.strerror or exc}") from None
-    page.on_done = finished.set
+        Session.prepare(**plan)
+    except ValueError as exc:
+        raise UsageError(str(exc).splitlines()[0]) from None
+    participant = args.participant or ("simulated" if args.headless else "anonymous")
+    return plan | {"participant": participant, "corrector": corrector}
+
+
+def _open_session(args: argparse.Namespace, log, plan: dict | None):
+    from corrections_sim.interact.session import Session
+
+    if args.resume is not None:
+        return Session.resume(log, args.resume)
+    return Session.start(log=log, **plan)
+
+
+def _run_headless(args: argparse.Namespace, session, simulate, db: Path) -> list[Path]:
+    s = session.settings.study
+    count = args.iterations or s.iterations
+    rows = simulate(session, s.user, s.theta_star, count)
+    session.finish()
+    session.log.close()
     print(
-        f"session {session.id} ({session.learner}, "
-        f"participant {log.session(session.id).participant}): "
-        f"open http://{args.host or '127.0.0.1'}:{server.get_port()} ; resume later with "
-        f"--resume {session.id} --db {db}",
+        f"session {session.id}: {len(rows)} corrections by the simulated {s.user_name} "
+        f"user; θ̂ = {np.round(session.belief.theta, 4).tolist()}",
         file=sys.stderr,
-        flush=True,
     )
+    return [db]
+
+
+def _serve_session(args, server, session, log, db: Path, speed: float) -> list[Path]:
+    """The page of ``session`` on ``server`` until "Done" and its tab closing (at most
+    :data:`AFTER_DONE` s later), or an interrupt."""
+    from corrections_sim.interact.server import show, stop
+
     try:
-        while not finished.wait(0.5):
+        page = show(server, session, speed=speed)
+        url = f"http://{_host(args)}:{server.get_port()}"
+        resume = f"--resume {session.id} --db {db}"
+        how = f"physical at speed {speed:g}" if session.physical else "drag"
+        print(
+            f"session {session.id} ({session.learner}, {how}, "
+            f"participant {log.session(session.id).participant}): open {url} ; "
+            f"resume later with {resume}",
+            file=sys.stderr,
+            flush=True,
+        )
+        while not page.finished.wait(0.5):
             pass
+        print(
+            f"session {session.id}: done; the page shows the deployment until its tab closes "
+            f"(the server stops then, or in {AFTER_DONE / 60:.0f} min; Ctrl-C stops it now)",
+            file=sys.stderr,
+            flush=True,
+        )
+        waited = 0.0
+        while waited < AFTER_DONE and not page.left.wait(0.5):
+            waited += 0.5
     finally:
-        server.stop()
+        stop(server)
         log.close()
     return [db]
 
@@ -673,7 +793,23 @@ def command_help(command: str) -> str:
         if action.dest == "figure":
             action.help = f"{command} (python -m corrections_sim.run --help lists every command)"
             action.choices = [command]
+        elif (command, action.dest) in _COMMAND_HELP:
+            action.help = _COMMAND_HELP[command, action.dest]
     return p.format_help()
+
+
+#: An option's help where one command reads it otherwise than the others do.
+_COMMAND_HELP = {
+    ("replay", "study_file"): "the study log to replay (the SQLite database interact wrote)",
+    ("replay", "set"): "change a replayed learner's parameter, learners.NAME.KEY=VALUE, e.g. "
+    "learners.KF-C.model=physical (repeatable; any other key is refused)",
+    ("interact", "study_file"): "a study file (TOML) whose settings the session runs "
+    "(default: fig. 4's)",
+    ("replay", "learners"): "which learners to replay, any registered ones (default "
+    "PP,KF,KF-C,BP and the session's own); their parameters are the session's",
+    ("interact", "learner"): "who learns (default KF-CL)",
+    ("video", "learner"): "whose run to show (default KF)",
+}
 
 
 def _asks_command_help(given: Sequence[str]) -> str | None:
@@ -696,9 +832,13 @@ def _check_applies(args: argparse.Namespace) -> None:
         if name in ("help", "figure") or name in allowed:
             continue
         if getattr(args, name) not in (None, False):
-            takes = ", ".join("--" + n.replace("_", "-") for n in allowed)
-            label = "FILE" if name == "study_file" else f"--{name.replace('_', '-')}"
-            raise UsageError(f"{label}: does not apply to {args.figure} (it takes {takes})")
+            takes = ", ".join(_label(n) for n in allowed)
+            raise UsageError(f"{_label(name)}: does not apply to {args.figure} (it takes {takes})")
+
+
+def _label(dest: str) -> str:
+    """How the command line spells an option (the positional FILE has no dashes)."""
+    return "FILE" if dest == "study_file" else "--" + dest.replace("_", "-")
 
 
 #: A value that starts with a minus sign but is a number or a list of numbers ("-1,1",
@@ -902,9 +1042,13 @@ def _nothing_kept(args: argparse.Namespace | None) -> str:
     """What an interrupted command leaves, said for that command."""
     command = getattr(args, "figure", None)
     if command == "interact":
+        session = getattr(args, "interact_session", None)
+        if session is None:
+            return "no session was started"
+        db = _db(args)
         return (
-            "every confirmed correction is in the session's log; continue it with "
-            "--resume SESSION (the number printed at the start)"
+            f"every confirmed correction is in the session's log; continue it with "
+            f"--resume {session} --db {db}"
         )
     if command in ("scene", "video", "replay"):
         return f"{command} wrote nothing; run it again"

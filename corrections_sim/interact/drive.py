@@ -12,12 +12,19 @@ from __future__ import annotations
 import os
 import re
 import shutil
+import threading
 import time
 from collections.abc import Callable
 
 import numpy as np
 
-from corrections_sim.interact.page import HANDLE_SCALE, project
+from corrections_sim.interact.page import (
+    CAMERA_FOV,
+    CAMERA_LOOK_AT,
+    CAMERA_POSITION,
+    HANDLE_SCALE,
+    project,
+)
 
 #: chromium's flags for a machine without a GPU or a user namespace sandbox.
 LAUNCH_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage"]
@@ -98,6 +105,37 @@ def push_cup(tab, cup, pixels_up: float, *, steps: int = 12, hold: float = 0.5) 
     tab.mouse.up()
 
 
+def reach_and_grab(
+    tab, point, *, reach: float = 0.3, pull: float = 12.0, hold: float = 0.1
+) -> tuple[float, float]:
+    """As a hand does it: move the pointer from where it is to the screen point of world
+    ``point`` (3,) in ``reach`` seconds, press, pull ``pull`` pixels up (a press becomes a
+    grab only once it moves), hold ``hold`` s, let go. Returns the pixel pressed."""
+    box = tab.locator("canvas").first.bounding_box()
+    x, y = project(point, box["width"], box["height"])
+    target = (box["x"] + x, box["y"] + y)
+    start = getattr(tab, "_pointer", (box["x"] + box["width"] / 2, box["y"] + box["height"] / 2))
+    steps = 10
+    began = time.monotonic()
+    for i in range(1, steps + 1):
+        f = i / steps
+        tab.mouse.move(start[0] + f * (target[0] - start[0]), start[1] + f * (target[1] - start[1]))
+        time.sleep(max(0.0, began + reach * f - time.monotonic()))
+    tab.mouse.down()
+    for i in range(1, 4):
+        tab.mouse.move(target[0], target[1] - pull * i / 3)
+    time.sleep(hold)
+    tab.mouse.up()
+    tab._pointer = (target[0], target[1] - pull)
+    return target
+
+
+def handle_arrow(position) -> np.ndarray:
+    """The point a person aims at to grab the handle at ``position`` (3,): its vertical
+    arrow, 0.7 of the way up."""
+    return np.asarray(position, float) + 0.7 * HANDLE_SCALE * np.eye(3)[2]
+
+
 def cup_position(tab) -> tuple[int, np.ndarray] | None:
     """(waypoint, cup centre (3,)) as the page states them, or None before it does."""
     match = _CUP.search(tab.locator("body").inner_text())
@@ -174,3 +212,54 @@ def set_number(tab, index: int, value: float) -> None:
     box = tab.locator("input.mantine-NumberInput-input").nth(index)
     box.fill(f"{value}")
     box.press("Enter")
+
+
+class SocketTab:
+    """A tab without a browser: a websocket that speaks just enough of viser's protocol (the
+    viewer's camera, which is when viser counts a client as connected) and drains whatever
+    the server sends. The page is built for it on the server as for a browser's tab, so the
+    tests of the server's state run without software WebGL. A context manager; closing it is
+    a tab closing."""
+
+    def __init__(self, url: str) -> None:
+        import msgspec
+        import viser
+        import websockets.sync.client as ws
+
+        self.socket = ws.connect(
+            url.replace("http://", "ws://"), subprotocols=[f"viser-v{viser.__version__}"]
+        )
+        camera = {
+            "type": "ViewerCameraMessage",
+            "wxyz": [1.0, 0.0, 0.0, 0.0],
+            "position": [float(v) for v in CAMERA_POSITION],
+            "fov": CAMERA_FOV,
+            "near": 0.01,
+            "far": 100.0,
+            "image_height": VIEWPORT["height"],
+            "image_width": VIEWPORT["width"],
+            "look_at": [float(v) for v in CAMERA_LOOK_AT],
+            "up_direction": [0.0, 0.0, 1.0],
+        }
+        self.socket.send(msgspec.msgpack.encode(camera))
+        self.received = 0
+        self._reader = threading.Thread(target=self._drain, name="tab", daemon=True)
+        self._reader.start()
+
+    def _drain(self) -> None:
+        try:
+            while True:
+                self.socket.recv()
+                self.received += 1
+        except Exception:  # closed, by either side: the tab is gone
+            return
+
+    def close(self) -> None:
+        self.socket.close()
+        self._reader.join(timeout=10)
+
+    def __enter__(self) -> SocketTab:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -10,6 +10,14 @@ the same time is told the server is busy (a user study has one participant per s
 experimenter starts another server, with another port, for a second one). When the owner's tab
 closes, the next tab to connect takes the session over where it stands (a reload loses
 nothing).
+
+Every control is safe at every moment. A control is enabled only where its action can be
+taken (:meth:`Page._refresh`), and the page says why the others are not; the server checks
+again when a click arrives, since a click can cross the message that disabled its button. One
+action runs at a time: a click that arrives while another is being worked on (the learner's
+update, the next plan, the deployment) is dropped and the page says so, rather than queued to
+act on a plan the person no longer sees. After "Done" the page shows the deployment until its
+tab closes (:attr:`Page.finished`, :attr:`Page.left`); a reload shows it again.
 """
 
 from __future__ import annotations
@@ -17,11 +25,12 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
 from corrections_sim.interact.meshes import Poser, pieces
-from corrections_sim.interact.session import Refused, Session
+from corrections_sim.interact.session import Deployment, Refused, Session
 from corrections_sim.scene.robot import cup_pose
 from corrections_sim.scene.world import interpolate
 
@@ -133,15 +142,27 @@ class Page:
         self.session = session
         self.on_done = on_done
         self.owner = None
+        self.client = None
         self._lock = threading.RLock()
+        # Held while an action runs; a click that finds it taken is dropped (see the module).
+        self._action = threading.Lock()
         self.poser = Poser()
+        self.proposal = None
         self.corrected: np.ndarray | None = None
         self.drag_info: dict = {}
         self.stated: np.ndarray | None = None
         self.submitted = 0  # corrections submitted through this page (tests wait on it)
         self.drags = 0  # drags handled, accepted or refused
+        self.dropped = 0  # clicks dropped because another action was running
         self.last_submit = (float("nan"), float("nan"))
         self.last_message = ""
+        self.deployment: Deployment | None = None
+        self.ended_text = ""
+        #: Set when "Done" has ended the session and the page shows the deployment.
+        self.finished = threading.Event()
+        #: Set when the tab that showed the end has closed (the server may stop then).
+        self.left = threading.Event()
+        self._busy = ""  # what the running action is doing, for the page ("" when idle)
         self._playing = False
         server.initial_camera.position = CAMERA_POSITION
         server.initial_camera.look_at = CAMERA_LOOK_AT
@@ -162,7 +183,8 @@ class Page:
                 return
             self.owner = client
         try:
-            self._build(client)
+            with self._lock:
+                self._build(client)
         except Exception:
             with self._lock:
                 self.owner = None
@@ -172,7 +194,14 @@ class Page:
         with self._lock:
             if self.owner is not None and client.client_id == self.owner.client_id:
                 self.owner = None
+                self.client = None
                 self.corrected = None
+                self._let_go()
+                if self.session.ended:
+                    self.left.set()
+
+    def _let_go(self) -> None:
+        """The person's hand leaves the page (a physical page lets go of the cup)."""
 
     # --- building the page -----------------------------------------------------------------
 
@@ -191,27 +220,30 @@ class Page:
                 gui.add_slider(name, min=-2.0, max=2.0, step=0.1, initial_value=0.0)
                 for name in features
             ]
-            self.state_button = gui.add_button("State my preference")
+            self.state_button = gui.add_button("State my preference", disabled=True)
         n = s.n_waypoints
         self.waypoint = gui.add_slider(
             "Waypoint to move", min=1, max=n - 2, step=1, initial_value=(n - 1) // 2
         )
-        self.play = gui.add_button("Play the plan")
+        # Disabled until the first plan is on the page (its solve may take seconds).
+        self.play = gui.add_button("Play the plan", disabled=True)
         self.submit_button = gui.add_button("Submit correction", disabled=True)
-        self.reset_button = gui.add_button("Reset the drag")
-        self.skip_button = gui.add_button("Skip this environment")
-        self.done_button = gui.add_button("Done: deploy")
+        self.reset_button = gui.add_button("Reset the drag", disabled=True)
+        self.skip_button = gui.add_button("Skip this environment", disabled=True)
+        self.done_button = gui.add_button("Done: deploy", disabled=True)
         self._add_belief_panel(gui)
 
-        self.state_button.on_click(lambda _: self._state())
+        self.state_button.on_click(self._act(self.state_button, self._state))
         self.waypoint.on_update(lambda _: self._show_waypoint())
         self.play.on_click(lambda _: self._play())
-        self.submit_button.on_click(lambda _: self._submit())
-        self.reset_button.on_click(lambda _: self._reset(log=True))
-        self.skip_button.on_click(lambda _: self._skip())
-        self.done_button.on_click(lambda _: self._done())
-        if s.iteration > 0:
-            self.state_button.disabled = True
+        self.submit_button.on_click(self._act(self.submit_button, self._submit, "learning"))
+        self.reset_button.on_click(self._act(self.reset_button, lambda: self._reset(log=True)))
+        self.skip_button.on_click(self._act(self.skip_button, self._skip, "planning"))
+        self.done_button.on_click(self._act(self.done_button, self._done, "deploying"))
+        if self.session.ended:
+            self._show_end()
+            return
+        self._say("Planning the robot's path…")
         self._new_proposal()
 
     def _add_meshes(self, scene) -> None:
@@ -237,13 +269,17 @@ class Page:
 
     def _say(self, text: str) -> None:
         self.last_message = text
-        self.status.content = text
+        if self.client is not None:
+            self.status.content = text
 
     def _pose_arm(self, q: np.ndarray, *, moving_only: bool = False) -> None:
         """Every piece at its pose for the arm at ``q`` (7,); with ``moving_only`` only the
         arm's and the cup's (the props stay where the environment put them)."""
+        client = self.client
+        if client is None:
+            return
         env = self.proposal.env
-        with self.client.atomic():
+        with client.atomic():
             for geom, (position, wxyz) in self.poser.poses(q, env).items():
                 if moving_only and geom not in self._moving:
                     continue
@@ -251,13 +287,71 @@ class Page:
                 handle.position = position
                 handle.wxyz = wxyz
 
+    # --- which controls work now -----------------------------------------------------------
+
+    def _controls(self) -> list[tuple]:
+        """Each control of the page with whether it works now (not ended, not busy, a plan
+        on the page, and its own condition)."""
+        s = self.session
+        ready = self.proposal is not None and not s.ended and not self._busy
+        first = ready and s.iteration == 0 and self.stated is None
+        return [
+            (self.state_button, first),
+            *((slider, first) for slider in self.sliders),
+            (self.waypoint, ready),
+            (self.play, ready),
+            (self.submit_button, ready and self.corrected is not None),
+            (self.reset_button, ready and self.corrected is not None),
+            (self.skip_button, ready),
+            (self.done_button, ready),
+        ]
+
+    def _refresh(self) -> None:
+        """Enable what works now, disable the rest (see :meth:`_controls`)."""
+        if self.client is None:
+            return
+        for control, works in self._controls():
+            control.disabled = not works
+
+    def _act(self, button, action: Callable[[], None], doing: str = "") -> Callable:
+        """A click handler for ``button`` that runs ``action`` only when nothing else runs
+        and the button was enabled when the click arrived; while it runs (``doing``: what the
+        page says it is doing) every control is disabled."""
+
+        def on_click(_event) -> None:
+            if not self._action.acquire(blocking=False):
+                self.dropped += 1
+                self._say(f"**Busy** {self._busy or 'working'}: that click was not taken.")
+                return
+            try:
+                with self._lock:
+                    if button.disabled or self.session.ended or self.client is None:
+                        return  # pressed before the page showed it disabled
+                    self._busy = doing
+                    if doing:
+                        self._refresh()
+                    try:
+                        action()
+                    finally:
+                        self._busy = ""
+                        self._refresh()
+            finally:
+                self._action.release()
+
+        return on_click
+
+    # --- the plan on the page --------------------------------------------------------------
+
     def _new_proposal(self) -> None:
         s = self.session
         self.proposal = s.proposal()
         self.corrected = None
         self.drag_info = {}
         plan = self.proposal.plan.trajectory
-        scene = self.client.scene
+        client = self.client
+        if client is None:
+            return  # the tab closed: the next one draws it
+        scene = client.scene
         path = cup_path(plan)
         scene.add_spline_catmull_rom(
             "/plan/path", path, thickness=3.0, thickness_units="screen", color=PLAN_RGB
@@ -272,7 +366,6 @@ class Page:
         for name in ("/correction/path", "/deploy/plain", "/deploy/averse"):
             scene.add_spline_catmull_rom(name, path[:2], color=CORRECTION_RGB, visible=False)
         self._make_handle()
-        self.submit_button.disabled = True
         k = s.iteration
         self.title.content = (
             f"### Correction {k + 1}: environment {self.proposal.env.name}\n"
@@ -280,6 +373,7 @@ class Page:
             "Drag the arrows on the cup to move it at the chosen waypoint, then submit."
         )
         self._show_belief()
+        self._refresh()
         self._say("The robot's plan is the blue path. Move the cup where you want it.")
 
     def _make_handle(self) -> None:
@@ -298,9 +392,12 @@ class Page:
 
     def _show_waypoint(self) -> None:
         with self._lock:
+            if self.proposal is None or self.session.ended or self.client is None:
+                return
             if self.corrected is not None:
                 self._reset(log=True)
             self._make_handle()
+            self._refresh()
 
     def _show_belief(self) -> None:
         s = self.session
@@ -324,139 +421,205 @@ class Page:
                 + "; I learnt from it in proportion."
             )
         self.belief_text.content = (
-            f"After **{s.iteration}** corrections:\n\n| feature | θ̂ | σ |\n|---|---|---|\n{rows}"
-            + relevance
+            f"After **{s.iteration}** {plural(s.iteration, 'correction')}:\n\n"
+            f"| feature | θ̂ | σ |\n|---|---|---|\n{rows}" + relevance
         )
 
     # --- actions ---------------------------------------------------------------------------
 
     def _state(self) -> None:
-        with self._lock:
-            theta = np.array([s.value for s in self.sliders], float)
-            try:
-                self.stated = self.session.state(theta)
-            except Refused as exc:
-                self._say(f"**Refused**: {exc}")
-                return
-            self.state_button.disabled = True
-            self._show_belief()
-            self._say(f"Stated preference θ = {np.round(theta, 2).tolist()} recorded.")
+        theta = np.array([s.value for s in self.sliders], float)
+        try:
+            self.stated = self.session.state(theta)
+        except Refused as exc:
+            self._say(f"**Refused**: {exc}")
+            return
+        self._show_belief()
+        self._say(f"Stated preference θ = {np.round(theta, 2).tolist()} recorded.")
 
     def _dragged(self) -> None:
-        with self._lock:
-            i = int(self.waypoint.value)
-            position = np.array(self.handle.position, float)
-            try:
-                corrected = self.session.drag(i, position)
-            except Refused as exc:
-                self.corrected = None
-                self.submit_button.disabled = True
-                self._make_handle()  # back where it was
-                self._say(f"**Refused**: {exc}. Nothing was recorded; try another position.")
-                self.drags += 1
-                return
-            self.corrected = corrected
-            self.drag_info = {"waypoint": i, "handle": position.tolist()}
-            self.client.scene.add_spline_catmull_rom(
-                "/correction/path",
-                cup_path(corrected),
-                thickness=3.0,
-                thickness_units="screen",
-                color=CORRECTION_RGB,
-            )
-            self._pose_arm(corrected[i])
-            self.submit_button.disabled = False
-            self.where.content = (
-                f"Cup at waypoint {i} moved to: ({position[0]:.3f}, {position[1]:.3f}, "
-                f"{position[2]:.3f}) m"
-            )
-            self._say("Your correction is the orange path. Submit it, or drag again.")
+        if not self._action.acquire(blocking=False):
+            # The robot is working on the last click: this drag was made on a page that is
+            # about to change; put the handle back rather than take it.
+            with self._lock:
+                self.dropped += 1
+                if self.client is not None and self.proposal is not None:
+                    self._make_handle()
+                self._say(f"**Busy** {self._busy or 'working'}: drag again when it is done.")
+            return
+        try:
+            with self._lock:
+                if self.session.ended or self.client is None or self.proposal is None:
+                    return
+                self._take_drag()
+        finally:
+            self._action.release()
+
+    def _take_drag(self) -> None:
+        i = int(self.waypoint.value)
+        position = np.array(self.handle.position, float)
+        try:
+            corrected = self.session.drag(i, position)
+        except Refused as exc:
+            self.corrected = None
+            self._make_handle()  # back where it was
+            self._refresh()
+            self._say(f"**Refused**: {exc}. Nothing was recorded; try another position.")
             self.drags += 1
+            return
+        self.corrected = corrected
+        self.drag_info = {"waypoint": i, "handle": position.tolist()}
+        self.client.scene.add_spline_catmull_rom(
+            "/correction/path",
+            cup_path(corrected),
+            thickness=3.0,
+            thickness_units="screen",
+            color=CORRECTION_RGB,
+        )
+        self._pose_arm(corrected[i])
+        self._refresh()
+        self.where.content = (
+            f"Cup at waypoint {i} moved to: ({position[0]:.3f}, {position[1]:.3f}, "
+            f"{position[2]:.3f}) m"
+        )
+        self._say("Your correction is the orange path. Submit it, or drag again.")
+        self.drags += 1
 
     def _reset(self, *, log: bool) -> None:
-        with self._lock:
-            if log and self.corrected is not None:
-                self.session.undo()
-            self.corrected = None
-            self.submit_button.disabled = True
-            self.client.scene.add_spline_catmull_rom(
-                "/correction/path", np.zeros((2, 3)), visible=False
-            )
-            self._make_handle()
+        if log and self.corrected is not None:
+            self.session.undo()
+        self.corrected = None
+        self.client.scene.add_spline_catmull_rom(
+            "/correction/path", np.zeros((2, 3)), visible=False
+        )
+        self._make_handle()
+        self._refresh()
 
     def _submit(self) -> None:
-        with self._lock:
-            if self.corrected is None:
-                self._say("Drag the cup first.")
-                return
-            t0 = time.perf_counter()
-            self.submit_button.disabled = True
-            self.state_button.disabled = True
-            try:
-                row = self.session.submit(self.corrected, drag=self.drag_info)
-            except Refused as exc:
-                self._say(f"**Refused**: {exc}")
-                return
-            self._new_proposal()
-            # perf_counter() when the click arrived and when the next plan was sent.
-            self.last_submit = (t0, time.perf_counter())
-            self.submitted += 1
-            skipped = f" (update skipped: {row['update_skipped']})" if row["update_skipped"] else ""
-            self._say(
-                f"Correction {row['iteration'] + 1} recorded{skipped}{relevance_note(row)}; "
-                f"next plan in {time.perf_counter() - t0:.2f} s."
-            )
+        if self.corrected is None:
+            self._say("Drag the cup first.")
+            return
+        t0 = time.perf_counter()
+        self._say("Learning from your correction…")
+        try:
+            row = self.session.submit(self.corrected, drag=self.drag_info)
+        except Refused as exc:
+            self._say(f"**Refused**: {exc}")
+            return
+        self.corrected = None
+        self._busy = "planning"
+        self._new_proposal()
+        # perf_counter() when the click arrived and when the next plan was sent.
+        self.last_submit = (t0, time.perf_counter())
+        self.submitted += 1
+        skipped = f" (update skipped: {row['update_skipped']})" if row["update_skipped"] else ""
+        self._say(
+            f"Correction {row['iteration'] + 1} recorded{skipped}{relevance_note(row)}; "
+            f"next plan in {time.perf_counter() - t0:.2f} s."
+        )
 
     def _skip(self) -> None:
-        with self._lock:
-            self.session.skip()
-            self._new_proposal()
+        if self.corrected is not None:
+            self.session.undo()
+        self._say("Skipped; planning in the next environment…")
+        self.session.skip()
+        self._new_proposal()
 
     def _play(self) -> None:
+        """Animate the plan (nothing is logged or learnt); the arm ends where the page had it."""
         with self._lock:
-            if self._playing:
+            if self._playing or self.proposal is None or self.play.disabled:
                 return
             self._playing = True
+            proposal = self.proposal
         try:
-            for q in interpolate(self.proposal.plan.trajectory, 6):
+            for q in interpolate(proposal.plan.trajectory, 6):
+                if self.proposal is not proposal or self.client is None or self.session.ended:
+                    return  # a new plan, or the end, is on the page: it shows itself
                 self._pose_arm(q)
                 time.sleep(0.05)
-            self._pose_arm(self.proposal.plan.trajectory[int(self.waypoint.value)])
+            with self._lock:
+                if self.proposal is proposal and self.client is not None and not self.session.ended:
+                    i = int(self.waypoint.value)
+                    shown = proposal.plan.trajectory if self.corrected is None else self.corrected
+                    self._pose_arm(shown[i])
         finally:
             self._playing = False
 
     def _done(self) -> None:
-        with self._lock:
-            s = self.session
-            deployment = s.finish()
-            for button in (self.submit_button, self.skip_button, self.done_button):
-                button.disabled = True
-            self.handle.visible = False
-            scene = self.client.scene
-            scene.add_spline_catmull_rom("/correction/path", np.zeros((2, 3)), visible=False)
-            if deployment is None:
-                self._say("Session ended.")
-            else:
-                scene.add_spline_catmull_rom(
-                    "/deploy/averse",
-                    cup_path(deployment.averse.trajectory),
-                    thickness=3.0,
-                    thickness_units="screen",
-                    color=AVERSE_RGB,
-                )
-                f = s.features
-                plain = ", ".join(
-                    f"{n} {v:.2f}" for n, v in zip(f, deployment.plain.features, strict=True)
-                )
-                averse = ", ".join(
-                    f"{n} {v:.2f}" for n, v in zip(f, deployment.averse.features, strict=True)
-                )
-                self._say(
-                    "Session ended. Deployed in "
-                    f"{deployment.env.name}: blue, the plain plan ξ*(θ̂) (Φ: {plain}); green, "
-                    "the risk-averse plan of eq. (A4), "
-                    f"γ = {np.round(deployment.gamma, 2).tolist()} "
-                    f"(Φ: {averse})."
-                )
+        """End the session: the deployment is planned, logged and shown; the page stays."""
+        s = self.session
+        self._say("Ending the session: planning the deployment…")
+        if self.corrected is not None:
+            s.undo()
+            self.corrected = None
+        self.deployment = s.finish()
+        self.ended_text = self._ended_text(self.deployment)
+        self._show_end()
+        self.finished.set()
         if self.on_done is not None:
             self.on_done()
+
+    def _ended_text(self, deployment: Deployment | None) -> str:
+        s = self.session
+        done = f"Session ended after {s.iteration} {plural(s.iteration, 'correction')}."
+        if deployment is None:
+            why = "no plan to deploy" if s.has_covariance else f"{s.learner} has no covariance"
+            return f"**{done}** Nothing deployed ({why}). You may close this tab."
+        f = s.features
+        plain = ", ".join(f"{n} {v:.2f}" for n, v in zip(f, deployment.plain.features, strict=True))
+        averse = ", ".join(
+            f"{n} {v:.2f}" for n, v in zip(f, deployment.averse.features, strict=True)
+        )
+        return (
+            f"**{done}** Deployed in {deployment.env.name}: blue, the plain plan ξ*(θ̂) "
+            f"(Φ: {plain}); green, the risk-averse plan of eq. (A4), "
+            f"γ = {np.round(deployment.gamma, 2).tolist()} (Φ: {averse}). "
+            "You may close this tab."
+        )
+
+    def _show_end(self) -> None:
+        """The ended session: the deployment drawn, every control disabled, the handle gone."""
+        client = self.client
+        if client is None:
+            return
+        scene = client.scene
+        for control, _ in self._controls():
+            control.disabled = True
+        if getattr(self, "handle", None) is not None:
+            self.handle.visible = False
+        scene.add_spline_catmull_rom("/correction/path", np.zeros((2, 3)), visible=False)
+        deployment = self.deployment
+        if deployment is not None:
+            self.proposal = self.proposal or _Shown(deployment.env)
+            self._pose_arm(deployment.plain.trajectory[0])
+            scene.add_spline_catmull_rom(
+                "/plan/path",
+                cup_path(deployment.plain.trajectory),
+                thickness=3.0,
+                thickness_units="screen",
+                color=PLAN_RGB,
+            )
+            scene.add_spline_catmull_rom(
+                "/deploy/averse",
+                cup_path(deployment.averse.trajectory),
+                thickness=3.0,
+                thickness_units="screen",
+                color=AVERSE_RGB,
+            )
+        self.title.content = f"### Session {self.session.id} has ended"
+        self.where.content = ""
+        self._show_belief()
+        self._say(self.ended_text or "**Session ended.** You may close this tab.")
+
+
+@dataclass(frozen=True)
+class _Shown:
+    """What the page poses the arm in when it has no proposal of its own (a reloaded end)."""
+
+    env: object
+
+
+def plural(n: int, word: str) -> str:
+    """``word`` for ``n`` of them (one correction, two corrections)."""
+    return word if n == 1 else word + "s"

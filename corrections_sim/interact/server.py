@@ -1,18 +1,93 @@
 """The page's server: a viser server showing a session's page, the drag page or, for a
-physical session, the page where the person pushes the moving arm."""
+physical session, the page where the person pushes the moving arm.
+
+The address is checked before anything is written (:func:`check_address`): a host that does
+not resolve within :data:`RESOLVE_TIMEOUT`, an address that is not this machine's, or a port
+in use is refused in one line. viser itself would try the next port, silently (a participant
+told port P then finds nothing there, or someone else's session), and on an address it cannot
+bind would try a thousand ports and never return.
+"""
 
 from __future__ import annotations
+
+import contextlib
+import io
+import socket
+import threading
 
 from corrections_sim.interact.page import Page
 from corrections_sim.interact.physical_page import PhysicalPage
 from corrections_sim.interact.session import Session
 
+#: Seconds a host name may take to resolve (a machine without a name server would otherwise
+#: wait for the resolver's own timeouts, or for ever).
+RESOLVE_TIMEOUT = 3.0
 
-def serve(session: Session, host: str = "127.0.0.1", port: int = 8080, *, speed: float = 1.0):
-    """A viser server on ``host:port`` showing ``session``'s page; (server, page). A physical
-    session's page plays its motions at ``speed`` (simulated seconds per real second).
+
+class AddressError(ValueError):
+    """A host or port the page cannot be served on; the message is one line naming it."""
+
+
+def resolve(host: str, timeout: float = RESOLVE_TIMEOUT) -> str:
+    """The numeric address ``host`` names, found within ``timeout`` seconds.
 
     Raises:
+        AddressError: it does not resolve, or not in time.
+    """
+    if not host.strip():
+        raise AddressError(f"--host {host!r}: does not resolve (an empty name)")
+    found: list = []
+    answered = threading.Event()
+
+    def look_up() -> None:
+        try:
+            found.append(socket.getaddrinfo(host, None, type=socket.SOCK_STREAM))
+        except (OSError, UnicodeError) as exc:
+            found.append(exc)
+        answered.set()
+
+    # A daemon thread: a resolver that hangs is left behind, not waited for.
+    threading.Thread(target=look_up, name="resolve", daemon=True).start()
+    if not answered.wait(timeout):
+        raise AddressError(f"--host {host}: did not resolve within {timeout:.0f} s")
+    if isinstance(found[0], BaseException):
+        reason = getattr(found[0], "strerror", None) or found[0]
+        raise AddressError(f"--host {host}: does not resolve ({reason})")
+    return found[0][0][4][0]
+
+
+def check_address(host: str, port: int) -> str:
+    """The numeric address to serve on, once ``port`` is known to be free there.
+
+    Raises:
+        AddressError: the host does not resolve, is not an address of this machine, or the
+            port is in use (or not ours to take).
+    """
+    address = resolve(host)
+    family = socket.AF_INET6 if ":" in address else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as probe:
+        # As the server will bind it (asyncio sets SO_REUSEADDR on POSIX): a port left in
+        # TIME_WAIT by a server that just stopped is free, one that is listening is not.
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            probe.bind((address, port))
+            probe.listen(1)
+        except OSError as exc:
+            reason = exc.strerror or str(exc)
+            if exc.errno in (98, 48):  # EADDRINUSE on Linux, on macOS
+                reason = "in use (another server, or another session's page?)"
+                raise AddressError(f"--port {port}: {reason}") from None
+            where = f"{address}:{port}"
+            raise AddressError(f"--host {host}: cannot serve on {where} ({reason})") from None
+    return address
+
+
+def open_server(host: str = "127.0.0.1", port: int = 8080):
+    """A viser server on ``host:port``, checked first (see the module); no page on it yet.
+
+    Raises:
+        AddressError: see :func:`check_address`; or the port was taken between the check and
+            the server's start.
         RuntimeError: viser is not installed (``pip install "corrections_sim[interact]"``).
     """
     try:
@@ -21,7 +96,25 @@ def serve(session: Session, host: str = "127.0.0.1", port: int = 8080, *, speed:
         raise RuntimeError(
             'interact needs viser: pip install -e ".[interact]" (or pip install viser==1.1.1)'
         ) from None
-    server = viser.ViserServer(host=host, port=port, verbose=False)
+    address = check_address(host, port)
+    # viser prints a panel of its URLs whatever verbose says; the command line prints its own.
+    with contextlib.redirect_stdout(io.StringIO()):
+        server = viser.ViserServer(host=address, port=port, verbose=False)
+    if server.get_port() != port:  # taken in between: viser moved on to the next one
+        stop(server)
+        raise AddressError(f"--port {port}: in use (taken while the server started)")
+    return server
+
+
+def stop(server) -> None:
+    """Stop ``server`` without viser's "Server stopped" on the standard output."""
+    with contextlib.redirect_stdout(io.StringIO()):
+        server.stop()
+
+
+def show(server, session: Session, *, speed: float = 1.0) -> Page:
+    """``session``'s page on ``server``: a physical session's page plays its motions at
+    ``speed`` (simulated seconds per real second)."""
     server.gui.configure_theme(control_width="large", show_share_button=False)
     server.gui.main_panel.dock_right()
     # No shadow maps: a second render pass per light that people rarely miss in this scene and
@@ -29,8 +122,29 @@ def serve(session: Session, host: str = "127.0.0.1", port: int = 8080, *, speed:
     server.scene.configure_default_lights(enabled=True, cast_shadow=False)
     if session.physical:
         model = session.correction
-        page = PhysicalPage(
+        page: Page = PhysicalPage(
             server, session, speed=speed, stiffness=model.stiffness, force_cap=model.force_cap
         )
-        return server, page
-    return server, Page(server, session)
+    else:
+        page = Page(server, session)
+    # How the session is shown, so that --resume plays a physical session at its speed.
+    mode = "physical" if session.physical else "drag"
+    detail = {"mode": mode, "speed": float(speed), "port": int(server.get_port())}
+    session.log.add_event(session.id, session.iteration, "page", detail)
+    return page
+
+
+def serve(session: Session, host: str = "127.0.0.1", port: int = 8080, *, speed: float = 1.0):
+    """A viser server on ``host:port`` showing ``session``'s page; (server, page). A physical
+    session's page plays its motions at ``speed`` (simulated seconds per real second).
+
+    Raises:
+        AddressError: see :func:`open_server`.
+        RuntimeError: viser is not installed.
+    """
+    server = open_server(host, port)
+    try:
+        return server, show(server, session, speed=speed)
+    except BaseException:
+        stop(server)
+        raise

@@ -159,11 +159,6 @@ class Session:
         planner: Planner | None = None,
     ) -> None:
         cls = LEARNERS[learner]
-        if cls.needs_rates() and agent.fixed_rate() is None:
-            raise ValueError(
-                f"learner {learner}: its rate comes from {agent.rate_source()}'s gains over "
-                f"many runs; give it one for a session (--set learners.{learner}.fixed_alpha=0.1)"
-            )
         self.settings = settings
         self.learner = learner
         self.agent = agent
@@ -213,8 +208,7 @@ class Session:
     ) -> Session:
         """A new session, logged in ``log`` (its row is written first)."""
         check_participant(participant)
-        agent = build_learner(settings, learner, params)
-        model = build_correction(correction)
+        agent, model = cls.prepare(settings, learner, params, correction)
         seed = settings.study.seed if seed is None else int(seed)
         session_id = log.new_session(
             participant=participant,
@@ -227,6 +221,30 @@ class Session:
         )
         log.add_event(session_id, -1, "machine", provenance.machine())
         return cls(settings, learner, agent, model, log, session_id, seed, planner=planner)
+
+    @staticmethod
+    def prepare(
+        settings: FigureSettings,
+        learner: str,
+        params: Mapping | None = None,
+        correction: str | Mapping = "waypoint",
+    ) -> tuple[Learner, CorrectionModel]:
+        """The learner and the correction model a session of ``settings`` would run, checked
+        as :meth:`start` checks them, with nothing written.
+
+        Raises:
+            ValueError: an unknown learner or model, bad parameters, or a PP-type learner
+                without a fixed rate.
+        """
+        agent = build_learner(settings, learner, params)
+        model = build_correction(correction)
+        if LEARNERS[learner].needs_rates() and agent.fixed_rate() is None:
+            raise ValueError(
+                f"learner {learner}: its rate comes from {agent.rate_source()}'s gains over "
+                f"many runs; give it one for a session (--set learners.{learner}.fixed_alpha=0.1)"
+            )
+        model.check(settings.planner_config().n_waypoints)
+        return agent, model
 
     @classmethod
     def resume(cls, log: StudyLog, session_id: int, *, planner: Planner | None = None) -> Session:

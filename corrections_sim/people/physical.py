@@ -373,6 +373,15 @@ class PushedMotion:
                 return True
         return False
 
+    def hold_to_the_end(self) -> bool:
+        """The motion is over and the push is not (the person still holds the cup): the end is
+        its release. True when that gives a push to learn from (one was felt and not yet
+        found over); call it once :attr:`done`."""
+        if self.released is not None or not self.pushed:
+            return False
+        self.released = self.sim.time
+        return True
+
     def look_starts(self):
         """The times the looks still to come start at, s, to the end of the motion (the
         simulation's own clock arithmetic, so that a caller can count the looks before a
