@@ -42,6 +42,18 @@ iterations = 3
 """
 
 
+def physical_session(log: StudyLog, participant: str) -> Session:
+    """A session of STUDY in which the person pushes the moving arm, learnt by KF-C told so."""
+    return Session.start(
+        parse_study(STUDY, name="t"),
+        log,
+        learner="KF-C",
+        params={"model": "physical"},
+        correction="physical",
+        participant=participant,
+    )
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -186,14 +198,7 @@ def test_killing_the_server_loses_no_confirmed_correction(playwright_browser, tm
 def served_physical(tmp_path_factory):
     folder = tmp_path_factory.mktemp("physical")
     log = StudyLog(folder / "study.sqlite")
-    session = Session.start(
-        parse_study(STUDY, name="t"),
-        log,
-        learner="KF-C",
-        params={"model": "physical"},
-        correction="physical",
-        participant="t-push",
-    )
+    session = physical_session(log, "t-push")
     server, page = serve(session, port=_free_port(), speed=0.25)
     yield session, page, f"http://127.0.0.1:{server.get_port()}", folder
     server.stop()
@@ -305,14 +310,7 @@ def test_a_hand_catches_the_moving_handle_holds_past_the_end_and_done_waits(
     it at a hand's pace (0.3 s) catches it in at least 9 of 10 tries; a hand that holds on
     past the end of the motion has pushed; Done at rest shows the deployment."""
     log = StudyLog(tmp_path / "study.sqlite")
-    session = Session.start(
-        parse_study(STUDY, name="t"),
-        log,
-        learner="KF-C",
-        params={"model": "physical"},
-        correction="physical",
-        participant="hand",
-    )
+    session = physical_session(log, "hand")
     server, page = serve(session, port=_free_port())
     url = f"http://127.0.0.1:{server.get_port()}"
     tab = drive.open_page(playwright_browser, url, physical=True)

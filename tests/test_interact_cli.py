@@ -11,8 +11,8 @@ import time
 from pathlib import Path
 
 import pytest
+from test_cli_input import _main, _one_line
 
-from corrections_sim.cli import main as cli
 from corrections_sim.interact.log import StudyLog
 
 STUDY_TOML = """environments = ["s0-t0-l1", "s0-t0-l2", "s1-t1-l0", "s2-t0-l1"]
@@ -20,19 +20,6 @@ theta_star = [1.0, -1.0]
 learners = ["KF-C"]
 seed = 3
 """
-
-
-def _main(argv: list[str]) -> int:
-    try:
-        return cli.main(argv)
-    except SystemExit as exc:
-        return int(exc.code)
-
-
-def _one_line(err: str, *names: str) -> None:
-    assert err.count("\n") == 1 and err.startswith("error: "), err
-    for name in names:
-        assert name in err, err
 
 
 def _free_port() -> int:
@@ -151,7 +138,7 @@ def _stop(process: subprocess.Popen) -> str:
     return err
 
 
-def test_a_resumed_physical_session_keeps_its_speed_and_sigterm_names_the_session(tmp_path):
+def test_a_resumed_physical_session_keeps_its_speed_and_sigterm_names_the_session(tmp_path, capsys):
     study = tmp_path / "small.toml"
     study.write_text(STUDY_TOML)
     db = tmp_path / "study.sqlite"
@@ -160,6 +147,10 @@ def test_a_resumed_physical_session_keeps_its_speed_and_sigterm_names_the_sessio
     process, line = _serve([*argv, "--port", str(port)])
     try:
         assert "physical at speed 0.5" in line and "--resume 1" in line
+        # A second server on the same session would interleave two people's corrections.
+        assert _main(["interact", "--resume", "1", "--db", str(db)]) == 2
+        err = capsys.readouterr().err
+        _one_line(err, "--resume 1", f"still served by process {process.pid}")
         err = _stop(process)
     finally:
         process.kill()

@@ -7,31 +7,17 @@ browser shows (the page after Done, a hand's grab of the moving handle) is in
 from __future__ import annotations
 
 import asyncio
-import socket
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from test_interact_browser import STUDY, _free_port, physical_session
 
 from corrections_sim.interact import drive
 from corrections_sim.interact.log import StudyLog
 from corrections_sim.interact.server import serve
 from corrections_sim.interact.session import Session
 from corrections_sim.study.schema import parse_study
-
-STUDY = {
-    "environments": ["s0-t0-l1", "s0-t0-l2", "s1-t1-l0", "s2-t0-l1"],
-    "theta_star": [1.0, -1.0],
-    "learners": ["KF-C"],
-    "seed": 3,
-    "iterations": 3,
-}
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture
@@ -41,10 +27,10 @@ def served(tmp_path):
 
     def make(*, physical: bool = False, speed: float = 1.0):
         log = StudyLog(tmp_path / f"s{len(made)}.sqlite")
-        kwargs = {"params": {"model": "physical"}, "correction": "physical"} if physical else {}
-        session = Session.start(
-            parse_study(STUDY, name="t"), log, learner="KF-C", participant="p", **kwargs
-        )
+        if physical:
+            session = physical_session(log, "p")
+        else:
+            session = Session.start(parse_study(STUDY, name="t"), log, learner="KF-C")
         server, page = serve(session, port=_free_port(), speed=speed)
         made.append((server, log))
         return session, page, f"http://127.0.0.1:{server.get_port()}"

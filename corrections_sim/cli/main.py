@@ -497,7 +497,7 @@ def _check_interact_options(args: argparse.Namespace) -> None:
                 ("--theta0", args.theta0),
                 ("--cov0", args.cov0),
             )
-            if value
+            if value not in (None, False)
         ]
         if given:
             raise UsageError(
@@ -508,14 +508,21 @@ def _check_interact_options(args: argparse.Namespace) -> None:
         if not db.is_file():
             raise UsageError(f"--db {db}: no such file; --resume reads the session's log")
         from corrections_sim.interact.log import LogError, StudyLog
+        from corrections_sim.interact.server import serving
 
         try:
             with StudyLog(db) as log:
                 row = log.session(args.resume)
+                pid = serving(log, args.resume)
         except LogError as exc:
-            raise UsageError(str(exc)) from None
+            raise UsageError(f"--db {db}: {exc}") from None
         if row.ended is not None:
             raise UsageError(f"--resume {args.resume}: the session ended at {row.ended}")
+        if pid is not None:
+            raise UsageError(
+                f"--resume {args.resume}: its page is still served by process {pid} on this "
+                "machine; stop that one first (Ctrl-C), or open its page"
+            )
         return
     physical = args.mode == "physical"
     if physical and args.drag_model:

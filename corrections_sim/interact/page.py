@@ -83,6 +83,13 @@ def project(
     return float(x), float(y)
 
 
+def draw_path(scene, name: str, trajectory: np.ndarray, rgb) -> None:
+    """The cup's path along ``trajectory`` (T, 7) as a line ``name`` in colour ``rgb``."""
+    scene.add_spline_catmull_rom(
+        name, cup_path(trajectory), thickness=3.0, thickness_units="screen", color=rgb
+    )
+
+
 def render_belief(theta: np.ndarray, cov: np.ndarray | None, features, stated=None) -> np.ndarray:
     """θ̂ with its uncertainty: the 1σ and 2σ ellipses for k = 2, bars with ±σ otherwise; an
     RGB image (H, W, 3) straight from the canvas (no PNG in between: the page encodes it)."""
@@ -210,9 +217,7 @@ class Page:
         self.client = client
         scene, gui = client.scene, client.gui
         self._add_meshes(scene)
-        self.title = gui.add_markdown("")
-        self.status = gui.add_markdown("")
-        self.where = gui.add_markdown("")
+        self._add_texts(gui)
         features = s.features
         with gui.add_folder("Your preference (before the first correction)"):
             gui.add_markdown("How much do you want the cup near each thing? −2 far … +2 near.")
@@ -240,6 +245,16 @@ class Page:
         self.reset_button.on_click(self._act(self.reset_button, lambda: self._reset(log=True)))
         self.skip_button.on_click(self._act(self.skip_button, self._skip, "planning"))
         self.done_button.on_click(self._act(self.done_button, self._done, "deploying"))
+        self._first_view()
+
+    def _add_texts(self, gui) -> None:
+        """The title, the status line and the line that says where the cup is."""
+        self.title = gui.add_markdown("")
+        self.status = gui.add_markdown("")
+        self.where = gui.add_markdown("")
+
+    def _first_view(self) -> None:
+        """What a tab that connects sees first: the end, or the plan (once it is solved)."""
         if self.session.ended:
             self._show_end()
             return
@@ -469,13 +484,7 @@ class Page:
             return
         self.corrected = corrected
         self.drag_info = {"waypoint": i, "handle": position.tolist()}
-        self.client.scene.add_spline_catmull_rom(
-            "/correction/path",
-            cup_path(corrected),
-            thickness=3.0,
-            thickness_units="screen",
-            color=CORRECTION_RGB,
-        )
+        draw_path(self.client.scene, "/correction/path", corrected, CORRECTION_RGB)
         self._pose_arm(corrected[i])
         self._refresh()
         self.where.content = (
@@ -567,14 +576,14 @@ class Page:
             why = "no plan to deploy" if s.has_covariance else f"{s.learner} has no covariance"
             return f"**{done}** Nothing deployed ({why}). You may close this tab."
         f = s.features
-        plain = ", ".join(f"{n} {v:.2f}" for n, v in zip(f, deployment.plain.features, strict=True))
-        averse = ", ".join(
-            f"{n} {v:.2f}" for n, v in zip(f, deployment.averse.features, strict=True)
-        )
+
+        def phi(plan) -> str:
+            return ", ".join(f"{n} {v:.2f}" for n, v in zip(f, plan.features, strict=True))
+
         return (
             f"**{done}** Deployed in {deployment.env.name}: blue, the plain plan ξ*(θ̂) "
-            f"(Φ: {plain}); green, the risk-averse plan of eq. (A4), "
-            f"γ = {np.round(deployment.gamma, 2).tolist()} (Φ: {averse}). "
+            f"(Φ: {phi(deployment.plain)}); green, the risk-averse plan of eq. (A4), "
+            f"γ = {np.round(deployment.gamma, 2).tolist()} (Φ: {phi(deployment.averse)}). "
             "You may close this tab."
         )
 
@@ -593,20 +602,8 @@ class Page:
         if deployment is not None:
             self.proposal = self.proposal or _Shown(deployment.env)
             self._pose_arm(deployment.plain.trajectory[0])
-            scene.add_spline_catmull_rom(
-                "/plan/path",
-                cup_path(deployment.plain.trajectory),
-                thickness=3.0,
-                thickness_units="screen",
-                color=PLAN_RGB,
-            )
-            scene.add_spline_catmull_rom(
-                "/deploy/averse",
-                cup_path(deployment.averse.trajectory),
-                thickness=3.0,
-                thickness_units="screen",
-                color=AVERSE_RGB,
-            )
+            draw_path(scene, "/plan/path", deployment.plain.trajectory, PLAN_RGB)
+            draw_path(scene, "/deploy/averse", deployment.averse.trajectory, AVERSE_RGB)
         self.title.content = f"### Session {self.session.id} has ended"
         self.where.content = ""
         self._show_belief()

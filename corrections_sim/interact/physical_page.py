@@ -36,7 +36,7 @@ from corrections_sim.interact.page import (
     HANDLE_SCALE,
     PLAN_RGB,
     Page,
-    cup_path,
+    draw_path,
     relevance_note,
 )
 from corrections_sim.interact.session import Refused, Session
@@ -108,9 +108,7 @@ class PhysicalPage(Page):
         self.client = client
         scene, gui = client.scene, client.gui
         self._add_meshes(scene)
-        self.title = gui.add_markdown("")
-        self.status = gui.add_markdown("")
-        self.where = gui.add_markdown("")
+        self._add_texts(gui)
         self.play = gui.add_button("Play: push the cup while it moves", disabled=True)
         self.skip_button = gui.add_button("Skip this environment", disabled=True)
         self.done_button = gui.add_button("Done: deploy", disabled=True)
@@ -120,11 +118,7 @@ class PhysicalPage(Page):
         self.play.on_click(self._act(self.play, self._start))
         self.skip_button.on_click(self._act(self.skip_button, self._skip_physical, "planning"))
         self.done_button.on_click(self._act(self.done_button, self._done, "deploying"))
-        if self.session.ended:
-            self._show_end()
-            return
-        self._say("Planning the robot's path…")
-        self._new_proposal()
+        self._first_view()
 
     def _controls(self) -> list[tuple]:
         s = self.session
@@ -140,9 +134,7 @@ class PhysicalPage(Page):
         if client is None:
             return  # the tab closed: the next one draws it
         scene = client.scene
-        scene.add_spline_catmull_rom(
-            "/plan/path", cup_path(plan), thickness=3.0, thickness_units="screen", color=PLAN_RGB
-        )
+        draw_path(scene, "/plan/path", plan, PLAN_RGB)
         for name in ("/correction/path", "/rest/path", "/deploy/plain", "/deploy/averse"):
             scene.add_spline_catmull_rom(name, np.zeros((2, 3)), visible=False)
         self._clear_lines()
@@ -297,21 +289,9 @@ class PhysicalPage(Page):
         if client is None:
             return row
         scene = client.scene
-        scene.add_spline_catmull_rom(
-            "/correction/path",
-            cup_path(row["xi_h"]),
-            thickness=3.0,
-            thickness_units="screen",
-            color=CORRECTION_RGB,
-        )
+        draw_path(scene, "/correction/path", row["xi_h"], CORRECTION_RGB)
         if plan is not None:
-            scene.add_spline_catmull_rom(
-                "/rest/path",
-                cup_path(motion.reference.waypoints),
-                thickness=3.0,
-                thickness_units="screen",
-                color=REST_RGB,
-            )
+            draw_path(scene, "/rest/path", motion.reference.waypoints, REST_RGB)
         self._show_belief()
         if motion.done:
             replanned = "held to the end of the motion"

@@ -12,8 +12,10 @@ from __future__ import annotations
 
 import contextlib
 import io
+import os
 import socket
 import threading
+from pathlib import Path
 
 from corrections_sim.interact.page import Page
 from corrections_sim.interact.physical_page import PhysicalPage
@@ -130,8 +132,27 @@ def show(server, session: Session, *, speed: float = 1.0) -> Page:
     # How the session is shown, so that --resume plays a physical session at its speed.
     mode = "physical" if session.physical else "drag"
     detail = {"mode": mode, "speed": float(speed), "port": int(server.get_port())}
+    detail |= {"host": socket.gethostname(), "pid": os.getpid()}
     session.log.add_event(session.id, session.iteration, "page", detail)
     return page
+
+
+def serving(log, session_id: int) -> int | None:
+    """The process on this machine whose page still serves session ``session_id`` (from its
+    last ``page`` event), or None: a second server on one session would interleave two
+    people's corrections in one log."""
+    pages = log.events(session_id, "page")
+    if not pages:
+        return None
+    last = pages[-1]["detail"]
+    pid = last.get("pid")
+    if pid is None or last.get("host") != socket.gethostname() or pid == os.getpid():
+        return None
+    try:
+        command = Path(f"/proc/{pid}/cmdline").read_bytes()
+    except OSError:  # gone (or no /proc: then nothing is known, and nothing refused)
+        return None
+    return pid if b"corrections_sim" in command else None
 
 
 def serve(session: Session, host: str = "127.0.0.1", port: int = 8080, *, speed: float = 1.0):
