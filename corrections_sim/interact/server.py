@@ -11,6 +11,7 @@ bind would try a thousand ports and never return.
 from __future__ import annotations
 
 import contextlib
+import errno
 import io
 import os
 import socket
@@ -76,8 +77,11 @@ def check_address(host: str, port: int) -> str:
             probe.listen(1)
         except OSError as exc:
             reason = exc.strerror or str(exc)
-            if exc.errno in (98, 48):  # EADDRINUSE on Linux, on macOS
+            if exc.errno == errno.EADDRINUSE:
                 reason = "in use (another server, or another session's page?)"
+                raise AddressError(f"--port {port}: {reason}") from None
+            if exc.errno == errno.EACCES:
+                reason = "not this user's to take (ports below 1024 need root)"
                 raise AddressError(f"--port {port}: {reason}") from None
             where = f"{address}:{port}"
             raise AddressError(f"--host {host}: cannot serve on {where} ({reason})") from None
