@@ -108,6 +108,11 @@ def run_bench(tasks: int = 12, seed: int = 0) -> list[str]:
     return lines
 
 
+def _moving(motion) -> bool:
+    """A motion under way for 0.3 s (None before the page has made it)."""
+    return motion is not None and motion.time > 0.3
+
+
 def run_page_bench(speed: float = 0.25, pushes: int = 2, screenshot=None, db=None) -> list[str]:
     """The physical page in chromium (software WebGL): arm poses the server sends per second
     during a motion, frames the page draws per second, and from letting go of the handle to
@@ -146,11 +151,8 @@ def run_page_bench(speed: float = 0.25, pushes: int = 2, screenshot=None, db=Non
             browser = drive.launch(p)
             tab = drive.open_page(browser, f"http://127.0.0.1:{port}", physical=True)
             for k in range(pushes):
-                motion = page.motion
                 drive.click(tab, "Play: push the cup while it moves")
-                drive.wait_for(
-                    lambda m=motion: page.motion is not m and page.motion.time > 0.3, "motion"
-                )
+                drive.wait_for(lambda: page._in_motion and _moving(page.motion), "motion")
                 frames0, t0 = page.frames, time.perf_counter()
                 drawn.append(drive.frame_rate(tab, 2.0))
                 poses.append((page.frames - frames0) / (time.perf_counter() - t0))

@@ -48,8 +48,10 @@ from corrections_sim.scene.robot import cup_pose
 FRAME_RATE = 32.0
 REST_RGB = (30, 160, 80)
 FORCE_RGB = (220, 30, 30)
-#: The line from the waiting handle to the cup it holds.
+#: The line from the waiting handle to the cup it holds, redrawn every this many frames (each
+#: redraw is a new line on the page, which chromium's software WebGL pays for).
 TETHER_RGB = (120, 120, 120)
+TETHER_EVERY = 4
 #: Metres of the drawn force line per newton.
 FORCE_SCALE = 0.006
 
@@ -331,14 +333,15 @@ class PhysicalPage(Page):
             if self._force_shown:
                 self._force_line.remove()
                 self._force_shown = False
-            handle = np.asarray(self.handle.position, float)
-            scene.add_line_segments(
-                "/tether",
-                np.array([[handle, cup]]),
-                colors=TETHER_RGB,
-                thickness=1.5,
-                thickness_units="screen",
-            )
+            if self.frames % TETHER_EVERY == 1:
+                handle = np.asarray(self.handle.position, float)
+                scene.add_line_segments(
+                    "/tether",
+                    np.array([[handle, cup]]),
+                    colors=TETHER_RGB,
+                    thickness=1.5,
+                    thickness_units="screen",
+                )
         else:
             tip = cup + FORCE_SCALE * force
             self._force_line = scene.add_line_segments(
