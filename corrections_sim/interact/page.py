@@ -161,7 +161,9 @@ class Page:
         self.submitted = 0  # corrections submitted through this page (tests wait on it)
         self.drags = 0  # drags handled, accepted or refused
         self.dropped = 0  # clicks dropped because another action was running
+        #: perf_counter() when the last submit's click arrived and when its next plan was sent.
         self.last_submit = (float("nan"), float("nan"))
+        self._clicked: float | None = None
         self.last_message = ""
         self.deployment: Deployment | None = None
         self.ended_text = ""
@@ -387,6 +389,9 @@ class Page:
             f"Learner **{s.learner}**, correction model **{s.correction_name}**. "
             "Drag the arrows on the cup to move it at the chosen waypoint, then submit."
         )
+        if self._clicked is not None:  # set before the title can reach a reader of the page
+            self.last_submit = (self._clicked, time.perf_counter())
+            self._clicked = None
         self._show_belief()
         self._refresh()
         self._say("The robot's plan is the blue path. Move the cup where you want it.")
@@ -517,9 +522,8 @@ class Page:
             return
         self.corrected = None
         self._busy = "planning"
+        self._clicked = t0
         self._new_proposal()
-        # perf_counter() when the click arrived and when the next plan was sent.
-        self.last_submit = (t0, time.perf_counter())
         self.submitted += 1
         skipped = f" (update skipped: {row['update_skipped']})" if row["update_skipped"] else ""
         self._say(
