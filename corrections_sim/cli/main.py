@@ -464,6 +464,8 @@ def _db(args: argparse.Namespace) -> Path:
     )
 
 
+#: What ``interact --resume`` takes besides; the session's own settings are the rest.
+RESUME_OPTIONS = ("resume", "db", "host", "port", "speed")
 #: After "Done", the server keeps the page (the deployment) up until its tab closes, at most
 #: this many seconds (Ctrl-C stops it at once).
 AFTER_DONE = 600.0
@@ -481,23 +483,9 @@ def _check_interact_options(args: argparse.Namespace) -> None:
             raise UsageError(f"--participant: {exc}") from None
     if args.resume is not None:
         given = [
-            label
-            for label, value in (
-                ("FILE", args.study_file),
-                ("--learner", args.learner),
-                ("--headless", args.headless),
-                ("--mode", args.mode),
-                ("--participant", args.participant),
-                ("--drag-model", args.drag_model),
-                ("--user", args.user),
-                ("--iterations", args.iterations),
-                ("--seed", args.seed),
-                ("--set", args.set),
-                ("--theta-star", args.theta_star),
-                ("--theta0", args.theta0),
-                ("--cov0", args.cov0),
-            )
-            if value not in (None, False)
+            _label(name)
+            for name in TOOL_OPTIONS["interact"]
+            if name not in RESUME_OPTIONS and getattr(args, name) not in (None, False)
         ]
         if given:
             raise UsageError(
@@ -551,7 +539,6 @@ def run_interact(args: argparse.Namespace) -> list[Path]:
     """A session of corrections: in a browser page (prints its URL; ends with "Done" or
     Ctrl-C, every confirmed correction already logged), or headless by a simulated user."""
     from corrections_sim.interact.log import LogError, StudyLog
-    from corrections_sim.interact.session import simulate
 
     _check_interact_options(args)
     plan = None if args.resume is not None else _session_plan(args)
@@ -574,7 +561,7 @@ def run_interact(args: argparse.Namespace) -> list[Path]:
             session = _open_session(args, log, plan)
             args.interact_session = session.id  # for an interrupt's message
             if args.headless:
-                return _run_headless(args, session, simulate, db)
+                return _run_headless(args, session, db)
             speed = _session_speed(log, session, args.speed)
         except (LogError, ValueError) as exc:
             log.close()
@@ -627,7 +614,10 @@ def _open_session(args: argparse.Namespace, log, plan: dict | None):
     return Session.start(log=log, **plan)
 
 
-def _run_headless(args: argparse.Namespace, session, simulate, db: Path) -> list[Path]:
+def _run_headless(args: argparse.Namespace, session, db: Path) -> list[Path]:
+    """The study's simulated user corrects the session, --iterations times, and ends it."""
+    from corrections_sim.interact.session import simulate
+
     s = session.settings.study
     count = args.iterations or s.iterations
     rows = simulate(session, s.user, s.theta_star, count)

@@ -108,13 +108,15 @@ def push_cup(tab, cup, pixels_up: float, *, steps: int = 12, hold: float = 0.5) 
 def reach_and_grab(
     tab, point, *, reach: float = 0.3, pull: float = 12.0, hold: float = 0.1
 ) -> tuple[float, float]:
-    """As a hand does it: move the pointer from where it is to the screen point of world
-    ``point`` (3,) in ``reach`` seconds, press, pull ``pull`` pixels up (a press becomes a
-    grab only once it moves), hold ``hold`` s, let go. Returns the pixel pressed."""
+    """As a hand does it: move the pointer to the screen point of world ``point`` (3,) in
+    ``reach`` seconds, from 150 pixels down and to the left of it, press, pull ``pull``
+    pixels up (a press becomes a grab only once it moves), hold ``hold`` s, let go. Returns
+    the pixel pressed."""
     box = tab.locator("canvas").first.bounding_box()
     x, y = project(point, box["width"], box["height"])
     target = (box["x"] + x, box["y"] + y)
-    start = getattr(tab, "_pointer", (box["x"] + box["width"] / 2, box["y"] + box["height"] / 2))
+    start = (target[0] - 120.0, target[1] + 90.0)
+    tab.mouse.move(*start)
     steps = 10
     began = time.monotonic()
     for i in range(1, steps + 1):
@@ -126,7 +128,6 @@ def reach_and_grab(
         tab.mouse.move(target[0], target[1] - pull * i / 3)
     time.sleep(hold)
     tab.mouse.up()
-    tab._pointer = (target[0], target[1] - pull)
     return target
 
 

@@ -25,7 +25,6 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -144,10 +143,9 @@ def relevance_note(row: dict) -> str:
 class Page:
     """The page of one session on a viser server (see the module)."""
 
-    def __init__(self, server, session: Session, *, on_done: Callable[[], None] | None = None):
+    def __init__(self, server, session: Session):
         self.server = server
         self.session = session
-        self.on_done = on_done
         self.owner = None
         self.client = None
         self._lock = threading.RLock()
@@ -166,7 +164,6 @@ class Page:
         self._clicked: float | None = None
         self.last_message = ""
         self.deployment: Deployment | None = None
-        self.ended_text = ""
         #: Set when "Done" has ended the session and the page shows the deployment.
         self.finished = threading.Event()
         #: Set when the tab that showed the end has closed (the server may stop then).
@@ -193,6 +190,7 @@ class Page:
             self.owner = client
         try:
             with self._lock:
+                self.handle = None  # the handles of a closed tab are not this one's
                 self._build(client)
         except Exception:
             with self._lock:
@@ -567,14 +565,11 @@ class Page:
             s.undo()
             self.corrected = None
         self.deployment = s.finish()
-        self.ended_text = self._ended_text(self.deployment)
         self._show_end()
         self.finished.set()
-        if self.on_done is not None:
-            self.on_done()
 
-    def _ended_text(self, deployment: Deployment | None) -> str:
-        s = self.session
+    def _ended_text(self) -> str:
+        s, deployment = self.session, self.deployment
         done = f"Session ended after {s.iteration} {plural(s.iteration, 'correction')}."
         if deployment is None:
             why = "no plan to deploy" if s.has_covariance else f"{s.learner} has no covariance"
@@ -599,26 +594,18 @@ class Page:
         scene = client.scene
         for control, _ in self._controls():
             control.disabled = True
-        if getattr(self, "handle", None) is not None:
+        if self.handle is not None:
             self.handle.visible = False
         scene.add_spline_catmull_rom("/correction/path", np.zeros((2, 3)), visible=False)
         deployment = self.deployment
         if deployment is not None:
-            self.proposal = self.proposal or _Shown(deployment.env)
             self._pose_arm(deployment.plain.trajectory[0])
             draw_path(scene, "/plan/path", deployment.plain.trajectory, PLAN_RGB)
             draw_path(scene, "/deploy/averse", deployment.averse.trajectory, AVERSE_RGB)
         self.title.content = f"### Session {self.session.id} has ended"
         self.where.content = ""
         self._show_belief()
-        self._say(self.ended_text or "**Session ended.** You may close this tab.")
-
-
-@dataclass(frozen=True)
-class _Shown:
-    """What the page poses the arm in when it has no proposal of its own (a reloaded end)."""
-
-    env: object
+        self._say(self._ended_text())
 
 
 def plural(n: int, word: str) -> str:

@@ -75,7 +75,6 @@ class PhysicalPage(Page):
         stiffness: float = 300.0,
         force_cap: float = 30.0,
         duration: float = 5.0,
-        on_done=None,
     ) -> None:
         self.speed = float(speed)
         self.stiffness = float(stiffness)
@@ -96,7 +95,7 @@ class PhysicalPage(Page):
         self._in_motion = False
         self._force_shown = False
         self._force_line = None
-        super().__init__(server, session, on_done=on_done)
+        super().__init__(server, session)
 
     def _connect(self, client) -> None:
         runner = self._runner
@@ -118,7 +117,7 @@ class PhysicalPage(Page):
         self.sliders = []
         self._add_belief_panel(gui)
         self.play.on_click(self._act(self.play, self._start))
-        self.skip_button.on_click(self._act(self.skip_button, self._skip_physical, "planning"))
+        self.skip_button.on_click(self._act(self.skip_button, self._skip, "planning"))
         self.done_button.on_click(self._act(self.done_button, self._done, "deploying"))
         self._first_view()
 
@@ -359,17 +358,3 @@ class PhysicalPage(Page):
                 f"t = {motion.time:.2f} s · cup ({cup[0]:.2f}, {cup[1]:.2f}, {cup[2]:.2f}) m"
                 + (f" · force {np.linalg.norm(force):.1f} N" if force is not None else "")
             )
-
-    def _skip_physical(self) -> None:
-        if self._in_motion:
-            self._say("Skip works once the motion has ended.")
-            return
-        self._say("Skipped; planning in the next environment…")
-        self.session.skip()
-        self._new_proposal()
-
-    def _done(self) -> None:
-        if self._in_motion:
-            self._say("Done works once the motion has ended.")
-            return
-        super()._done()
