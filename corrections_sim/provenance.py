@@ -127,4 +127,11 @@ def code_fingerprint() -> str:
         digest.update(path.read_bytes())
     for name, value in sorted(versions().items()):
         digest.update(f"{name}={value}".encode())
+    # The fitted densities a learner reads when a study names no fit file (see
+    # learning.relevance.DEFAULT_FIT): data, but they change what a run computes.
+    from importlib import resources
+
+    fit = resources.files("corrections_sim.experiments").joinpath("relevance_fit.json")
+    if fit.is_file():
+        digest.update(fit.read_bytes())
     return digest.hexdigest()[:16]

@@ -23,13 +23,14 @@ the study through :class:`~corrections_sim.learning.base.LearnerContext`.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from corrections_sim import components
-from corrections_sim.belief import Belief, KalmanNoise, NoisePosterior
+from corrections_sim.belief import Belief, KalmanNoise, NoisePosterior, PersonBelief
 from corrections_sim.components import ParameterError
 from corrections_sim.learning.active import select_environment
 from corrections_sim.learning.attenuated import Attenuation
@@ -46,7 +47,7 @@ from corrections_sim.learning.kalman import (
 from corrections_sim.learning.perceptron import perceptron_update
 from corrections_sim.learning.preference_posterior import BoltzmannCorrection
 from corrections_sim.learning.preference_posterior import update as posterior_update
-from corrections_sim.learning.relevance import Relevance, explain
+from corrections_sim.learning.relevance import SPACES, Relevance, explain, judge, load_fit
 from corrections_sim.people.corrections import (
     CORRECTIONS,
     CorrectionModel,
@@ -500,6 +501,124 @@ class RelevanceAwareKalman(_RelevanceAware, CorrectionAwareKalman):
         noise = KalmanNoise(process=ctx.noise.process, observation=ctx.noise.observation / beta)
         step = super().update(dataclasses.replace(ctx, noise=noise), belief, env, plan, phi_h)
         return dataclasses.replace(step, relevance=beta, residual=rho)
+
+
+@register_learner("KF-CRP")
+@dataclass(frozen=True)
+class PersonRelevanceKalman(CorrectionAwareKalman):
+    """KF-C that judges relevance across a person's corrections (in the spirit of Bobu et al.,
+    T-RO 2020): one belief over the person's rate of relevant corrections r ~ Beta and the
+    precision τ of their relevant corrections ~ Gamma (:class:`~corrections_sim.belief.
+    PersonBelief`), shared by all of their corrections, and a relevant likelihood weighed by
+    the belief over θ: a correction explained only by θ's the belief rules out is not
+    believed (:func:`~.relevance.judge`). The observation noise of the update is N / β̂, as
+    KF-CR's.
+
+    Attributes:
+        relevance_prior: E[r] before any correction, in (0, 1).
+        relevance_count: how many corrections' worth the prior on r holds (> 0).
+        relevance_spread: σ̂ before any correction (> 0) where no fit is used: τ's prior mean
+            is 1 / σ̂² (with a fit, τ's prior is the fit's).
+        spread_count: how many relevant corrections' worth that prior on τ holds (> 0).
+        space: where ρ is measured: "joint" (the arm's joints, what a simulated person moves)
+            or "task" (the cup's path, what a person at the page drags or pushes).
+        fit: a fit file of the densities of ρ* and of the scatter of irrelevant
+            explanations (``python -m corrections_sim.figures.relevance_fit``); "" is the
+            shipped fit, except that in joint space f₀ is then the random direction's
+            Beta((7 − k)/2, k/2) and σ̂ is ``relevance_spread``.
+    """
+
+    label = "Person-level relevance KF-C (KF-CRP)"
+    style = ("#d62728", "-.")
+
+    relevance_prior: float = 0.5
+    relevance_count: float = 2.0
+    relevance_spread: float = 0.05
+    spread_count: float = 2.0
+    space: str = "joint"
+    fit: str = ""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.noise != "fixed":
+            raise ParameterError("noise", "KF-CRP keeps N fixed (N / β̂ is its update)")
+        Relevance(prior=self.relevance_prior, spread=self.relevance_spread)
+        _positive("relevance_count", self.relevance_count)
+        _positive("spread_count", self.spread_count)
+        if self.space not in SPACES:
+            raise ParameterError("space", f"must be one of {', '.join(SPACES)}, got {self.space!r}")
+        if not isinstance(self.fit, str):
+            raise ParameterError("fit", f"must be a file name, got {self.fit!r}")
+        try:
+            self.densities()
+        except ValueError as exc:
+            raise ParameterError("fit", str(exc)) from None
+
+    def densities(self) -> tuple[tuple[float, float] | None, tuple[float, float], tuple]:
+        """In this learner's space: the Beta (a, b) of an irrelevant ρ*² (None: the random
+        direction's), the Gamma (shape, rate) of τ before any correction, and the scatter of
+        irrelevant explanations ((weight, sd), … ; always from the fit)."""
+        fitted = _fit(self.fit)
+        if self.space not in fitted:
+            where = self.fit or "the shipped fit"
+            raise ValueError(f"{where}: has no densities for space {self.space!r}")
+        mine = fitted[self.space]
+        if self.space == "joint" and not self.fit:
+            shape = 0.5 * self.spread_count
+            return None, (shape, shape * self.relevance_spread**2), mine.scatter
+        return mine.irrelevant, mine.precision, mine.scatter
+
+    def person(self) -> PersonBelief:
+        """The prior belief over the person."""
+        _, (shape, rate), _ = self.densities()
+        return PersonBelief.prior(
+            shape,
+            rate,
+            self.relevance_prior * self.relevance_count,
+            (1.0 - self.relevance_prior) * self.relevance_count,
+        )
+
+    def initial(self, belief: Belief, noise: KalmanNoise) -> Belief:
+        return Belief(theta=belief.theta, cov=belief.cov, person=self.person())
+
+    def update(
+        self, ctx: LearnerContext, belief: Belief, env: Environment, plan: Plan, phi_h: np.ndarray
+    ) -> Step:
+        person = belief.person or self.person()
+        prior = Belief(theta=belief.theta, cov=belief.cov)
+        if ctx.corrected is None:  # nothing to judge: the prior rate
+            beta, found = person.rate_mean, None
+        else:
+            full = super().update(ctx, prior, env, plan, phi_h).belief  # p(θ | z), β̂ = 1
+            found = judge(
+                ctx.book,
+                env,
+                plan.trajectory,
+                ctx.corrected,
+                self.model,
+                full.theta,
+                full.cov,
+                ctx.sigma.points(belief.theta, belief.cov + ctx.noise.process),
+                person=person,
+                scatter=[(w, sd**2 * np.eye(belief.dim)) for w, sd in self.densities()[2]],
+                scatter_center=belief.theta,
+                irrelevant=self.densities()[0],
+                space=self.space,
+            )
+            beta = found.relevance
+        noise = KalmanNoise(process=ctx.noise.process, observation=ctx.noise.observation / beta)
+        step = super().update(dataclasses.replace(ctx, noise=noise), prior, env, plan, phi_h)
+        if found is not None:
+            person = found.person
+        after = Belief(theta=step.belief.theta, cov=step.belief.cov, person=person)
+        return dataclasses.replace(
+            step, belief=after, relevance=beta, residual=None if found is None else found.rho
+        )
+
+
+@functools.lru_cache(maxsize=16)
+def _fit(path: str):
+    return load_fit(path or None)
 
 
 @register_learner("PP-R")
