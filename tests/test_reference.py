@@ -99,3 +99,16 @@ def test_a_bad_grid_is_refused():
         ref.Grid((0.0, 0.0), (1.0, 1.0), 2)
     with pytest.raises(ValueError, match="exceed"):
         ref.Grid((0.0, 1.0), (1.0, 1.0), 5)
+
+
+def test_the_gaussian_part_of_the_kl_is_the_grids_for_a_gaussian_reference():
+    grid = ref.Grid((-4.0, -4.0), (4.0, 4.0), 161)
+    thetas = grid.thetas()
+    truth = Belief(theta=np.array([0.3, -0.2]), cov=np.array([[0.5, 0.1], [0.1, 0.3]]))
+    weights = ref.posterior(ref.gaussian_log_prior(thetas, truth))
+    mean, cov = ref.moments(thetas, weights)
+    learner = Belief(theta=np.array([0.0, 0.1]), cov=np.array([[0.8, 0.0], [0.0, 0.6]]))
+    assert ref.gaussian_kl(mean, cov, learner) == pytest.approx(
+        ref.kl_to_gaussian(grid, thetas, weights, learner), abs=2e-3
+    )
+    assert ref.gaussian_kl(truth.theta, truth.cov, truth) == pytest.approx(0.0, abs=1e-12)

@@ -1,7 +1,7 @@
 """The reference beside a finished figure's runs (python -m corrections_sim.figures.reference):
 the replayed corrections are the run's own, and the exact posterior on a coarse grid gives
-finite NEES and KL for KF-C, for KF-CL (noise integrated out), for BP and for KF-CR (its
-relevance integrated out)."""
+finite NEES and KL for KF-C, for KF-CL (noise integrated out), for BP, for KF-CR (its
+relevance integrated out) and for KF-CRP (θ, the person's rate and precision together)."""
 
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ runs = 1
 iterations = 2
 seed = 3
 environments = ["s0-t0-l1", "s1-t1-l2"]
-learners = ["KF-C", "KF-CL", "BP", "KF-CR"]
+learners = ["KF-C", "KF-CL", "BP", "KF-CR", "KF-CRP"]
 """
 
 
@@ -33,7 +33,7 @@ def figure(tmp_path_factory):
     return folder / "out" / "tiny"
 
 
-@pytest.mark.parametrize("learner", ["KF-C", "KF-CL", "BP", "KF-CR"])
+@pytest.mark.parametrize("learner", ["KF-C", "KF-CL", "BP", "KF-CR", "KF-CRP"])
 def test_the_reference_of_a_run(figure, learner, capsys):
     assert reference.main([str(figure), "--learner", learner, "--runs", "1", "--points", "9"]) == 0
     with open(figure / f"reference-{learner}.csv", newline="") as fh:
@@ -51,6 +51,11 @@ def test_the_reference_of_a_run(figure, learner, capsys):
     final = json.loads((figure / f"reference-{learner}.json").read_text())
     assert final["learner"] == learner and final["iteration"] == 2 and final["runs"] == 1
     assert final["ratio"] > 0 and np.isfinite(final["ref_kl"])
+    if learner == "KF-CRP":  # its exact β̂ beside the learner's, per correction
+        for r in rows:
+            assert 0.0 <= float(r["ref_relevance"]) <= 1.0 and float(r["relevance"]) > 0
+            assert 0.0 < float(r["ref_relevance_rate"]) < 1.0
+        assert "relevance_gap" in final
 
 
 def test_a_learner_the_figure_did_not_run_is_one_line(figure, capsys):

@@ -14,7 +14,8 @@ corrections it widens the posterior by less than 0.04 in θ, below the grid's sp
 
 Writes ``reference-<learner>.csv`` in the figure's folder (per run and iteration: the
 reference's mean and covariance, its NEES against θ*, the learner's NEES, and
-``ref_kl`` = KL(reference ‖ learner's N(θ̂, P))), prints the means over runs, and writes the
+``ref_kl`` = KL(reference ‖ learner's N(θ̂, P)), and ``ref_kl_gaussian``, its part that a
+Gaussian with the reference's moments already has), prints the means over runs, and writes the
 last iteration's summary with 95% intervals over runs to ``reference-<learner>.json`` (NEES /
 reference NEES, ``ref_kl``; with ``--one-step`` and ``--restart``, where the gap enters).
 """
@@ -30,14 +31,22 @@ from pathlib import Path
 
 import numpy as np
 
-from corrections_sim.belief import Belief
+from corrections_sim.belief import Belief, PersonBelief
 from corrections_sim.figures.output import write_records
 from corrections_sim.learning import reference as ref
 from corrections_sim.learning.paper import (
     BoltzmannPosterior,
     CorrectionAwareKalman,
+    PersonRelevanceKalman,
     RelevanceAwareKalman,
     UnscentedKalman,
+)
+from corrections_sim.learning.relevance import (
+    MOVED,
+    NUDGE_DIMENSIONS,
+    beta_rho_density,
+    embed,
+    random_direction_shape,
 )
 from corrections_sim.people.users import Situation
 from corrections_sim.planning.features import waypoint_features
@@ -116,6 +125,29 @@ def grid_observations(plans: np.ndarray, robot: np.ndarray, correct, env, names)
     return out
 
 
+#: Equal-probability nodes of KF-CRP's prior on τ in its exact reference.
+PERSON_TAU_NODES = 48
+
+
+def grid_residuals(
+    plans: np.ndarray, robot: np.ndarray, corrected: np.ndarray, model, space: str = "joint"
+) -> np.ndarray:
+    """ρ(θ) = ‖ξ_h − ĉ(θ)‖ / ‖ξ_h − ξ‖ on the moved waypoints, in ``space``, at every grid
+    point (n,), ĉ the correction ``model`` toward the grid's plan; NaN where the grid has no
+    plan."""
+    corrected = np.asarray(corrected, float)
+    rows = np.linalg.norm(corrected - robot, axis=1) > MOVED
+    target = embed(space, corrected[rows])
+    size = float(np.linalg.norm(target - embed(space, robot[rows])))
+    out = np.full(plans.shape[0], np.nan)
+    if size == 0.0:
+        return np.zeros(plans.shape[0])
+    for i, plan in enumerate(plans):
+        if np.all(np.isfinite(plan)):
+            out[i] = np.linalg.norm(target - embed(space, model.at(robot, plan, rows))) / size
+    return out
+
+
 def _rows(folder: Path, learner: str) -> dict[int, list[dict]]:
     with open(folder / "curves.csv", newline="") as fh:
         rows = [r for r in csv.DictReader(fh) if r["learner"] == learner]
@@ -174,7 +206,16 @@ def reference_run(
     learnt = isinstance(model, UnscentedKalman) and model.noise == "learnt"
     prior_noise = model.initial(study.prior(), study.noise()).noise if learnt else None
     zs, hs, out = [], [], []
-    if (one_step or restarts) and not (isinstance(model, UnscentedKalman) and not learnt):
+    person = None
+    if isinstance(model, PersonRelevanceKalman):
+        _, (shape, rate), _ = model.densities()
+        a = model.relevance_prior * model.relevance_count
+        b = (1.0 - model.relevance_prior) * model.relevance_count
+        fine = PersonBelief.prior(shape, rate, a, b, tau_points=PERSON_TAU_NODES, rate_points=41)
+        person = ref.PersonPosterior.prior(thetas, log_p, fine)
+    if (one_step or restarts) and (
+        person is not None or not (isinstance(model, UnscentedKalman) and not learnt)
+    ):
         raise ValueError(
             f"learner {learner}: --one-step and --restart need a Kalman learner with N fixed"
         )
@@ -190,7 +231,9 @@ def reference_run(
         before = _belief(rows[t - 1], k)
         robot = planner.solve(before.theta, env)
         seen = Situation(robot.trajectory, intended[env.name], env, names, target.theta_star)
-        z = study.user.correction_features(seen, np.random.default_rng(0))
+        outcome = study.user.perform(seen, np.random.default_rng(0))
+        z = np.asarray(outcome.phi_h, float)
+        judged = {}
         if isinstance(model, BoltzmannPosterior):
             betas = model.correction_model(0.0).betas
             log_l = ref.boltzmann_log_likelihood(thetas, z - robot.features, betas, model.lapse)
@@ -202,7 +245,32 @@ def reference_run(
                 model.model.apply if isinstance(model, CorrectionAwareKalman) else (lambda r, x: x)
             )
             h = grid_observations(plans, robot.trajectory, correct, env, names)
-            if isinstance(model, RelevanceAwareKalman):
+            if person is not None:
+                plans_rho = grid_residuals(
+                    plans, robot.trajectory, outcome.corrected, model.model, model.space
+                )
+                recorded = float(row["relevance_residual"] or 1.0)
+                rho_star = min(float(np.nanmin(plans_rho)), recorded)
+                shape, _, scatter = model.densities()
+                f0 = beta_rho_density(
+                    rho_star, *(shape or random_direction_shape(NUDGE_DIMENSIONS, k))
+                )
+                mixture = [(w, sd**2 * np.eye(k)) for w, sd in scatter]
+                tau0 = float(np.mean(person.taus))
+                place = ref.irrelevant_place(
+                    thetas, plans_rho, rho_star, before.theta, mixture, tau0
+                )
+                judged["ref_relevance"] = person.correct(
+                    ref.gaussian_log_likelihood(z, h, noise),
+                    plans_rho,
+                    rho_star,
+                    tau0,
+                    np.log(max(f0, 1e-300)) + place,
+                )
+                judged["ref_relevance_rate"] = person.rate_mean()
+                judged["ref_relevance_spread"] = person.spread()
+                log_post = np.log(np.maximum(person.theta_weights(), 1e-300))
+            elif isinstance(model, RelevanceAwareKalman):
                 if row.get("relevance"):  # else the learner skipped this update
                     log_l = ref.relevance_log_likelihood(
                         ref.gaussian_log_likelihood(z, h, noise), log_p, float(row["relevance"])
@@ -232,6 +300,10 @@ def reference_run(
         rec["ref_nees"] = ref.nees(mean, cov, theta_star)
         rec["nees"] = float(row["nees"]) if row["nees"] else None
         rec["ref_kl"] = ref.kl_to_gaussian(grid, thetas, weights, belief)
+        rec["ref_kl_gaussian"] = ref.gaussian_kl(mean, cov, belief)
+        if judged:
+            rec["relevance"] = float(row["relevance"]) if row.get("relevance") else None
+            rec |= judged
         if one_step:
             step = _filter_step(model, study, book, env, robot, z, start, row)
             rec["one_step_nees"] = ref.nees(step.theta, step.cov, theta_star)
@@ -273,12 +345,21 @@ def final_summary(records: list[dict], *, resamples: int = 2000) -> dict:
         "ratio_ci95": ratio_ci(nees),
         "ref_kl": float(kl.mean()),
         "ref_kl_ci95": [float(kl.mean() - half), float(kl.mean() + half)],
+        "ref_kl_gaussian": float(np.mean([r["ref_kl_gaussian"] for r in at])),
     }
     if at and "one_step_nees" in at[0]:
         one = np.array([r["one_step_nees"] for r in at], float)
         out["one_step_ratio"] = float(one.mean() / ref_nees.mean())
         out["one_step_ratio_ci95"] = ratio_ci(one)
         out["one_step_kl"] = float(np.mean([r["one_step_kl"] for r in at]))
+    judged = [r for r in records if r.get("ref_relevance") is not None and r.get("relevance")]
+    if judged:  # a learner with a belief over the person: its β̂ against the exact one
+        gaps = np.array([abs(r["relevance"] - r["ref_relevance"]) for r in judged])
+        out["relevance_gap"] = float(gaps.mean())
+        out["relevance_gap_max"] = float(gaps.max())
+        out["relevance_agree"] = float(
+            np.mean([(r["relevance"] > 0.5) == (r["ref_relevance"] > 0.5) for r in judged])
+        )
     for key in sorted(k for k in (at[0] if at else {}) if k.startswith("restart_")):
         out[key.removesuffix("_nees") + "_ratio"] = float(
             np.mean([r[key] for r in at]) / ref_nees.mean()
@@ -362,7 +443,8 @@ def main(argv: list[str] | None = None) -> int:
         f"t = {final['iteration']}: NEES / reference NEES = {final['ratio']:.2f} "
         f"[{final['ratio_ci95'][0]:.2f}, {final['ratio_ci95'][1]:.2f}], ref_kl = "
         f"{final['ref_kl']:.3f} [{final['ref_kl_ci95'][0]:.3f}, {final['ref_kl_ci95'][1]:.3f}] "
-        f"(95% intervals over {final['runs']} runs)"
+        f"(95% intervals over {final['runs']} runs), of which Gaussian "
+        f"{final['ref_kl_gaussian']:.3f}"
     )
     if "one_step_ratio" in final:
         low, high = final["one_step_ratio_ci95"]
@@ -370,6 +452,12 @@ def main(argv: list[str] | None = None) -> int:
             f"one filter step from the reference: NEES / reference NEES = "
             f"{final['one_step_ratio']:.2f} [{low:.2f}, {high:.2f}], KL "
             f"{final['one_step_kl']:.3f}"
+        )
+    if "relevance_gap" in final:
+        print(
+            f"β̂ against the exact one: mean |gap| {final['relevance_gap']:.3f} (largest "
+            f"{final['relevance_gap_max']:.3f}); the same side of 1/2 for "
+            f"{final['relevance_agree']:.0%} of the corrections"
         )
     for key, value in final.items():
         if key.startswith("restart_"):

@@ -12,6 +12,9 @@ solves ξ*(θ, E) there once; this module never plans):
   p(z₁…z_t | θ) ∝ |V₀ + Σᵢ rᵢ rᵢᵀ|^(−(ν₀ + t)/2), rᵢ = zᵢ − hᵢ(θ);
 * :func:`relevance_log_likelihood` — KF-CR's: KF-C's Gaussian where the correction is
   relevant (probability β̂, the learner's own), uninformative where it is not;
+* :class:`PersonPosterior` — KF-CRP's: a joint posterior over θ, the person's rate r of
+  relevant corrections and the precision τ of their relevant corrections, each correction
+  relevant (N(z; h(θ), N) f₁(ρ(θ); τ)) or not (the marginal of z times f₀(ρ*));
 * :func:`boltzmann_log_likelihood` — BP's model, P(ξ_h ≻ ξᵗ | θ) = ε/2 + (1 − ε) mean_β σ(β θ·Δ).
 
 :func:`posterior` turns a log prior plus log likelihoods into normalized cell weights;
@@ -174,7 +177,122 @@ def kl_to_gaussian(grid: Grid, thetas: np.ndarray, weights: np.ndarray, belief: 
     return float(np.sum(weights[keep] * (np.log(density) - log_q)))
 
 
+def gaussian_kl(mean: np.ndarray, cov: np.ndarray, belief: Belief) -> float:
+    """KL(N(mean, cov) ‖ N(θ̂, P)) in nats, closed form: the part of ``ref_kl`` a Gaussian
+    with the reference's own moments already has (the rest is the reference's shape)."""
+    k = len(mean)
+    inv = np.linalg.inv(belief.cov)
+    d = np.asarray(belief.theta) - np.asarray(mean)
+    _, logdet_p = np.linalg.slogdet(belief.cov)
+    _, logdet_c = np.linalg.slogdet(cov)
+    return float(0.5 * (np.trace(inv @ cov) + d @ inv @ d - k + logdet_p - logdet_c))
+
+
 def nees(mean: np.ndarray, cov: np.ndarray, theta_star: np.ndarray) -> float:
     """(θ̄ − θ*)ᵀ Σ⁻¹ (θ̄ − θ*) of the reference's own mean and covariance."""
     d = np.asarray(mean) - np.asarray(theta_star)
     return float(d @ np.linalg.solve(cov, d))
+
+
+@dataclass
+class PersonPosterior:
+    """The exact posterior of KF-CRP's model on a grid: θ on ``thetas`` (n, k), and (τ, r) on
+    a grid as :class:`~corrections_sim.belief.PersonBelief` has it (finer than the learner's).
+    Per correction (relevant with probability r, each independently):
+
+    * relevant: p(z, ξ_h | θ, τ) = N(z; h(θ), N) · f₁(ρ*; τ) · exp(−τ₀ (ρ(θ)² − ρ*²)/2): the
+      person's precision τ governs how much of the move is left unexplained (f₁, the
+      half-normal of ρ*), and how well θ explains the move (ρ(θ), the unexplained fraction at
+      θ) weighs θ at the prior's mean precision τ₀, as KF-CRP's model has it;
+    * irrelevant: c · f₀(ρ*) · Λ_W, c the marginal of z under the current posterior of θ
+      (so z adds nothing about r by itself, as in :func:`relevance_log_likelihood`), f₀ the
+      density of the least unexplained fraction ρ*, and Λ_W = E_{θ ~ W}[exp(−τ₀ (ρ(θ)² −
+      ρ*²)/2)] the chance of the explanation's place under the scatter W of irrelevant
+      explanations around the robot's θ̂, at the prior's mean precision τ₀ (an irrelevant
+      correction is not made with the person's precision; :func:`irrelevant_place`).
+
+    ``log_w`` (n, τ nodes, r points) is the unnormalized log posterior.
+    """
+
+    thetas: np.ndarray
+    taus: np.ndarray
+    rates: np.ndarray
+    log_w: np.ndarray
+
+    @classmethod
+    def prior(cls, thetas: np.ndarray, log_prior: np.ndarray, person) -> PersonPosterior:
+        """The prior: ``log_prior`` over θ (n,) times ``person``'s prior over (τ, r) (a
+        :class:`~corrections_sim.belief.PersonBelief`, on the grid it has)."""
+        log_w = log_prior[:, None, None] + np.asarray(person.log_w)[None, :, :]
+        return cls(np.asarray(thetas, float), np.array(person.taus), np.array(person.rates), log_w)
+
+    def theta_weights(self) -> np.ndarray:
+        """The posterior over θ alone, normalized cell weights (n,)."""
+        top = np.max(self.log_w)
+        return posterior(np.log(np.exp(self.log_w - top).sum(axis=(1, 2))) + top)
+
+    def correct(
+        self,
+        log_gaussian: np.ndarray,
+        rho: np.ndarray,
+        rho_star: float,
+        tau0: float,
+        log_irrelevant: float,
+    ) -> float:
+        """Take one correction in; returns its posterior probability of being relevant given
+        everything before it and itself (the exact β̂).
+
+        Args:
+            log_gaussian: log N(z; h(θ), N) per grid point (n,), up to one constant.
+            rho: ρ(θ) per grid point (n,), NaN where the grid has no plan.
+            rho_star: ρ*, the least unexplained fraction.
+            tau0: τ₀, the precision that weighs θ by ρ(θ).
+            log_irrelevant: log of the irrelevant model's density of the correction
+                (log f₀(ρ*) + log Λ_W).
+        """
+        theta_w = self.theta_weights()
+        top = np.max(np.where(np.isfinite(log_gaussian), log_gaussian, -np.inf))
+        log_c = top + np.log(float(theta_w @ np.exp(log_gaussian - top)))
+        rho = np.where(np.isfinite(rho), rho, np.inf)
+        with np.errstate(invalid="ignore", over="ignore"):
+            log_place = -0.5 * tau0 * (rho**2 - rho_star**2)  # (n,)
+        log_f1 = 0.5 * np.log(2.0 * self.taus / np.pi) - 0.5 * self.taus * rho_star**2
+        log_on = (
+            (log_gaussian + log_place)[:, None, None]
+            + log_f1[None, :, None]
+            + np.log(self.rates)[None, None, :]
+        )
+        log_off = log_c + float(log_irrelevant) + np.log1p(-self.rates)[None, None, :]
+        log_on = np.where(np.isfinite(log_on), log_on, -np.inf)
+        joint_on, joint_off = self.log_w + log_on, self.log_w + log_off
+        top = max(np.max(joint_on), np.max(joint_off))
+        on, off = np.exp(joint_on - top).sum(), np.exp(joint_off - top).sum()
+        self.log_w = np.logaddexp(joint_on, joint_off)
+        return float(on / (on + off))
+
+    def rate_mean(self) -> float:
+        """E[r | corrections]."""
+        w = np.exp(self.log_w - np.max(self.log_w)).sum(axis=(0, 1))
+        return float(w @ self.rates / w.sum())
+
+    def spread(self) -> float:
+        """E[τ | corrections]^(−1/2), comparable with the learner's σ̂."""
+        w = np.exp(self.log_w - np.max(self.log_w)).sum(axis=(0, 2))
+        return float((w @ self.taus / w.sum()) ** -0.5)
+
+
+def irrelevant_place(
+    thetas: np.ndarray, rho: np.ndarray, least: float, center: np.ndarray, scatter, tau0: float
+) -> float:
+    """log Λ_W = log E_{θ ~ W}[exp(−τ₀ (ρ(θ)² − ρ*²)/2)] on the grid, ρ* = ``least``, W the
+    mixture Σ w_c N(center, W_c) of ``scatter`` = [(w_c, W_c (k, k)), …], each component
+    normalized over the grid."""
+    rho = np.where(np.isfinite(rho), rho, np.inf)
+    weights = sum(
+        w * posterior(gaussian_log_prior(thetas, Belief(theta=center, cov=cov)))
+        for w, cov in scatter
+    )
+    with np.errstate(invalid="ignore", over="ignore"):
+        terms = np.exp(-0.5 * tau0 * (rho**2 - least**2))
+    terms = np.where(np.isfinite(terms), terms, 0.0)
+    return float(np.log(max(float(weights @ terms), 1e-300)))
