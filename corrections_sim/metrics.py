@@ -69,3 +69,47 @@ def roc_auc(scores: np.ndarray, labels: np.ndarray) -> float | None:
     ranks = rankdata(scores)  # mid-ranks of ties
     u = ranks[positive].sum() - n_pos * (n_pos + 1) / 2.0
     return float(u / (n_pos * n_neg))
+
+
+def roc_auc_interval(
+    scores: np.ndarray, labels: np.ndarray, *, resamples: int = 2000, seed: int = 0
+) -> tuple[float, float] | None:
+    """A 95% bootstrap interval of :func:`roc_auc`, resampling positives and negatives apart
+    (each class keeps its size; seeded, so the same data give the same interval). None when
+    the AUC is."""
+    scores = np.asarray(scores, dtype=float)
+    labels = np.asarray(labels, dtype=float)
+    if roc_auc(scores, labels) is None:
+        return None
+    pos, neg = scores[labels == 1], scores[labels != 1]
+    rng = np.random.default_rng(seed)
+    values = []
+    for _ in range(resamples):
+        a = pos[rng.integers(len(pos), size=len(pos))]
+        b = neg[rng.integers(len(neg), size=len(neg))]
+        values.append(roc_auc(np.concatenate([a, b]), np.r_[np.ones(len(a)), np.zeros(len(b))]))
+    return float(np.quantile(values, 0.025)), float(np.quantile(values, 0.975))
+
+
+def expected_calibration_error(
+    probabilities: np.ndarray, labels: np.ndarray, bins: int = 10
+) -> tuple[float, list[dict]]:
+    """ECE of probabilities against binary labels over ``bins`` equal-width bins of [0, 1]
+    (Σ_b n_b/n · |mean label − mean probability|), and the reliability diagram's bins
+    (low, high, count, mean probability, fraction positive; None for an empty bin)."""
+    p = np.asarray(probabilities, dtype=float)
+    y = np.asarray(labels, dtype=float)
+    edges = np.linspace(0.0, 1.0, bins + 1)
+    which = np.clip(np.digitize(p, edges[1:-1]), 0, bins - 1)
+    rows, total = [], 0.0
+    for b in range(bins):
+        mask = which == b
+        n = int(mask.sum())
+        row = {"low": float(edges[b]), "high": float(edges[b + 1]), "count": n}
+        row |= {"probability": None, "fraction": None}
+        if n:
+            row["probability"] = float(p[mask].mean())
+            row["fraction"] = float(y[mask].mean())
+            total += n / len(p) * abs(row["fraction"] - row["probability"])
+        rows.append(row)
+    return float(total), rows

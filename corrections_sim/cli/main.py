@@ -517,6 +517,8 @@ def _check_interact_options(args: argparse.Namespace) -> None:
         raise UsageError("--drag-model: a physical session deforms by the push; drop it")
     if args.speed is not None and not physical:
         raise UsageError("--speed: plays a physical session's motions; add --mode physical")
+    if args.labelled is not None and args.headless:
+        raise UsageError("--labelled: asks a person at the page; drop --headless")
 
 
 def _host(args: argparse.Namespace) -> str:
@@ -603,7 +605,18 @@ def _session_plan(args: argparse.Namespace) -> dict:
     except ValueError as exc:
         raise UsageError(str(exc).splitlines()[0]) from None
     participant = args.participant or ("simulated" if args.headless else "anonymous")
-    return plan | {"participant": participant, "corrector": corrector}
+    plan |= {"participant": participant, "corrector": corrector}
+    if args.labelled:
+        from corrections_sim.interact.session import make_asks
+
+        preference = args.theta_star if args.theta_star is not None else None
+        if preference is not None and len(preference) != settings.study.k:
+            raise UsageError(
+                f"--theta-star: {len(preference)} weights, the study has {settings.study.k} "
+                f"features ({', '.join(settings.features)})"
+            )
+        plan |= {"asks": make_asks(args.labelled, settings.study.seed), "preference": preference}
+    return plan
 
 
 def _open_session(args: argparse.Namespace, log, plan: dict | None):
@@ -749,6 +762,7 @@ TOOL_OPTIONS: dict[str, tuple[str, ...]] = {
         "headless",
         "mode",
         "speed",
+        "labelled",
         "user",
         "iterations",
         "seed",
@@ -1019,6 +1033,14 @@ def parser() -> argparse.ArgumentParser:
         "--headless",
         action="store_true",
         help="no page: the study's simulated user (--user) corrects, --iterations times",
+    )
+    i.add_argument(
+        "--labelled",
+        type=_positive_int,
+        metavar="N",
+        help="interact: ask the person for N labelled corrections, half toward a stated "
+        "preference (--theta-star, default the study's θ*), half nudges for no reason, in a "
+        "seeded order; the page says which, the log keeps the label",
     )
     i.add_argument("--session", type=int, help="for replay: which session (default the last)")
     x = p.add_argument_group("where the runs execute")

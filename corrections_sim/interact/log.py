@@ -321,6 +321,27 @@ class StudyLog:
             (session_id, iteration, kind, now(), _dump(dict(detail))),
         )
 
+    def labels(self, session_id: int) -> dict[int, dict]:
+        """The label of each labelled correction by iteration (the last ``label`` event of
+        each iteration: {kind, label, preference}).
+
+        Raises:
+            LogError: a label event the log's readers do not know (a kind other than
+                "toward" or "nudge", or a label that does not match its kind).
+        """
+        known = {"toward": 1, "nudge": 0}
+        out = {}
+        for event in self.events(session_id, "label"):
+            detail = event["detail"]
+            kind = detail.get("kind") if isinstance(detail, dict) else None
+            if kind not in known or detail.get("label") != known[kind]:
+                raise LogError(
+                    f"session {session_id}: correction {event['iteration']} has label "
+                    f"{json.dumps(detail)}, not one this log knows (toward: 1, nudge: 0)"
+                )
+            out[int(event["iteration"])] = detail
+        return out
+
     def events(self, session_id: int, kind: str | None = None) -> list[dict]:
         sql = "SELECT iteration, kind, at, detail FROM events WHERE session_id = ?"
         args: tuple = (session_id,)

@@ -29,7 +29,7 @@ from collections.abc import Callable
 import numpy as np
 
 from corrections_sim.interact.meshes import Poser, pieces
-from corrections_sim.interact.session import Deployment, Refused, Session
+from corrections_sim.interact.session import Deployment, Refused, Session, ask_text
 from corrections_sim.scene.robot import cup_pose
 from corrections_sim.scene.world import interpolate
 
@@ -386,6 +386,7 @@ class Page:
             f"### Correction {k + 1}: environment {self.proposal.env.name}\n"
             f"Learner **{s.learner}**, correction model **{s.correction_name}**. "
             "Drag the arrows on the cup to move it at the chosen waypoint, then submit."
+            + self._ask_line()
         )
         if self._clicked is not None:  # set before the title can reach a reader of the page
             self.last_submit = (self._clicked, time.perf_counter())
@@ -393,6 +394,11 @@ class Page:
         self._show_belief()
         self._refresh()
         self._say("The robot's plan is the blue path. Move the cup where you want it.")
+
+    def _ask_line(self) -> str:
+        """The labelled correction the session asks for now, as a paragraph ("" if none)."""
+        asked = self.session.ask()
+        return "" if asked is None else "\n\n" + ask_text(asked, self.session.features)
 
     def _make_handle(self) -> None:
         i = int(self.waypoint.value)

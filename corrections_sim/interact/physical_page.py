@@ -152,7 +152,7 @@ class PhysicalPage(Page):
             f"### Push {s.iteration + 1}: environment {self.proposal.env.name}\n"
             f"Learner **{s.learner}**. Press Play; while the arm moves, drag the arrows of the "
             f"cup's handle to push the cup (a spring, at most {self.force_cap:.0f} N); let go "
-            "and the robot learns and replans."
+            "and the robot learns and replans." + self._ask_line()
         )
         self._show_belief()
         self._refresh()

@@ -32,7 +32,7 @@ from corrections_sim.interact.session import (
 )
 from corrections_sim.learning.base import LEARNERS, LearnerContext
 from corrections_sim.learning.perceptron import learning_rate_schedule
-from corrections_sim.metrics import estimate_error
+from corrections_sim.metrics import estimate_error, roc_auc, roc_auc_interval
 from corrections_sim.planning.planner import Plan, PlanningError, shared_planner
 from corrections_sim.planning.plans import PlanBook, Target, evaluate
 from corrections_sim.study.loop import belief_columns
@@ -114,6 +114,7 @@ def replay(
     order = list(agents)
 
     stated = row.stated_theta
+    labels = log.labels(session_id)
     s = settings.study
     planner = shared_planner(settings.planner_config())
     envs = settings.envs()
@@ -146,6 +147,8 @@ def replay(
                     rec |= {"regret": full, "regret_paper": paper, "regret_failures": failed}
             rec["update_skipped"] = skipped
             rec |= belief_columns(belief, step, stated, cls.has_covariance)
+            if t > 0 and (t - 1) in labels:  # what the person was asked for
+                rec["relevant"] = float(labels[t - 1]["label"])
             records.append(rec)
 
         record(0, "", "", None, belief)
@@ -199,6 +202,7 @@ def replay(
         "max_gap_to_log": gap_to_log,
         "log_tolerance": LOG_TOLERANCE,
         "same_machine": same_machine(log, session_id),
+        "labelled": labelled_scores(records, order),
         "final": {
             name: {
                 "theta": [r[f"theta_{i}"] for i in range(k)],
@@ -209,6 +213,33 @@ def replay(
         },
     }
     return replayed, result, facts
+
+
+def labelled_scores(records: Sequence[dict], learners: Sequence[str]) -> dict:
+    """Per relevance-aware learner, how its β̂ scores the labelled corrections (those the
+    person was asked for: 1 toward a preference, 0 a nudge): the ROC AUC with its 95%
+    bootstrap interval, the median β̂ per label and the counts. Empty without labels."""
+    out = {}
+    for name in learners:
+        rows = [
+            r
+            for r in records
+            if r["learner"] == name and "relevant" in r and r.get("relevance") is not None
+        ]
+        if not rows:
+            continue
+        beta = np.array([r["relevance"] for r in rows], float)
+        label = np.array([r["relevant"] for r in rows], float)
+        interval = roc_auc_interval(beta, label)
+        out[name] = {
+            "auc": roc_auc(beta, label),
+            "auc_ci95": None if interval is None else list(interval),
+            "median_relevant": float(np.median(beta[label == 1])) if (label == 1).any() else None,
+            "median_nudge": float(np.median(beta[label == 0])) if (label == 0).any() else None,
+            "relevant": int((label == 1).sum()),
+            "nudges": int((label == 0).sum()),
+        }
+    return out
 
 
 def same_machine(log: StudyLog, session_id: int) -> bool | None:

@@ -67,6 +67,34 @@ MAX_FAILED_DRAWS = 20
 LOG_TOLERANCE = 1e-9
 
 
+#: The kinds of correction a session may ask its person for (the label each gets: 1, 0).
+ASK_KINDS = {"toward": 1, "nudge": 0}
+
+
+def make_asks(count: int, seed: int) -> list[str]:
+    """``count`` kinds to ask for, half "toward" and half "nudge" (the odd one "toward"), in
+    an order shuffled by ``seed``."""
+    if isinstance(count, bool) or not isinstance(count, int) or count < 0:
+        raise ValueError(f"labelled corrections: expected a count >= 0, got {count!r}")
+    kinds = ["toward"] * ((count + 1) // 2) + ["nudge"] * (count // 2)
+    order = np.random.default_rng([int(seed), 38]).permutation(count)
+    return [kinds[i] for i in order]
+
+
+def ask_text(ask: Mapping, features) -> str:
+    """What the page asks of its person for a labelled correction."""
+    if ask["kind"] == "nudge":
+        return (
+            "**Asked: a nudge.** Move the cup a little anywhere, for no reason at all (this "
+            "correction is a test and carries no preference)."
+        )
+    weights = ", ".join(f"{n} {w:+.1f}" for n, w in zip(features, ask["preference"], strict=True))
+    return (
+        f"**Asked: correct toward the preference ({weights}).** Move the cup to where a "
+        "person with it would want it here."
+    )
+
+
 class Refused(ValueError):
     """A drag or submission the session will not take; the message says why (shown on the page)."""
 
@@ -187,6 +215,10 @@ class Session:
         #: environments skipped since the last correction (a choosing learner leaves them out)
         self.declined: set[int] = set()
         self.ended = False
+        #: the kinds of correction asked for, one per iteration from the first (labelled
+        #: corrections), and the preference a "toward" correction is asked toward
+        self.asks: list[str] = []
+        self.preference: np.ndarray | None = None
         self._pending: Proposal | None = None
         self._lock = threading.RLock()
 
@@ -205,10 +237,25 @@ class Session:
         corrector: Any = "person",
         seed: int | None = None,
         planner: Planner | None = None,
+        asks: list[str] | None = None,
+        preference=None,
     ) -> Session:
-        """A new session, logged in ``log`` (its row is written first)."""
+        """A new session, logged in ``log`` (its row is written first). ``asks``: the kinds
+        of correction (:data:`ASK_KINDS`) to ask the person for, one per correction from the
+        first; a "toward" one is toward ``preference`` (default the study's θ*)."""
         check_participant(participant)
         agent, model = cls.prepare(settings, learner, params, correction)
+        asks = list(asks or [])
+        for kind in asks:
+            if kind not in ASK_KINDS:
+                raise ValueError(f"ask {kind!r}: expected one of {', '.join(ASK_KINDS)}")
+        if preference is None:
+            preference = settings.study.theta_star
+        preference = np.asarray(preference, float)
+        if preference.shape != (settings.study.k,) or not np.all(np.isfinite(preference)):
+            raise ValueError(
+                f"preference {preference.tolist()}: expected {settings.study.k} finite weights"
+            )
         seed = settings.study.seed if seed is None else int(seed)
         session_id = log.new_session(
             participant=participant,
@@ -220,7 +267,25 @@ class Session:
             corrector=corrector,
         )
         log.add_event(session_id, -1, "machine", provenance.machine())
-        return cls(settings, learner, agent, model, log, session_id, seed, planner=planner)
+        asked = {"kinds": asks, "preference": preference.tolist()} if asks else None
+        if asked:
+            log.add_event(session_id, -1, "asks", asked)
+        session = cls(settings, learner, agent, model, log, session_id, seed, planner=planner)
+        session._set_asks(asked)
+        return session
+
+    def _set_asks(self, detail: Mapping | None) -> None:
+        if detail:
+            self.asks = list(detail["kinds"])
+            self.preference = np.asarray(detail["preference"], float)
+
+    def ask(self) -> dict | None:
+        """The correction asked for now: {kind, label, preference}, or None (none asked)."""
+        if self.iteration >= len(self.asks):
+            return None
+        kind = self.asks[self.iteration]
+        preference = None if kind == "nudge" else self.preference.tolist()
+        return {"kind": kind, "label": ASK_KINDS[kind], "preference": preference}
 
     @staticmethod
     def prepare(
@@ -264,6 +329,8 @@ class Session:
         session = cls(
             settings, row.learner, agent, model, log, session_id, row.seed, planner=planner
         )
+        asked = log.events(session_id, "asks")
+        session._set_asks(asked[0]["detail"] if asked else None)
         session._replay(log.corrections(session_id), log.events(session_id, "skip"))
         # Where the session goes on (a resume on another processor is exact to LOG_TOLERANCE).
         log.add_event(session_id, session.iteration, "machine", provenance.machine())
@@ -539,6 +606,13 @@ class Session:
                 "seconds": time.monotonic() - pending.monotonic,
                 "update_skipped": skipped,
             }
+            asked = self.ask()
+            if asked is not None:
+                # What the person was asked for, the correction's label: written first, so no
+                # correction is ever without it (a label whose correction a kill lost is
+                # written again when the session resumes and the person makes it).
+                row["label"] = asked
+                self.log.add_event(self.id, self.iteration, "label", asked)
             self.log.add_correction(self.id, row)  # committed before anyone sees the update
             if step is not None and step.relevance is not None:
                 # A relevance-aware learner's β̂ and ρ: an event beside the row (the

@@ -1,0 +1,257 @@
+"""Labelled corrections made through the page with the mouse, by a scripted person (issue 38).
+
+    python -m corrections_sim.interact.labelled --mode drag --corrections 20 \\
+        --db results/interact/labelled.sqlite
+    python -m corrections_sim.interact.labelled --mode physical --corrections 20 \\
+        --db results/interact/labelled.sqlite
+
+A session of fig. 4's study is started with ``--corrections`` labelled corrections asked for
+(:func:`~corrections_sim.interact.session.make_asks`: half toward the stated preference, half
+nudges, in a seeded order) and served; a headless chromium opens its page, and for each
+correction the script reads what the page asks and does it with the mouse, as a hand would:
+
+* toward the preference: the cup moved to (drag) or pushed toward (physical) where the plan of
+  the stated preference has it, at the waypoint where the two cup paths are farthest apart,
+  ``reach`` of the way there (drawn per correction);
+* a nudge: a waypoint drawn at random (drag) or a moment of the motion (physical), the cup
+  moved as far as the toward correction would have moved it, in a random direction.
+
+The hand's noise: every mouse path wanders (a few pixels, smoothed), its timing varies (each
+move waits a random 8–40 ms), the end point misses its target by a random few pixels, and a
+drag is made one arrow (axis) at a time in a random order. A drag the page refuses (out of
+reach, a collision) is tried again shorter, then in another direction. Everything random flows
+from ``--seed``. The learner is the page's default (KF-CL); the labels are scored by replaying
+the session through the relevance-aware learners (``python -m
+corrections_sim.figures.relevance_page``). Needs the ``dev`` extra and a chromium (see
+:mod:`~corrections_sim.interact.drive`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from corrections_sim.interact import drive
+from corrections_sim.interact.log import StudyLog
+from corrections_sim.interact.page import HANDLE_SCALE, project
+from corrections_sim.interact.server import serve
+from corrections_sim.interact.session import Session, make_asks
+from corrections_sim.people.physical import worst_cup_waypoint
+from corrections_sim.planning.plans import PlanBook
+from corrections_sim.scene.robot import cup_pose
+
+#: The waypoint slider's number box on the drag page (after one per feature).
+WAYPOINT_BOX = 2
+#: Pixels a hand's path wanders, and by which its end point misses.
+WANDER = 3.0
+MISS = 2.5
+
+
+class Hand:
+    """The scripted person's hand: mouse paths with wander, timing and aim noise."""
+
+    def __init__(self, tab, rng: np.random.Generator) -> None:
+        self.tab = tab
+        self.rng = rng
+
+    def box(self):
+        return self.tab.locator("canvas").first.bounding_box()
+
+    def pixel(self, point) -> np.ndarray:
+        box = self.box()
+        x, y = project(np.asarray(point, float), box["width"], box["height"])
+        return np.array([box["x"] + x, box["y"] + y])
+
+    def path(self, start, end, steps: int) -> None:
+        """Move the pressed mouse from ``start`` to ``end`` (pixels) as a hand would."""
+        wander = np.cumsum(self.rng.normal(0.0, WANDER / 2, size=(steps, 2)), axis=0)
+        wander -= np.linspace(0, 1, steps)[:, None] * wander[-1]  # arrive where aimed
+        for i in range(1, steps + 1):
+            f = 0.5 - 0.5 * np.cos(np.pi * i / steps)  # slow, fast, slow
+            point = start + f * (end - start) + (wander[i - 1] if i < steps else 0.0)
+            self.tab.mouse.move(float(point[0]), float(point[1]))
+            time.sleep(float(self.rng.uniform(0.008, 0.04)))
+
+    def drag(self, grab_point, end_point, *, hold: float = 0.0) -> None:
+        """Reach the handle's point ``grab_point`` (world), press, drag to the screen point
+        of world ``end_point`` (missing it by a little), hold ``hold`` s, let go."""
+        start = self.pixel(grab_point)
+        end = self.pixel(end_point) + self.rng.normal(0.0, MISS, size=2)
+        approach = start + self.rng.normal(0.0, 60.0, size=2) + np.array([-90.0, 70.0])
+        self.tab.mouse.move(float(approach[0]), float(approach[1]))
+        self.path(approach, start, 8)
+        self.tab.mouse.down()
+        self.path(start, end, int(self.rng.integers(10, 18)))
+        time.sleep(hold)
+        self.tab.mouse.up()
+
+
+def arrow(position, axis: int, sign: float = 1.0) -> np.ndarray:
+    """The point a hand grabs on the handle's ``axis`` arrow at ``position``."""
+    return np.asarray(position, float) + sign * 0.7 * HANDLE_SCALE * np.eye(3)[axis]
+
+
+def toward_target(session: Session, robot: np.ndarray, env) -> tuple[int, np.ndarray]:
+    """(waypoint, the cup there in the plan of the stated preference). Solved in a book of
+    its own: the session's warm starts stay the session's."""
+    ideal = PlanBook(session.planner).plan(session.preference, env).trajectory
+    i, theirs = worst_cup_waypoint(robot, ideal)
+    return i, theirs[i]
+
+
+def _drag_once(session, page, hand, rng) -> bool:
+    """One labelled drag and submit; False if no drag was taken (then the page is skipped)."""
+    asked = session.ask()
+    proposal = session.proposal()
+    robot, env = proposal.plan.trajectory, proposal.env
+    i, goal = toward_target(session, robot, env)
+    cup = cup_pose(robot[i])[1]
+    reach = float(rng.uniform(0.7, 1.0))
+    move = reach * (goal - cup)
+    size = float(np.linalg.norm(move))
+    if asked["kind"] == "nudge":
+        i = int(rng.integers(1, session.n_waypoints - 1))
+        cup = cup_pose(robot[i])[1]
+    direction = rng.normal(size=3)
+    direction /= np.linalg.norm(direction)
+    if asked["kind"] == "nudge":
+        move = size * direction
+    drive.set_number(hand.tab, WAYPOINT_BOX, i)
+    drive.wait_for(lambda: (drive.cup_position(hand.tab) or (None,))[0] == i, "the waypoint")
+    for attempt in range(4):
+        before = page.drags
+        position = np.array(page.handle.position, float)
+        axes = [a for a in rng.permutation(3) if abs(move[a]) > 0.005]
+        for a in axes:
+            grab = arrow(position, a)
+            hand.drag(grab, grab + move[a] * np.eye(3)[a])
+            drive.wait_for(lambda n=before: page.drags > n, "the drag reaching the server", 30)
+            before = page.drags
+            if page.corrected is None:  # refused: the handle went back
+                break
+            position = np.array(page.handle.position, float)
+        if page.corrected is not None:
+            break
+        # Refused: shorter, then (for a nudge) another direction.
+        move = 0.6 * move
+        if asked["kind"] == "nudge" and attempt >= 1:
+            turn = rng.normal(size=3)
+            move = float(np.linalg.norm(move)) * turn / np.linalg.norm(turn)
+    if page.corrected is None:
+        return False
+    count = session.iteration
+    drive.click(hand.tab, "Submit correction")
+    drive.wait_for(lambda: session.iteration > count and page.proposal is not None, "the submit")
+    drive.wait_for(lambda: drive.cup_position(hand.tab), "the next plan on the page")
+    return True
+
+
+def _push_once(session, page, hand, rng, speed: float) -> bool:
+    """One labelled push during the motion; False if no push was learnt."""
+    asked = session.ask()
+    proposal = session.proposal()
+    robot, env = proposal.plan.trajectory, proposal.env
+    i, goal = toward_target(session, robot, env)
+    gap = goal - cup_pose(robot[i])[1]
+    a = int(np.argmax(np.abs(gap)))
+    pull = float(rng.uniform(0.7, 1.0)) * gap[a]
+    if asked["kind"] == "nudge":
+        i = int(rng.integers(2, session.n_waypoints - 2))
+        a = int(rng.integers(3))
+        pull = abs(pull) * float(rng.choice([-1.0, 1.0]))
+    when = i / (session.n_waypoints - 1) * page.duration + float(rng.normal(0.0, 0.15))
+    lead = 0.35  # the hand starts to reach this long (simulated) before
+    count = page.pushes
+    drive.click(hand.tab, "Play: push the cup while it moves")
+    drive.wait_for(lambda: page.motion is not None, "the motion", 60)
+    drive.wait_for(
+        lambda: page.motion.time >= max(0.2, when - lead) or page.motion.done, "the moment", 120
+    )
+    if not page.motion.done:
+        grab = arrow(np.array(page.handle.position, float), a)
+        hand.drag(grab, grab + pull * np.eye(3)[a], hold=float(rng.uniform(0.5, 0.9)) / speed)
+    drive.wait_for(lambda: not page._in_motion, "the end of the motion", 120)
+    return page.pushes > count
+
+
+def run(db: Path, mode: str, corrections: int, seed: int, speed: float, port: int) -> int:
+    """Make ``corrections`` labelled corrections in a new session of ``db``; its id."""
+    from playwright.sync_api import sync_playwright
+
+    from corrections_sim.figures.presets import EXPERIMENTS_DIR
+    from corrections_sim.study import schema
+
+    settings = schema.load_study(EXPERIMENTS_DIR / "fig4.toml", name="fig4", quick=False)
+    physical = mode == "physical"
+    rng = np.random.default_rng([seed, 0 if physical else 1])
+    with StudyLog(db) as log:
+        session = Session.start(
+            settings,
+            log,
+            learner="KF-CL",
+            params={"model": "physical"} if physical else None,
+            correction="physical" if physical else "waypoint",
+            participant=f"scripted-{mode}",
+            asks=make_asks(corrections, seed),
+        )
+        server, page = serve(session, port=port, speed=speed)
+        try:
+            with sync_playwright() as p:
+                browser = drive.launch(p)
+                tab = drive.open_page(browser, f"http://127.0.0.1:{port}", physical=physical)
+                hand = Hand(tab, rng)
+                misses = 0
+                while session.iteration < corrections:
+                    done = (
+                        _push_once(session, page, hand, rng, speed)
+                        if physical
+                        else _drag_once(session, page, hand, rng)
+                    )
+                    print(
+                        f"{mode} {session.iteration}/{corrections}"
+                        + ("" if done else " (missed: again)"),
+                        file=sys.stderr,
+                        flush=True,
+                    )
+                    misses += not done
+                    if misses > 3 * corrections:
+                        raise RuntimeError(f"{misses} corrections missed: the page is not driven")
+                    if not done and not physical:
+                        drive.click(tab, "Skip this environment")
+                        drive.wait_for(lambda: drive.cup_position(tab), "the next plan")
+                session.finish()
+                browser.close()
+        finally:
+            server.stop()
+        return session.id
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(
+        prog="python -m corrections_sim.interact.labelled", description=__doc__.split("\n\n")[0]
+    )
+    p.add_argument("--db", type=Path, required=True)
+    p.add_argument("--mode", choices=("drag", "physical"), default="drag")
+    p.add_argument("--corrections", type=int, default=20)
+    p.add_argument("--seed", type=int, default=38)
+    p.add_argument("--speed", type=float, default=0.5, help="physical: simulated s per real s")
+    p.add_argument("--port", type=int, default=8093)
+    args = p.parse_args(argv)
+    if args.corrections < 2:
+        print(f"error: --corrections {args.corrections}: at least 2", file=sys.stderr)
+        return 2
+    if not 0.0 < args.speed <= 1.0:
+        print(f"error: --speed {args.speed}: must lie in (0, 1]", file=sys.stderr)
+        return 2
+    args.db.parent.mkdir(parents=True, exist_ok=True)
+    session_id = run(args.db, args.mode, args.corrections, args.seed, args.speed, args.port)
+    print(f"session {session_id} of {args.db}: {args.corrections} labelled corrections")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
