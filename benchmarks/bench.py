@@ -399,17 +399,18 @@ def main(argv: Sequence[str] | None = None) -> None:
         "latency from submit to the next plan, driven in chromium by Playwright. 'warm': "
         "warm re-solves captured from fig. 4 runs, in each warm mode (Newton, solver). "
         "'physical': the arm's real-time factor, sensing against the applied push, one "
-        "physical correction end to end.",
+        "physical correction end to end. 'relevance': the relevance study's learners' cost "
+        "per correction (seconds, planner solves).",
     )
     parser.add_argument(
         "what",
-        choices=["planner", "fig4", "interact", "warm", "physical"],
+        choices=["planner", "fig4", "interact", "warm", "physical", "relevance"],
         help="which benchmark to run",
     )
     parser.add_argument(
         "--learners",
-        default="KF-CL,KF-C,BP",
-        help="interact: the learners, one session each (default KF-CL,KF-C,BP)",
+        help="interact: the learners, one session each (default KF-CL,KF-C,BP); relevance: "
+        "the learners costed (default KF-C,KF-CR,KF-CRP)",
     )
     parser.add_argument(
         "--corrections", type=int, default=10, help="interact: corrections per session"
@@ -541,6 +542,15 @@ def main(argv: Sequence[str] | None = None) -> None:
         else:
             print("\n".join(run_warm(problems)))
         return
+    if args.what == "relevance":
+        from benchmarks.bench_relevance import run_bench as run_relevance
+
+        runs = 3 if args.problems is None else args.problems
+        if runs < 1:
+            parser.error("--problems: relevance takes the runs per person and learner, >= 1")
+        names = tuple(n.strip() for n in (args.learners or "KF-C,KF-CR,KF-CRP").split(","))
+        print("\n".join(run_relevance(tuple(n for n in names if n), runs)))
+        return
     if args.what == "physical":
         from benchmarks.bench_physical import run_bench as run_physical
 
@@ -563,7 +573,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         if args.corrections < 1:
             parser.error("--corrections must be >= 1")
         shot = Path(args.screenshot) if args.screenshot else None
-        learners = [n.strip() for n in args.learners.split(",") if n.strip()]
+        learners = [n.strip() for n in (args.learners or "KF-CL,KF-C,BP").split(",") if n.strip()]
         db = Path(args.db or "results/interact/bench.sqlite")
         print("\n".join(run_interact(learners, args.corrections, db, shot)))
         return

@@ -870,3 +870,33 @@ def plot_relevance(
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     _save_and_close(fig, paths, dpi=130)
+
+
+def plot_reliability(diagrams: dict, title: str, paths) -> None:
+    """Reliability diagrams of β̂: per learner, the fraction of relevant corrections in each
+    β̂ bin against the bin's mean β̂ (marker area ∝ the bin's corrections), the diagonal
+    being perfect calibration; the expected calibration error in the legend.
+
+    Args:
+        diagrams: learner -> {"ece": float, "bins": [{count, probability, fraction}, …]}.
+        paths: files to write.
+    """
+    fig, ax = plt.subplots(figsize=(6.2, 5.6))
+    ax.plot([0, 1], [0, 1], color="0.6", lw=0.8, ls=":")
+    total = max(sum(b["count"] for b in d["bins"]) for d in diagrams.values())
+    for name, diagram in diagrams.items():
+        bins = [b for b in diagram["bins"] if b["count"]]
+        colour, style = learner_style(name)
+        x = [b["probability"] for b in bins]
+        y = [b["fraction"] for b in bins]
+        ax.plot(x, y, color=colour, ls=style, lw=1.2, label=f"{name}: ECE {diagram['ece']:.3f}")
+        ax.scatter(x, y, s=[8 + 600 * b["count"] / total for b in bins], color=colour, alpha=0.6)
+    ax.set_xlim(-0.02, 1.02)
+    ax.set_ylim(-0.02, 1.02)
+    ax.set_xlabel("β̂ (mean within the bin)")
+    ax.set_ylabel("fraction of the bin's corrections that are relevant")
+    ax.set_title("Is β̂ calibrated? (every person's corrections; area ∝ count)", fontsize=10)
+    ax.legend(fontsize=8, loc="upper left")
+    fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    _save_and_close(fig, paths, dpi=130)

@@ -31,14 +31,14 @@ import numpy as np
 
 from corrections_sim.figures import robustness
 from corrections_sim.figures.registry import register
-from corrections_sim.metrics import mean_sem, roc_auc
+from corrections_sim.metrics import expected_calibration_error, mean_sem, roc_auc
 from corrections_sim.study import analysis
 from corrections_sim.study.runner import FigureResult
 
 FIGURE = "relevance"
 #: Each learner compared with its twin in ``paired.csv``: the same learner without relevance
 #: (and PP-MAX with the perceptron it restricts).
-TWINS = {"KF-CR": "KF-C", "PP-R": "PP", "PP-MAX": "PP"}
+TWINS = {"KF-CR": "KF-C", "KF-CRP": "KF-C", "PP-R": "PP", "PP-MAX": "PP"}
 
 
 def _final(records: Sequence[dict], learner: str) -> list[dict]:
@@ -140,7 +140,12 @@ def boundary(settings) -> float | None:
 
 def write(settings, results: Sequence[FigureResult], folder: Path) -> dict:
     """matrix.csv, curves.csv, paired.csv and the plots in ``folder``; the summary's fields."""
-    from corrections_sim.figures.plotting import plot_relevance, plot_robustness_matrix
+    from corrections_sim.figures.output import write_csv
+    from corrections_sim.figures.plotting import (
+        plot_relevance,
+        plot_reliability,
+        plot_robustness_matrix,
+    )
 
     rows = matrix(settings, results)
     pairs = paired(settings, results)
@@ -156,7 +161,31 @@ def write(settings, results: Sequence[FigureResult], folder: Path) -> dict:
         for c, r in zip(settings.columns, results, strict=True)
     }
     plot_relevance(rows, seen, title, [folder / f"{FIGURE}-beta.png"], boundary(settings))
-    return summary | {"pooled_auc": pooled_auc(settings, results)}
+    diagrams = reliability(settings, results)
+    write_csv(
+        folder / "reliability.csv",
+        [{"learner": name} | b for name, d in diagrams.items() for b in d["bins"]],
+    )
+    plot_reliability(diagrams, title, [folder / f"{FIGURE}-reliability.png"])
+    return summary | {
+        "pooled_auc": pooled_auc(settings, results),
+        "ece": {name: d["ece"] for name, d in diagrams.items()},
+    }
+
+
+def reliability(settings, results: Sequence[FigureResult], bins: int = 10) -> dict:
+    """Per learner with β̂, the reliability diagram of β̂ over every person's corrections
+    (a person without labels counts as relevant) in ``bins`` bins, and its expected
+    calibration error."""
+    out = {}
+    for learner in settings.columns[0].settings.study.learners:
+        parts = [judged(r.records, learner) for r in results]
+        beta = np.concatenate([p["beta"] for p in parts])
+        if beta.size:
+            label = np.concatenate([p["relevant"] for p in parts])
+            ece, rows = expected_calibration_error(beta, label, bins)
+            out[learner] = {"ece": ece, "bins": rows}
+    return out
 
 
 def pooled_auc(settings, results: Sequence[FigureResult]) -> dict[str, float | None]:
