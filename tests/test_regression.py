@@ -163,7 +163,7 @@ def test_quick_physical_curves_match_the_reference():
 
 def test_quick_relevance_curves_match_the_reference():
     """The relevance study's quick preset (``run relevance --quick --out results/reference``):
-    every person's error and regret, KF-CR's and PP-R's β̂ per correction (its mean per
-    iteration), and the labels exactly."""
+    every person's error and regret, KF-CR's, PP-R's and KF-CRP's β̂ per correction (its mean
+    per iteration), and the labels exactly."""
     checked = _check_matrix("relevance", {**TOLERANCE, "relevance": 0.03}, labels=True)
-    assert checked == 4 * 8 * 2 + 4 * 2  # every person's error and regret, two learners' β̂
+    assert checked == 4 * 9 * 2 + 4 * 3  # every person's error and regret, three learners' β̂
