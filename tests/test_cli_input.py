@@ -73,7 +73,9 @@ def test_a_malformed_scheduler_fails_at_once_without_a_traceback(tmp_path):
     )
     assert proc.returncode == 2
     _one_line(proc.stderr, "--scheduler foo")
-    assert time.perf_counter() - start < 5
+    # "At once": no wait for a scheduler to answer (Dask's connect timeout is 30 s and more);
+    # not a speed bound (a loaded 2-core machine took 6.3 s to start Python and refuse).
+    assert time.perf_counter() - start < 25
     assert list(tmp_path.iterdir()) == []
 
 

@@ -360,3 +360,22 @@ def test_a_hand_catches_the_moving_handle_holds_past_the_end_and_done_waits(
         tab.close()
         server.stop()
         log.close()
+
+
+def test_a_scripted_hand_makes_labelled_drags_through_the_page(playwright_browser, tmp_path):
+    """interact.labelled: the page asks for each kind in turn, the scripted hand drags with
+    the mouse, and every correction is logged with the label it was asked for."""
+    from corrections_sim.interact import labelled
+
+    db = tmp_path / "labelled.sqlite"
+    port = _free_port()
+    session_id = labelled.run(db, "drag", 2, 5, 1.0, port, browser=playwright_browser)
+    with StudyLog(db) as log:
+        labels = log.labels(session_id)
+        rows = log.corrections(session_id)
+        assert log.session(session_id).ended is not None
+    assert sorted(labels) == [0, 1] and len(rows) == 2
+    assert sorted(lab["kind"] for lab in labels.values()) == ["nudge", "toward"]
+    for row in rows:
+        moved = np.flatnonzero(np.any(row["xi_h"] != row["xi_robot"], axis=1))
+        assert moved.size == 1 and row["drag"]["waypoint"] == moved[0]

@@ -9,10 +9,11 @@ import math
 import numpy as np
 import pytest
 from scipy import integrate, stats
+from test_relevance import _context
 
-from corrections_sim.belief import Belief, KalmanNoise, PersonBelief
+from corrections_sim.belief import Belief, PersonBelief
 from corrections_sim.learning import reference as ref
-from corrections_sim.learning.base import LearnerContext, make_learner
+from corrections_sim.learning.base import make_learner
 from corrections_sim.learning.kalman import SigmaPoints
 from corrections_sim.learning.relevance import judge
 from corrections_sim.people.corrections import WaypointCorrection
@@ -29,20 +30,6 @@ THETA_STAR = np.array([1.0, -1.0])
 def task(planner):
     env = paper_environments()[5]
     return env, planner.solve(np.zeros(2), env), planner.solve(THETA_STAR, env)
-
-
-def _context(planner, corrected):
-    return LearnerContext(
-        book=PlanBook(planner, warm_start=True),
-        envs=paper_environments(),
-        features=FEATURES,
-        n_waypoints=planner.config.n_waypoints,
-        alphas=None,
-        rng=np.random.default_rng(0),
-        noise=KalmanNoise.isotropic(2, 1e-4, 0.25),
-        sigma=SigmaPoints(),
-        corrected=corrected,
-    )
 
 
 # ---- the belief over the person ------------------------------------------------------------
@@ -99,24 +86,30 @@ def test_the_grid_keeps_the_priors_means_and_spreads_its_nodes_by_probability():
 # ---- judging a correction ----------------------------------------------------------------
 
 
-def test_a_correction_the_belief_explains_is_relevant_and_a_nudge_is_not(planner, task, rng):
-    env, mine, star = task
-    book = PlanBook(planner, warm_start=True)
-    corrected = WaypointCorrection().apply(mine.trajectory, star.trajectory)
-    starts = SigmaPoints().points(np.zeros(2), np.eye(2))
-    found = judge(
+def _judge(book, task, corrected, mean=(0.0, 0.0), cov=((1.0, 0.0), (0.0, 1.0))):
+    """``corrected`` judged under N(mean, cov), a new person (τ's prior mean 400) and a
+    scatter of irrelevant explanations with a core and a tail around θ̂ = 0."""
+    env, mine, _ = task
+    return judge(
         book,
         env,
         mine.trajectory,
         corrected,
         WaypointCorrection(),
-        np.zeros(2),
-        np.eye(2),
-        starts,
+        np.array(mean, float),
+        np.array(cov, float),
+        SigmaPoints().points(np.zeros(2), np.eye(2)),
         person=PersonBelief.prior(1.0, 1.0 / 400.0, 1.0, 1.0),
         scatter=[(0.8, np.eye(2)), (0.2, 25.0 * np.eye(2))],
         scatter_center=np.zeros(2),
     )
+
+
+def test_a_correction_the_belief_explains_is_relevant_and_a_nudge_is_not(planner, task, rng):
+    env, mine, star = task
+    book = PlanBook(planner, warm_start=True)
+    corrected = WaypointCorrection().apply(mine.trajectory, star.trajectory)
+    found = _judge(book, task, corrected)
     assert found.relevance > 0.99 and found.rho < 0.05 and found.rho_belief < 0.1
     assert found.solves <= 5 + 12 + 6 + 2 * 3  # starts, ρ*, the belief, W's two parts
 
@@ -124,55 +117,16 @@ def test_a_correction_the_belief_explains_is_relevant_and_a_nudge_is_not(planner
     nudge = user.perform(
         Situation(mine.trajectory, star.trajectory, env, FEATURES, THETA_STAR), rng
     )
-    found = judge(
-        book,
-        env,
-        mine.trajectory,
-        nudge.corrected,
-        WaypointCorrection(),
-        np.zeros(2),
-        np.eye(2),
-        starts,
-        person=PersonBelief.prior(1.0, 1.0 / 400.0, 1.0, 1.0),
-        scatter=[(0.8, np.eye(2)), (0.2, 25.0 * np.eye(2))],
-        scatter_center=np.zeros(2),
-    )
-    assert found.relevance < 0.01
+    assert _judge(book, task, nudge.corrected).relevance < 0.01
 
 
 def test_the_same_correction_is_doubted_where_the_belief_rules_its_explanation_out(planner, task):
     """Explained exactly by θ* = (1, −1): believed under N(0, I), not under a belief
     concentrated at (−2, 2), though ρ* is the same."""
-    env, mine, star = task
+    _, mine, star = task
     corrected = WaypointCorrection().apply(mine.trajectory, star.trajectory)
-    starts = SigmaPoints().points(np.zeros(2), np.eye(2))
-    common = dict(
-        person=PersonBelief.prior(1.0, 1.0 / 400.0, 1.0, 1.0),
-        scatter=[(0.8, np.eye(2)), (0.2, 25.0 * np.eye(2))],
-        scatter_center=np.zeros(2),
-    )
-    near = judge(
-        PlanBook(planner),
-        env,
-        mine.trajectory,
-        corrected,
-        WaypointCorrection(),
-        np.zeros(2),
-        np.eye(2),
-        starts,
-        **common,
-    )
-    far = judge(
-        PlanBook(planner),
-        env,
-        mine.trajectory,
-        corrected,
-        WaypointCorrection(),
-        np.array([-2.0, 2.0]),
-        0.01 * np.eye(2),
-        starts,
-        **common,
-    )
+    near = _judge(PlanBook(planner), task, corrected)
+    far = _judge(PlanBook(planner), task, corrected, (-2.0, 2.0), ((0.01, 0.0), (0.0, 0.01)))
     assert far.rho == pytest.approx(near.rho, abs=0.02)
     assert near.log_relevant - far.log_relevant > 10.0
     assert far.relevance < near.relevance

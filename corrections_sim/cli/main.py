@@ -735,6 +735,16 @@ def run_replay(args: argparse.Namespace) -> list[Path]:
         error = entry["estimate_error"]
         tail = "" if error is None else f", error {error:.3f} against the stated θ"
         print(f"{name}: θ̂ = {np.round(entry['theta'], 3).tolist()}{tail}", file=sys.stderr)
+    for name, score in facts.get("labelled", {}).items():
+        if score["auc"] is None:  # one kind only: nothing to rank
+            continue
+        low, high = score["auc_ci95"]
+        print(
+            f"{name} on the {score['relevant']} + {score['nudges']} labelled corrections: ROC AUC "
+            f"{score['auc']:.3f} [{low:.3f}, {high:.3f}], median β̂ {score['median_relevant']:.3f}"
+            f" toward, {score['median_nudge']:.3g} nudges",
+            file=sys.stderr,
+        )
     return [final / n for n in names]
 
 

@@ -127,7 +127,10 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{'mode':9} {'learner':15} {'AUC [95%]':>20} {'β̂ toward':>9} {'β̂ nudge':>9} {'ECE':>6}")
     for mode, learners in table.items():
         for name, s in learners.items():
-            low, high = s["auc_ci95"] or (np.nan, np.nan)
+            if s["auc"] is None:  # one kind only so far
+                print(f"{mode:9} {name:15} {'—':>20}  ({s['toward']} + {s['nudges']})")
+                continue
+            low, high = s["auc_ci95"]
             print(
                 f"{mode:9} {name:15} {s['auc']:.3f} [{low:.3f}, {high:.3f}] "
                 f"{s['median_toward']:9.3f} {s['median_nudge']:9.3g} {s['ece']:6.3f}"

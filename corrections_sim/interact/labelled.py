@@ -12,9 +12,12 @@ correction the script reads what the page asks and does it with the mouse, as a 
 
 * toward the preference: the cup moved to (drag) or pushed toward (physical) where the plan of
   the stated preference has it, at the waypoint where the two cup paths are farthest apart,
-  ``reach`` of the way there (drawn per correction);
+  ``reach`` of the way there (drawn per correction); a push pulls the handle's vertical arrow,
+  up or down as the preference's cup is higher or lower (an environment where it differs
+  mostly sideways is skipped);
 * a nudge: a waypoint drawn at random (drag) or a moment of the motion (physical), the cup
-  moved as far as the toward correction would have moved it, in a random direction.
+  moved as far as the toward correction would have moved it, in a random direction (a push:
+  up or down at random).
 
 The hand's noise: every mouse path wanders (a few pixels, smoothed), its timing varies (each
 move waits a random 8–40 ms), the end point misses its target by a random few pixels, and a
@@ -46,6 +49,12 @@ from corrections_sim.scene.robot import cup_pose
 
 #: The waypoint slider's number box on the drag page (after one per feature).
 WAYPOINT_BOX = 2
+#: A toward correction smaller than this (m, the cup) is nothing to correct: the environment
+#: is skipped, as a person would.
+NOTHING = 0.02
+#: How far (m) the hand pulls the handle in a push, at least and at most: a pull of 1 cm is a
+#: 3 N spring the robot does not feel through its joints; 15 cm is beyond the 30 N cap.
+PULL_MIN, PULL_MAX = 0.05, 0.15
 #: Pixels a hand's path wanders, and by which its end point misses.
 WANDER = 3.0
 MISS = 2.5
@@ -103,13 +112,16 @@ def toward_target(session: Session, robot: np.ndarray, env) -> tuple[int, np.nda
     return i, theirs[i]
 
 
-def _drag_once(session, page, hand, rng) -> bool:
-    """One labelled drag and submit; False if no drag was taken (then the page is skipped)."""
+def _drag_once(session, page, hand, rng) -> bool | None:
+    """One labelled drag and submit; False if no drag was taken, None if there is nothing to
+    correct here (then the page is skipped)."""
     asked = session.ask()
     proposal = session.proposal()
     robot, env = proposal.plan.trajectory, proposal.env
     i, goal = toward_target(session, robot, env)
     cup = cup_pose(robot[i])[1]
+    if np.linalg.norm(goal - cup) < NOTHING:
+        return None
     reach = float(rng.uniform(0.7, 1.0))
     move = reach * (goal - cup)
     size = float(np.linalg.norm(move))
@@ -150,38 +162,74 @@ def _drag_once(session, page, hand, rng) -> bool:
     return True
 
 
-def _push_once(session, page, hand, rng, speed: float) -> bool:
-    """One labelled push during the motion; False if no push was learnt."""
+def _push_once(session, page, hand, rng, speed: float) -> bool | None:
+    """One labelled push during the motion; False if no push was learnt, None if there is
+    nothing to correct here (then the page is skipped)."""
     asked = session.ask()
     proposal = session.proposal()
     robot, env = proposal.plan.trajectory, proposal.env
     i, goal = toward_target(session, robot, env)
     gap = goal - cup_pose(robot[i])[1]
-    a = int(np.argmax(np.abs(gap)))
-    pull = float(rng.uniform(0.7, 1.0)) * gap[a]
+    if np.linalg.norm(gap) < NOTHING:
+        return None
+    # The hand pulls the handle's vertical arrow (the one a hand catches during the motion:
+    # the scripted pointer did not land a grab on the x or y arrows of the waiting handle
+    # there), up or down: toward the preference where its cup is higher or lower than the
+    # robot's, about as far as the cups are apart (at least PULL_MIN, at most PULL_MAX: the
+    # spring is capped anyway). A preference whose cup differs mostly sideways here gives
+    # nothing this hand can correct: skipped.
+    if abs(gap[2]) < 0.3 * np.linalg.norm(gap):
+        return None
+    a = 2
+    size = float(np.clip(rng.uniform(0.7, 1.0) * np.linalg.norm(gap), PULL_MIN, PULL_MAX))
+    pull = size * float(np.sign(gap[2]))
     if asked["kind"] == "nudge":
         i = int(rng.integers(2, session.n_waypoints - 2))
-        a = int(rng.integers(3))
-        pull = abs(pull) * float(rng.choice([-1.0, 1.0]))
+        pull = size * float(rng.choice([-1.0, 1.0]))
     when = i / (session.n_waypoints - 1) * page.duration + float(rng.normal(0.0, 0.15))
     lead = 0.35  # the hand starts to reach this long (simulated) before
-    count = page.pushes
+    count, before = page.pushes, page.motion
+    drive.wait_for(lambda: not page._in_motion, "the last motion's end", 120)
     drive.click(hand.tab, "Play: push the cup while it moves")
-    drive.wait_for(lambda: page.motion is not None, "the motion", 60)
+    # The click reaches the server a little later: wait for this motion, not the last one.
+    drive.wait_for(lambda: page.motion is not None and page.motion is not before, "the motion", 60)
     drive.wait_for(
         lambda: page.motion.time >= max(0.2, when - lead) or page.motion.done, "the moment", 120
     )
+    grabs = page.grabs
     if not page.motion.done:
         grab = arrow(np.array(page.handle.position, float), a)
         hand.drag(grab, grab + pull * np.eye(3)[a], hold=float(rng.uniform(0.5, 0.9)) / speed)
     drive.wait_for(lambda: not page._in_motion, "the end of the motion", 120)
+    if page.pushes == count:
+        why = "no grab" if page.grabs == grabs else f"a grab, {abs(pull):.2f} m on axis {a}"
+        print(f"  {asked['kind']}: no push felt ({why})", file=sys.stderr)
     return page.pushes > count
 
 
-def run(db: Path, mode: str, corrections: int, seed: int, speed: float, port: int) -> int:
-    """Make ``corrections`` labelled corrections in a new session of ``db``; its id."""
-    from playwright.sync_api import sync_playwright
+def _skip(tab, page, session, physical: bool) -> None:
+    """Skip this environment on the page and wait for the next plan there."""
+    draws = session.draws
+    drive.click(tab, "Skip this environment")
+    drive.wait_for(lambda: session.draws > draws and page.proposal is not None, "the next plan")
+    if not physical:
+        drive.wait_for(lambda: drive.cup_position(tab), "the next plan on the page")
 
+
+def run(
+    db: Path, mode: str, corrections: int, seed: int, speed: float, port: int, *, browser=None
+) -> int:
+    """Make ``corrections`` labelled corrections in a new session of ``db``; its id. With no
+    ``browser`` (a Playwright chromium), one is launched for the session."""
+    if browser is None:
+        from playwright.sync_api import sync_playwright
+
+        with sync_playwright() as p:
+            browser = drive.launch(p)
+            try:
+                return run(db, mode, corrections, seed, speed, port, browser=browser)
+            finally:
+                browser.close()
     from corrections_sim.figures.presets import EXPERIMENTS_DIR
     from corrections_sim.study import schema
 
@@ -200,31 +248,27 @@ def run(db: Path, mode: str, corrections: int, seed: int, speed: float, port: in
         )
         server, page = serve(session, port=port, speed=speed)
         try:
-            with sync_playwright() as p:
-                browser = drive.launch(p)
-                tab = drive.open_page(browser, f"http://127.0.0.1:{port}", physical=physical)
-                hand = Hand(tab, rng)
-                misses = 0
-                while session.iteration < corrections:
-                    done = (
-                        _push_once(session, page, hand, rng, speed)
-                        if physical
-                        else _drag_once(session, page, hand, rng)
-                    )
-                    print(
-                        f"{mode} {session.iteration}/{corrections}"
-                        + ("" if done else " (missed: again)"),
-                        file=sys.stderr,
-                        flush=True,
-                    )
-                    misses += not done
-                    if misses > 3 * corrections:
-                        raise RuntimeError(f"{misses} corrections missed: the page is not driven")
-                    if not done and not physical:
-                        drive.click(tab, "Skip this environment")
-                        drive.wait_for(lambda: drive.cup_position(tab), "the next plan")
-                session.finish()
-                browser.close()
+            tab = drive.open_page(browser, f"http://127.0.0.1:{port}", physical=physical)
+            hand = Hand(tab, rng)
+            misses = skips = 0
+            while session.iteration < corrections:
+                done = (
+                    _push_once(session, page, hand, rng, speed)
+                    if physical
+                    else _drag_once(session, page, hand, rng)
+                )
+                note = {True: "", False: " (missed: again)", None: " (nothing to correct: skip)"}
+                print(f"{mode} {session.iteration}/{corrections}{note[done]}", file=sys.stderr)
+                misses += done is False
+                skips += done is None
+                if misses > 3 * corrections:
+                    raise RuntimeError(f"{misses} corrections missed: the page is not driven")
+                if skips > 20 * corrections:
+                    raise RuntimeError(f"{skips} environments skipped: nothing to correct")
+                if done is None or (done is False and not physical):
+                    _skip(tab, page, session, physical)
+            session.finish()
+            tab.close()
         finally:
             server.stop()
         return session.id

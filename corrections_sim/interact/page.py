@@ -444,6 +444,11 @@ class Page:
                 + (f" (unexplained fraction ρ = {rho:.2f})" if rho is not None else "")
                 + "; I learnt from it in proportion."
             )
+        if b.person is not None:  # a learner that judges relevance across the corrections
+            relevance += (
+                f"\n\nYour corrections so far: relevant about **{b.person.rate_mean:.0%}** of "
+                f"the time, leaving about **{b.person.spread:.2f}** of a move unexplained."
+            )
         self.belief_text.content = (
             f"After **{s.iteration}** {plural(s.iteration, 'correction')}:\n\n"
             f"| feature | θ̂ | σ |\n|---|---|---|\n{rows}" + relevance
