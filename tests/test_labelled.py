@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 from test_cli_input import _main, _one_line
 
-from corrections_sim.figures import relevance_fit, relevance_page
+from corrections_sim.figures import relevance_fit
+from corrections_sim.interact import relevance_page
 from corrections_sim.interact.log import LogError, StudyLog
 from corrections_sim.interact.replay import replay
 from corrections_sim.interact.session import Session, ask_text, make_asks

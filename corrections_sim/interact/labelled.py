@@ -25,7 +25,7 @@ drag is made one arrow (axis) at a time in a random order. A drag the page refus
 reach, a collision) is tried again shorter, then in another direction. Everything random flows
 from ``--seed``. The learner is the page's default (KF-CL); the labels are scored by replaying
 the session through the relevance-aware learners (``python -m
-corrections_sim.figures.relevance_page``). Needs the ``dev`` extra and a chromium (see
+corrections_sim.interact.relevance_page``). Needs the ``dev`` extra and a chromium (see
 :mod:`~corrections_sim.interact.drive`).
 """
 
@@ -52,8 +52,8 @@ WAYPOINT_BOX = 2
 #: A toward correction smaller than this (m, the cup) is nothing to correct: the environment
 #: is skipped, as a person would.
 NOTHING = 0.02
-#: How far (m) the hand pulls the handle in a push, at least and at most: a pull of 1 cm is a
-#: 3 N spring the robot does not feel through its joints; 15 cm is beyond the 30 N cap.
+#: How far (m) the hand pulls the handle in a push, at least and at most: a firm push (the
+#: 300 N/m spring reaches its 30 N cap at 10 cm).
 PULL_MIN, PULL_MAX = 0.05, 0.15
 #: Pixels a hand's path wanders, and by which its end point misses.
 WANDER = 3.0

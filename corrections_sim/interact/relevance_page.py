@@ -1,7 +1,7 @@
 """Relevance scored on corrections made through the page (issue 38): every labelled
 correction of a log replayed through the relevance-aware learners.
 
-    python -m corrections_sim.figures.relevance_page results/interact/labelled.sqlite
+    python -m corrections_sim.interact.relevance_page results/interact/labelled.sqlite
 
 A labelled session (``python -m corrections_sim.interact.labelled``, or ``run interact
 --labelled N`` with a person) asked its person, correction by correction, for a correction
@@ -97,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
     from corrections_sim.interact.log import LogError, StudyLog
 
     p = argparse.ArgumentParser(
-        prog="python -m corrections_sim.figures.relevance_page",
+        prog="python -m corrections_sim.interact.relevance_page",
         description=__doc__.split("\n\n")[0],
     )
     p.add_argument("db", type=Path, help="a log with labelled sessions")
