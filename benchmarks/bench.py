@@ -440,7 +440,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument(
         "--problems",
         type=int,
-        help="number of (theta, E) problems (default 60; warm: 300 of those captured)",
+        help="number of (theta, E) problems (default 60; warm: 300 of those captured); "
+        "relevance: runs per person and learner (default 3)",
     )
     parser.add_argument(
         "--seed", type=int, help="seed of the problem set (default 0; warm: of fig. 4's runs, 7)"

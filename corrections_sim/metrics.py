@@ -113,3 +113,21 @@ def expected_calibration_error(
             total += n / len(p) * abs(row["fraction"] - row["probability"])
         rows.append(row)
     return float(total), rows
+
+
+def label_scores(probabilities: np.ndarray, labels: np.ndarray) -> dict:
+    """How probabilities of relevance score binary labels (1 a correction toward a preference,
+    0 a nudge): ROC AUC with its 95% bootstrap interval, the median of each label, the expected
+    calibration error and the counts (None where a label is missing)."""
+    p = np.asarray(probabilities, dtype=float)
+    y = np.asarray(labels, dtype=float)
+    interval = roc_auc_interval(p, y)
+    return {
+        "auc": roc_auc(p, y),
+        "auc_ci95": None if interval is None else list(interval),
+        "median_toward": float(np.median(p[y == 1])) if (y == 1).any() else None,
+        "median_nudge": float(np.median(p[y == 0])) if (y == 0).any() else None,
+        "ece": expected_calibration_error(p, y)[0] if p.size else None,
+        "toward": int((y == 1).sum()),
+        "nudges": int((y == 0).sum()),
+    }

@@ -13,8 +13,9 @@ from test_cli_input import _main, _one_line
 from corrections_sim.figures import relevance_fit
 from corrections_sim.interact import relevance_page
 from corrections_sim.interact.log import LogError, StudyLog
+from corrections_sim.interact.page import ask_text
 from corrections_sim.interact.replay import replay
-from corrections_sim.interact.session import Session, ask_text, make_asks
+from corrections_sim.interact.session import Session, make_asks
 from corrections_sim.learning.base import make_learner
 from corrections_sim.learning.relevance import load_fit
 from corrections_sim.metrics import expected_calibration_error, roc_auc, roc_auc_interval
@@ -47,6 +48,8 @@ def test_the_page_says_what_is_asked():
     toward = ask_text({"kind": "toward", "preference": [1.0, -1.0]}, ("laptop", "table"))
     assert "laptop +1.0, table -1.0" in toward
     assert "for no reason" in ask_text({"kind": "nudge", "preference": None}, ("laptop",))
+    pushed = ask_text({"kind": "toward", "preference": [1.0]}, ("laptop",), physical=True)
+    assert "Push the cup toward where" in pushed
 
 
 def _drag_toward(session: Session, kind: str, rng) -> None:
@@ -85,7 +88,7 @@ def test_a_labelled_session_logs_each_label_resumes_and_replays_the_scores(tmp_p
         assert [r.get("relevant") for r in mine] == [None, 1.0, 0.0, 1.0]
         scored = facts["labelled"]
         assert set(scored) == {"KF-CRP"}  # KF-C has no β̂ to score
-        assert scored["KF-CRP"]["relevant"] == 2 and scored["KF-CRP"]["nudges"] == 1
+        assert scored["KF-CRP"]["toward"] == 2 and scored["KF-CRP"]["nudges"] == 1
         assert 0.0 <= scored["KF-CRP"]["auc"] <= 1.0
 
 
@@ -143,7 +146,6 @@ def test_the_shipped_fit_is_the_fit_of_the_committed_data():
     shipped = load_fit()
     committed = json.loads((root / "experiments" / "relevance_fit.json").read_text())["spaces"]
     for space, entry in refit.items():
-        assert shipped[space].spread == pytest.approx(entry["spread"], rel=1e-6)
         np.testing.assert_allclose(shipped[space].scatter, entry["scatter"], rtol=1e-6)
         np.testing.assert_allclose(shipped[space].precision, entry["precision"], rtol=1e-3)
         np.testing.assert_allclose(shipped[space].irrelevant, entry["irrelevant"], rtol=1e-3)
@@ -157,24 +159,19 @@ def test_the_shipped_fit_is_the_fit_of_the_committed_data():
         ("{", "not JSON"),
         ("[]", "expected an object with 'spaces'"),
         ('{"spaces": {"elbow": {}}}', "unknown space"),
-        ('{"spaces": {"task": {"spread": 0.1}}}', "missing 'irrelevant'"),
+        ('{"spaces": {"task": {"precision": [1, 1]}}}', "missing 'irrelevant'"),
         (
-            '{"spaces": {"task": {"irrelevant": [1, 2], "spread": 0, "precision": [1, 1],'
-            ' "scatter": [[1, 1]], "relevant_count": 1, "irrelevant_count": 1}}}',
-            "spread: must be finite and > 0",
-        ),
-        (
-            '{"spaces": {"task": {"irrelevant": [-1, 2], "spread": 0.1, "precision": [1, 1],'
+            '{"spaces": {"task": {"irrelevant": [-1, 2], "precision": [1, 1],'
             ' "scatter": [[1, 1]], "relevant_count": 1, "irrelevant_count": 1}}}',
             "Beta shapes must be finite and > 0",
         ),
         (
-            '{"spaces": {"task": {"irrelevant": [1, 2], "spread": 0.1, "precision": [1, 1],'
+            '{"spaces": {"task": {"irrelevant": [1, 2], "precision": [1, 1],'
             ' "scatter": [[0.5, 1]], "relevant_count": 1, "irrelevant_count": 1}}}',
             "weights > 0 summing to 1",
         ),
         (
-            '{"spaces": {"task": {"irrelevant": [1, 2], "spread": 0.1, "precision": [0, 1],'
+            '{"spaces": {"task": {"irrelevant": [1, 2], "precision": [0, 1],'
             ' "scatter": [[1, 1]], "relevant_count": 1, "irrelevant_count": 1}}}',
             "precision: Gamma shape and rate must be finite and > 0",
         ),
@@ -194,7 +191,6 @@ def test_a_fit_without_the_learners_space_is_refused(tmp_path):
     path = tmp_path / "fit.json"
     entry = {
         "irrelevant": [1, 2],
-        "spread": 0.1,
         "precision": [2.0, 0.02],
         "scatter": [[0.7, 1.0], [0.3, 4.0]],
         "relevant_count": 1,
@@ -226,7 +222,8 @@ def test_the_fit_is_maximum_likelihood():
         )
     ]
     entry = relevance_fit.fit(rows)["spaces"]["task"]
-    assert entry["spread"] == pytest.approx(0.1, rel=0.03)
+    shape, rate = entry["precision"]  # one precision for everyone: the Gamma has no tail
+    assert np.sqrt(rate / shape) == pytest.approx(0.1, rel=0.03)
     (w1, s1), (w2, s2) = entry["scatter"]  # one scale: the parts agree, or one vanishes
     assert w1 * s1**2 + w2 * s2**2 == pytest.approx(4.0, rel=0.06)
     np.testing.assert_allclose(entry["irrelevant"], [2.0, 0.8], rtol=0.08)

@@ -609,7 +609,7 @@ def _session_plan(args: argparse.Namespace) -> dict:
     if args.labelled:
         from corrections_sim.interact.session import make_asks
 
-        preference = args.theta_star if args.theta_star is not None else None
+        preference = args.theta_star
         if preference is not None and len(preference) != settings.study.k:
             raise UsageError(
                 f"--theta-star: {len(preference)} weights, the study has {settings.study.k} "
@@ -740,8 +740,8 @@ def run_replay(args: argparse.Namespace) -> list[Path]:
             continue
         low, high = score["auc_ci95"]
         print(
-            f"{name} on the {score['relevant']} + {score['nudges']} labelled corrections: ROC AUC "
-            f"{score['auc']:.3f} [{low:.3f}, {high:.3f}], median β̂ {score['median_relevant']:.3f}"
+            f"{name} on the {score['toward']} + {score['nudges']} labelled corrections: ROC AUC "
+            f"{score['auc']:.3f} [{low:.3f}, {high:.3f}], median β̂ {score['median_toward']:.3f}"
             f" toward, {score['median_nudge']:.3g} nudges",
             file=sys.stderr,
         )

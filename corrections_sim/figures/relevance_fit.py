@@ -194,7 +194,6 @@ def fit(rows: list[dict]) -> dict:
         shape, rate = precision_prior(relevant)
         spaces[space] = {
             "irrelevant": [float(a), float(b)],
-            "spread": float(np.sqrt(rate / shape)),
             "precision": [shape, rate],
             "scatter": scatter_mixture(offsets),
             "relevant_count": int(relevant.size),
@@ -277,7 +276,7 @@ def plot(rows: list[dict], fitted: dict, path: Path) -> Path:
             grid,
             half_t,
             color="#2ca02c",
-            label=f"half-t: τ ~ Gamma({shape:.3g}, {rate:.3g}), σ̂ = {entry['spread']:.3f}",
+            label=f"half-t: τ ~ Gamma({shape:.3g}, {rate:.3g}), σ̂ = {np.sqrt(rate / shape):.3f}",
         )
         a, b = entry["irrelevant"]
         ax.plot(
@@ -321,10 +320,11 @@ def main(argv: list[str] | None = None) -> int:
     print(f"wrote {plot(rows, fitted, folder / 'densities.png')}")
     for space, entry in fitted["spaces"].items():
         a, b = entry["irrelevant"]
+        shape, rate = entry["precision"]
         print(
-            f"{space}: relevant σ = {entry['spread']:.4f}; irrelevant ρ² ~ Beta({a:.3f}, {b:.3f})"
-            f" (mean ρ² {a / (a + b):.3f}); {entry['relevant_count']} + "
-            f"{entry['irrelevant_count']} corrections"
+            f"{space}: relevant τ ~ Gamma({shape:.3g}, {rate:.3g}) (σ̂ {np.sqrt(rate / shape):.4f});"
+            f" irrelevant ρ² ~ Beta({a:.3f}, {b:.3f}); explanations' scatter {entry['scatter']};"
+            f" {entry['relevant_count']} + {entry['irrelevant_count']} corrections"
         )
     return 0
 

@@ -93,6 +93,10 @@ _ARRAYS = ("xi_robot", "xi_h", "phi_robot", "phi_h", "theta_before", "cov_before
 _ARRAYS += ("theta_after", "cov_after", "noise_after")
 
 
+#: The kinds of correction a session may ask its person for, and the label each gets.
+ASK_KINDS = {"toward": 1, "nudge": 0}
+
+
 class LogError(ValueError):
     """A database that is not a study log of this version, or a session that is not in it."""
 
@@ -329,12 +333,11 @@ class StudyLog:
             LogError: a label event the log's readers do not know (a kind other than
                 "toward" or "nudge", or a label that does not match its kind).
         """
-        known = {"toward": 1, "nudge": 0}
         out = {}
         for event in self.events(session_id, "label"):
             detail = event["detail"]
             kind = detail.get("kind") if isinstance(detail, dict) else None
-            if kind not in known or detail.get("label") != known[kind]:
+            if kind not in ASK_KINDS or detail.get("label") != ASK_KINDS[kind]:
                 raise LogError(
                     f"session {session_id}: correction {event['iteration']} has label "
                     f"{json.dumps(detail)}, not one this log knows (toward: 1, nudge: 0)"

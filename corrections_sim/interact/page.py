@@ -24,12 +24,12 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 
 import numpy as np
 
 from corrections_sim.interact.meshes import Poser, pieces
-from corrections_sim.interact.session import Deployment, Refused, Session, ask_text
+from corrections_sim.interact.session import Deployment, Refused, Session
 from corrections_sim.scene.robot import cup_pose
 from corrections_sim.scene.world import interpolate
 
@@ -51,6 +51,23 @@ MESH_MATERIAL = "toon5"
 def cup_path(trajectory: np.ndarray, substeps: int = 6) -> np.ndarray:
     """Cup centre (N, 3) along the joint-space interpolation of ``trajectory`` (T, 7)."""
     return np.array([cup_pose(q)[1] for q in interpolate(trajectory, substeps)])
+
+
+def ask_text(ask: Mapping, features, *, physical: bool = False) -> str:
+    """What the page asks of its person for a labelled correction (a drag, or with
+    ``physical`` a push of the moving arm)."""
+    move = "Push the cup" if physical else "Move the cup"
+    if ask["kind"] == "nudge":
+        return (
+            f"**Asked: a nudge.** {move} a little anywhere, for no reason at all (this "
+            "correction is a test and carries no preference)."
+        )
+    weights = ", ".join(f"{n} {w:+.1f}" for n, w in zip(features, ask["preference"], strict=True))
+    where = "toward where" if physical else "to where"
+    return (
+        f"**Asked: correct toward the preference ({weights}).** {move} {where} a person with "
+        "it would want it here."
+    )
 
 
 def project(
@@ -398,7 +415,9 @@ class Page:
     def _ask_line(self) -> str:
         """The labelled correction the session asks for now, as a paragraph ("" if none)."""
         asked = self.session.ask()
-        return "" if asked is None else "\n\n" + ask_text(asked, self.session.features)
+        if asked is None:
+            return ""
+        return "\n\n" + ask_text(asked, self.session.features, physical=self.session.physical)
 
     def _make_handle(self) -> None:
         i = int(self.waypoint.value)
@@ -444,7 +463,7 @@ class Page:
                 + (f" (unexplained fraction ρ = {rho:.2f})" if rho is not None else "")
                 + "; I learnt from it in proportion."
             )
-        if b.person is not None:  # a learner that judges relevance across the corrections
+        if b.person is not None and s.iteration > 0:  # relevance judged across corrections
             relevance += (
                 f"\n\nYour corrections so far: relevant about **{b.person.rate_mean:.0%}** of "
                 f"the time, leaving about **{b.person.spread:.2f}** of a move unexplained."

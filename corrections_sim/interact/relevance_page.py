@@ -25,10 +25,8 @@ import json
 import sys
 from pathlib import Path
 
-import numpy as np
-
 from corrections_sim.figures.output import write_csv
-from corrections_sim.metrics import expected_calibration_error, roc_auc, roc_auc_interval
+from corrections_sim.metrics import label_scores
 
 #: (row name, registered learner, its parameters) of each learner scored.
 VARIANTS = (
@@ -68,28 +66,18 @@ def judged(log, session_id: int) -> list[dict]:
 
 
 def scores(rows: list[dict]) -> dict:
-    """Per mode (and both together) and learner: AUC, its interval, medians, ECE, counts."""
+    """Per mode (and both together) and learner: :func:`~corrections_sim.metrics.label_scores`
+    (AUC and its interval, medians, ECE, counts)."""
     out: dict = {}
     for mode in ("drag", "physical", "both"):
         for name, _, _ in VARIANTS:
             mine = [
                 r for r in rows if r["learner"] == name and (mode == "both" or r["mode"] == mode)
             ]
-            if not mine:
-                continue
-            beta = np.array([r["relevance"] for r in mine], float)
-            label = np.array([r["relevant"] for r in mine], float)
-            interval = roc_auc_interval(beta, label)
-            ece, _ = expected_calibration_error(beta, label)
-            out.setdefault(mode, {})[name] = {
-                "auc": roc_auc(beta, label),
-                "auc_ci95": None if interval is None else list(interval),
-                "median_toward": float(np.median(beta[label == 1])) if (label == 1).any() else None,
-                "median_nudge": float(np.median(beta[label == 0])) if (label == 0).any() else None,
-                "ece": ece,
-                "toward": int((label == 1).sum()),
-                "nudges": int((label == 0).sum()),
-            }
+            if mine:
+                out.setdefault(mode, {})[name] = label_scores(
+                    [r["relevance"] for r in mine], [r["relevant"] for r in mine]
+                )
     return out
 
 

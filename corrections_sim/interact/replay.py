@@ -32,7 +32,7 @@ from corrections_sim.interact.session import (
 )
 from corrections_sim.learning.base import LEARNERS, LearnerContext
 from corrections_sim.learning.perceptron import learning_rate_schedule
-from corrections_sim.metrics import estimate_error, roc_auc, roc_auc_interval
+from corrections_sim.metrics import estimate_error, label_scores
 from corrections_sim.planning.planner import Plan, PlanningError, shared_planner
 from corrections_sim.planning.plans import PlanBook, Target, evaluate
 from corrections_sim.study.loop import belief_columns
@@ -217,8 +217,8 @@ def replay(
 
 def labelled_scores(records: Sequence[dict], learners: Sequence[str]) -> dict:
     """Per relevance-aware learner, how its β̂ scores the labelled corrections (those the
-    person was asked for: 1 toward a preference, 0 a nudge): the ROC AUC with its 95%
-    bootstrap interval, the median β̂ per label and the counts. Empty without labels."""
+    person was asked for: 1 toward a preference, 0 a nudge), :func:`~corrections_sim.metrics.
+    label_scores`. Empty without labels."""
     out = {}
     for name in learners:
         rows = [
@@ -226,19 +226,8 @@ def labelled_scores(records: Sequence[dict], learners: Sequence[str]) -> dict:
             for r in records
             if r["learner"] == name and "relevant" in r and r.get("relevance") is not None
         ]
-        if not rows:
-            continue
-        beta = np.array([r["relevance"] for r in rows], float)
-        label = np.array([r["relevant"] for r in rows], float)
-        interval = roc_auc_interval(beta, label)
-        out[name] = {
-            "auc": roc_auc(beta, label),
-            "auc_ci95": None if interval is None else list(interval),
-            "median_relevant": float(np.median(beta[label == 1])) if (label == 1).any() else None,
-            "median_nudge": float(np.median(beta[label == 0])) if (label == 0).any() else None,
-            "relevant": int((label == 1).sum()),
-            "nudges": int((label == 0).sum()),
-        }
+        if rows:
+            out[name] = label_scores([r["relevance"] for r in rows], [r["relevant"] for r in rows])
     return out
 
 

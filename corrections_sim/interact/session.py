@@ -42,7 +42,7 @@ import numpy as np
 
 from corrections_sim import components, provenance
 from corrections_sim.calibration import nis
-from corrections_sim.interact.log import StudyLog, check_participant, now
+from corrections_sim.interact.log import ASK_KINDS, StudyLog, check_participant, now
 from corrections_sim.learning.base import LEARNERS, Learner, LearnerContext, make_learner
 from corrections_sim.people.corrections import CORRECTIONS, CorrectionModel
 from corrections_sim.people.physical import PushedMotion
@@ -67,10 +67,6 @@ MAX_FAILED_DRAWS = 20
 LOG_TOLERANCE = 1e-9
 
 
-#: The kinds of correction a session may ask its person for (the label each gets: 1, 0).
-ASK_KINDS = {"toward": 1, "nudge": 0}
-
-
 def make_asks(count: int, seed: int) -> list[str]:
     """``count`` kinds to ask for, half "toward" and half "nudge" (the odd one "toward"), in
     an order shuffled by ``seed``."""
@@ -79,20 +75,6 @@ def make_asks(count: int, seed: int) -> list[str]:
     kinds = ["toward"] * ((count + 1) // 2) + ["nudge"] * (count // 2)
     order = np.random.default_rng([int(seed), 38]).permutation(count)
     return [kinds[i] for i in order]
-
-
-def ask_text(ask: Mapping, features) -> str:
-    """What the page asks of its person for a labelled correction."""
-    if ask["kind"] == "nudge":
-        return (
-            "**Asked: a nudge.** Move the cup a little anywhere, for no reason at all (this "
-            "correction is a test and carries no preference)."
-        )
-    weights = ", ".join(f"{n} {w:+.1f}" for n, w in zip(features, ask["preference"], strict=True))
-    return (
-        f"**Asked: correct toward the preference ({weights}).** Move the cup to where a "
-        "person with it would want it here."
-    )
 
 
 class Refused(ValueError):

@@ -507,12 +507,12 @@ class RelevanceAwareKalman(_RelevanceAware, CorrectionAwareKalman):
 @dataclass(frozen=True)
 class PersonRelevanceKalman(CorrectionAwareKalman):
     """KF-C that judges relevance across a person's corrections (in the spirit of Bobu et al.,
-    T-RO 2020): one belief over the person's rate of relevant corrections r ~ Beta and the
-    precision τ of their relevant corrections ~ Gamma (:class:`~corrections_sim.belief.
-    PersonBelief`), shared by all of their corrections, and a relevant likelihood weighed by
-    the belief over θ: a correction explained only by θ's the belief rules out is not
-    believed (:func:`~.relevance.judge`). The observation noise of the update is N / β̂, as
-    KF-CR's.
+    T-RO 2020): one belief over the person's rate r of relevant corrections and the precision
+    τ of those (:class:`~corrections_sim.belief.PersonBelief`, a grid updated exactly; prior
+    Beta and Gamma), shared by all of their corrections, and each correction judged by where
+    it is explained as well as by how much: a correction explained only by θ's the belief
+    rules out is not believed (:func:`~.relevance.judge`). The observation noise of the
+    update is N / β̂, as KF-CR's.
 
     Attributes:
         relevance_prior: E[r] before any correction, in (0, 1).
@@ -590,6 +590,7 @@ class PersonRelevanceKalman(CorrectionAwareKalman):
             beta, found = person.rate_mean, None
         else:
             full = super().update(ctx, prior, env, plan, phi_h).belief  # p(θ | z), β̂ = 1
+            irrelevant, _, scatter = self.densities()
             found = judge(
                 ctx.book,
                 env,
@@ -600,9 +601,9 @@ class PersonRelevanceKalman(CorrectionAwareKalman):
                 full.cov,
                 ctx.sigma.points(belief.theta, belief.cov + ctx.noise.process),
                 person=person,
-                scatter=[(w, sd**2 * np.eye(belief.dim)) for w, sd in self.densities()[2]],
+                scatter=[(w, sd**2 * np.eye(belief.dim)) for w, sd in scatter],
                 scatter_center=belief.theta,
-                irrelevant=self.densities()[0],
+                irrelevant=irrelevant,
                 space=self.space,
             )
             beta = found.relevance

@@ -434,7 +434,6 @@ class SpaceFit:
 
     Attributes:
         irrelevant: (a, b) with ρ*² ~ Beta(a, b) for an irrelevant correction.
-        spread: σ̂ = E[τ]^(−1/2) of the prior below.
         precision: (shape, rate) of the Gamma over people's precision τ of a relevant ρ*
             (each person's ρ* half-normal with their own τ).
         scatter: where the best explanations θ_e of irrelevant corrections lie around the
@@ -444,11 +443,16 @@ class SpaceFit:
     """
 
     irrelevant: tuple[float, float]
-    spread: float
     precision: tuple[float, float]
     scatter: tuple[tuple[float, float], ...]
     relevant_count: int
     irrelevant_count: int
+
+    @property
+    def spread(self) -> float:
+        """σ̂ = E[τ]^(−1/2) under the prior on the precision."""
+        shape, rate = self.precision
+        return math.sqrt(rate / shape)
 
 
 def load_fit(path: str | None = None) -> dict[str, SpaceFit]:
@@ -491,7 +495,6 @@ def load_fit(path: str | None = None) -> dict[str, SpaceFit]:
             raise ValueError(f"{key}: expected an object")
         try:
             a, b = (float(v) for v in entry["irrelevant"])
-            spread = float(entry["spread"])
             shape, rate = (float(v) for v in entry["precision"])
             scatter = tuple((float(w), float(sd)) for w, sd in entry["scatter"])
             counts = int(entry["relevant_count"]), int(entry["irrelevant_count"])
@@ -499,13 +502,11 @@ def load_fit(path: str | None = None) -> dict[str, SpaceFit]:
             raise ValueError(f"{key}: missing {exc.args[0]!r}") from None
         except (TypeError, ValueError):
             raise ValueError(
-                f"{key}: expected irrelevant = [a, b], spread, precision = [shape, rate], "
+                f"{key}: expected irrelevant = [a, b], precision = [shape, rate], "
                 "scatter = [[weight, sd], …] and counts as numbers"
             ) from None
         if not (math.isfinite(a) and math.isfinite(b) and a > 0 and b > 0):
             raise ValueError(f"{key}.irrelevant: Beta shapes must be finite and > 0, got {a}, {b}")
-        if not (math.isfinite(spread) and spread > 0):
-            raise ValueError(f"{key}.spread: must be finite and > 0, got {spread}")
         if not (math.isfinite(shape) and math.isfinite(rate) and shape > 0 and rate > 0):
             raise ValueError(
                 f"{key}.precision: Gamma shape and rate must be finite and > 0, got {shape}, {rate}"
@@ -518,5 +519,5 @@ def load_fit(path: str | None = None) -> dict[str, SpaceFit]:
                 f"{key}.scatter: expected [[weight, sd], …] with weights > 0 summing to 1 and "
                 f"sd > 0, got {entry['scatter']}"
             )
-        out[space] = SpaceFit((a, b), spread, (shape, rate), scatter, *counts)
+        out[space] = SpaceFit((a, b), (shape, rate), scatter, *counts)
     return out
