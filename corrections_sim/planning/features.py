@@ -31,9 +31,12 @@ hand pose, the cup centre and the environment's parameters by name) registered w
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+import hashlib
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Protocol
 
 import casadi as ca
 import numpy as np
@@ -64,12 +67,15 @@ class Waypoint:
         pos_hand: hand position (3,), m.
         cup: cup centre (3,), m.
         env: the environment's parameter vector; read it by name, :meth:`param`.
+        learnt: a learnt feature's weights as symbols (:class:`LearntFeature` with no
+            weights of its own: the weights are then the NLP's parameters); None otherwise.
     """
 
     rot_hand: ca.SX
     pos_hand: ca.SX
     cup: ca.SX
     env: ca.SX
+    learnt: ca.SX | None = None
 
     def param(self, name: str) -> ca.SX:
         """The environment parameter ``name`` (see ``environments.ENV_PARAMETERS``)."""
@@ -89,6 +95,76 @@ def register_feature(name: str, *, replace: bool = False):
     """Decorator: register a :data:`Feature` function under ``name``."""
 
     return FEATURES.decorator(name, replace=replace)
+
+
+class Network(Protocol):
+    """A learnt feature's shape (:class:`corrections_sim.planning.learnt.Network`)."""
+
+    n_params: int
+    slot: str
+
+    def expression(self, w: Waypoint, weights) -> ca.SX: ...
+
+    def source(self) -> str: ...
+
+
+@dataclass(frozen=True, eq=False)
+class LearntFeature:
+    """A feature learnt from data (:mod:`corrections_sim.planning.learnt`), as the registry
+    holds it: a network shape and its weights. With ``weights = None`` it is a *slot*: the
+    weights are symbols, the compiled NLP's parameters (one build per shape, never one per
+    learnt feature); :func:`canonical` maps learnt names to slots and :func:`learnt_values`
+    gives the weights the NLP is called with."""
+
+    network: Network
+    weights: np.ndarray | None = None
+
+    def __call__(self, w: Waypoint) -> ca.SX:
+        weights = w.learnt if self.weights is None else ca.DM(self.weights)
+        return self.network.expression(w, weights)
+
+    def source(self) -> str:
+        """What shapes its expression: the network's code and shape (and weights' digest)."""
+        text = self.network.source()
+        if self.weights is not None:
+            text += "\n" + hashlib.sha256(np.asarray(self.weights, float).tobytes()).hexdigest()
+        return text
+
+
+def is_slot(name: str) -> bool:
+    """Whether ``name`` is a learnt feature whose weights are the NLP's parameters."""
+    f = FEATURES.get(name)
+    return isinstance(f, LearntFeature) and f.weights is None
+
+
+def canonical(names: tuple[str, ...]) -> tuple[str, ...]:
+    """``names`` with each learnt feature replaced by its shape's slot (registered here on
+    first use), so that every learnt feature of one shape shares one compiled NLP."""
+    out = []
+    for i, name in enumerate(check_feature_names(names)):
+        f = FEATURES[name]
+        if isinstance(f, LearntFeature) and f.weights is not None:
+            name = f"{f.network.slot}-{i}"
+            if name not in FEATURES:
+                FEATURES.register(name, LearntFeature(f.network))
+        out.append(name)
+    return tuple(out)
+
+
+def learnt_values(names: tuple[str, ...]) -> np.ndarray:
+    """The weights of the learnt features in ``names``, in order, for the parameters of the
+    NLP over :func:`canonical` ``(names)`` (empty when there are none)."""
+    parts = [
+        np.asarray(FEATURES[n].weights, float)
+        for n in names
+        if isinstance(FEATURES[n], LearntFeature) and FEATURES[n].weights is not None
+    ]
+    return np.concatenate(parts) if parts else np.zeros(0)
+
+
+def n_learnt(names: tuple[str, ...]) -> int:
+    """How many NLP parameters the slots in ``names`` take."""
+    return sum(FEATURES[n].network.n_params for n in names if is_slot(n))
 
 
 def check_feature_names(names: tuple[str, ...]) -> tuple[str, ...]:
@@ -114,6 +190,8 @@ def _source(function: Feature) -> str:
     import inspect
     import marshal
 
+    if isinstance(function, LearntFeature):
+        return function.source()
     try:
         return inspect.getsource(function)
     except (OSError, TypeError):
@@ -163,12 +241,28 @@ def human(w: Waypoint) -> ca.SX:
 
 
 def symbolic_features(
-    rot_hand: ca.SX, pos_hand: ca.SX, env: ca.SX, names: tuple[str, ...]
+    rot_hand: ca.SX,
+    pos_hand: ca.SX,
+    env: ca.SX,
+    names: tuple[str, ...],
+    learnt: ca.SX | None = None,
 ) -> ca.SX:
-    """Per-waypoint features (k,) from the hand pose and the environment parameters (n,)."""
+    """Per-waypoint features (k,) from the hand pose and the environment parameters (n,);
+    ``learnt`` holds the weights of the slots in ``names`` (:func:`n_learnt` of them)."""
     cup = pos_hand + rot_hand @ ca.DM(g.CUP_CENTER_IN_HAND)
     w = Waypoint(rot_hand=rot_hand, pos_hand=pos_hand, cup=cup, env=env)
-    return ca.vertcat(*(FEATURES[name](w) for name in names))
+    values, at = [], 0
+    for name in names:
+        f = FEATURES[name]
+        if is_slot(name):
+            n = f.network.n_params
+            if learnt is None or learnt.shape[0] < at + n:
+                raise ValueError(f"feature {name!r}: its weights are parameters; none given")
+            values.append(f(dataclasses.replace(w, learnt=learnt[at : at + n])))
+            at += n
+        else:
+            values.append(f(w))
+    return ca.vertcat(*values)
 
 
 def waypoint_feature_function(names: tuple[str, ...]) -> ca.Function:
@@ -182,6 +276,18 @@ def _waypoint_feature_function(names: tuple[str, ...], n_params: int) -> ca.Func
     e = ca.SX.sym("e", n_params)
     rot, pos = symbolic_fk(q, ("panda_hand",))["panda_hand"]
     return ca.Function("phi", [q, e], [symbolic_features(rot, pos, e, names)], ["q", "e"], ["phi"])
+
+
+def slot_feature_function(names: tuple[str, ...]) -> ca.Function:
+    """CasADi Function (q (7,), e (n,), l) -> φ (k,) for one waypoint, l the weights of the
+    slots in ``names`` (see :func:`canonical`)."""
+    names = check_feature_names(names)
+    q = ca.SX.sym("q", N_ARM_JOINTS)
+    e = ca.SX.sym("e", n_env_params())
+    lw = ca.SX.sym("l", n_learnt(names))
+    rot, pos = symbolic_fk(q, ("panda_hand",))["panda_hand"]
+    phi = symbolic_features(rot, pos, e, names, lw)
+    return ca.Function("phi_slots", [q, e, lw], [phi])
 
 
 @functools.cache
@@ -207,3 +313,15 @@ def feature_counts(
 ) -> np.ndarray:
     """Φ(ξ, E) = Σ_i φ(x^i, E), shape (k,), for a trajectory (T, 7)."""
     return waypoint_features(trajectory, env, names).sum(axis=0)
+
+
+@functools.cache
+def pose_feature_function(names: tuple[str, ...]) -> ca.Function:
+    """CasADi Function (R (3, 3), p (3,), e (n,)) -> φ (k,): the features with the hand at
+    rotation R and position p (no arm: a map of the features over places, e.g. the page's
+    heat map over the table)."""
+    names = check_feature_names(names)
+    rot = ca.SX.sym("R", 3, 3)
+    pos = ca.SX.sym("p", 3)
+    e = ca.SX.sym("e", n_env_params())
+    return ca.Function("phi_pose", [rot, pos, e], [symbolic_features(rot, pos, e, names)])

@@ -78,7 +78,7 @@ typedef struct {
     int n, n_c, k, nnz_j, nnz_h;
     const int *j_row, *j_col; /* the Jacobian's nonzeros: constraint, variable */
     const int *h_row, *h_col; /* W's lower-triangle nonzeros: row >= column */
-    int n_env;                /* p = (θ (k), env (n_env), q_start (7), q_goal (7)) */
+    int n_env;                /* p = (θ (k), env (n_env), q_start (7), q_goal (7), learnt weights) */
     double smoothness;        /* λ */
     const double *lower, *upper;
     double active, at_bound, stationarity, feasibility, gate, slow;

@@ -60,7 +60,7 @@ from scipy.linalg.lapack import dpbtrf, dpbtrs, dposv
 
 from corrections_sim.planning import compiled
 from corrections_sim.planning.compiled import Compiled, compile_library
-from corrections_sim.planning.features import waypoint_feature_function
+from corrections_sim.planning.features import slot_feature_function
 
 #: A clearance below this at the warm start is guessed active (fatrop stops with active
 #: clearances at 1e-9 … 1e-6 and inactive ones above 1e-3).
@@ -216,20 +216,24 @@ class NewtonPath:
         theta = ca.SX.sym("theta", len(names))
         n_c = terms.constraints.shape[0]
         mu = ca.SX.sym("mu", n_c)
-        p = ca.vertcat(theta, terms.env, terms.q_start, terms.q_goal)
+        p = terms.params(theta)
         f = -ca.dot(theta, terms.features) + smoothness * terms.smoothness
         jac = ca.jacobian(terms.constraints, terms.x)
         hess = ca.tril(ca.hessian(f - ca.dot(mu, terms.constraints), terms.x)[0])
         grad = ca.gradient(f, terms.x)
         first = ca.Function("newton_first", [terms.x, p], [grad, terms.constraints, jac])
         fn = ca.Function("newton_terms", [terms.x, p, mu], [f, grad, terms.constraints, jac, hess])
-        ends = waypoint_feature_function(names)
-        phi = terms.features + ends(terms.q_start, terms.env) + ends(terms.q_goal, terms.env)
+        ends = slot_feature_function(names)
+        phi = (
+            terms.features
+            + ends(terms.q_start, terms.env, terms.learnt)
+            + ends(terms.q_goal, terms.env, terms.learnt)
+        )
         features = ca.Function("newton_features", [terms.x, p], [phi])
         # By waypoint, for the compiled loop (newton.c): its features, clearances, their
         # Jacobian and θ·φ's gradient and Hessian; the clearances' Hessian apart.
         q, mu_i = ca.SX.sym("q", 7), ca.SX.sym("mu_i", 2)
-        phi_i, c_i = terms.waypoint(q, terms.env)
+        phi_i, c_i = terms.waypoint(q, terms.env, terms.learnt)
         reward_i = ca.dot(theta, phi_i)
         waypoint = ca.Function(
             "newton_waypoint",

@@ -29,6 +29,7 @@ above from the same start (``warm = "solver"`` always does: the reference path).
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import functools
 import hashlib
@@ -49,8 +50,11 @@ from corrections_sim.planning.clearance import CertifiedChecker
 from corrections_sim.planning.clearance import library_key as clearance_library_key
 from corrections_sim.planning.compiled import build_shared_library
 from corrections_sim.planning.features import (
+    canonical,
     check_feature_names,
     feature_counts,
+    learnt_values,
+    n_learnt,
     symbolic_features,
 )
 from corrections_sim.planning.newton import NewtonPath
@@ -345,9 +349,12 @@ class TrajectoryTerms:
         smoothness: S(ξ) = Σ_i ‖q^{i+1} − q^i‖² over the whole path, SX scalar.
         constraints: per free waypoint the soft-min table gap and laptop keep-out level,
             SX (2 (T − 2),); all must be >= 0.
-        waypoint: one waypoint's share, (q (7,), env) -> (its features (k,), its two
+        waypoint: one waypoint's share, (q (7,), env, learnt) -> (its features (k,), its two
             constraints (2,)), the same expressions; features and constraints are their sums
             and concatenation over the free waypoints (the Newton loop evaluates by waypoint).
+        learnt: the weights of the learnt-feature slots among the features (see
+            :func:`~corrections_sim.planning.features.canonical`), SX (0,) when there are
+            none; the NLPs take them as their last parameters.
     """
 
     x: ca.SX
@@ -358,13 +365,20 @@ class TrajectoryTerms:
     smoothness: ca.SX
     constraints: ca.SX
     waypoint: ca.Function
+    learnt: ca.SX
+
+    def params(self, theta: ca.SX) -> ca.SX:
+        """The planner NLPs' parameter vector p = (θ, e, q_start, q_goal, learnt)."""
+        return ca.vertcat(theta, self.env, self.q_start, self.q_goal, self.learnt)
 
 
-def _waypoint_terms(q: ca.SX, env: ca.SX, features: tuple[str, ...]) -> tuple[ca.SX, ...]:
+def _waypoint_terms(
+    q: ca.SX, env: ca.SX, features: tuple[str, ...], learnt: ca.SX
+) -> tuple[ca.SX, ...]:
     """One waypoint's features, soft-min table gap and laptop keep-out level."""
     poses = symbolic_fk(q, tuple(dict.fromkeys(s.frame for s in ARM_SPHERES)))
     rot_h, pos_h = poses["panda_hand"]
-    phi = symbolic_features(rot_h, pos_h, env, features)
+    phi = symbolic_features(rot_h, pos_h, env, features, learnt)
     table_gaps, laptop_gaps = _gaps(poses, env)
     return phi, _soft_min(table_gaps), _soft_min(laptop_gaps)
 
@@ -376,18 +390,19 @@ def trajectory_terms(cfg: PlannerConfig) -> TrajectoryTerms:
     env = ca.SX.sym("env", n_env_params())
     q_start = ca.SX.sym("q_start", N_ARM_JOINTS)
     q_goal = ca.SX.sym("q_goal", N_ARM_JOINTS)
+    learnt = ca.SX.sym("learnt", n_learnt(cfg.features))
     qs = ca.reshape(x, N_ARM_JOINTS, n_free)
 
     phi_sum = ca.SX.zeros(cfg.k)
     constraints = []
     for i in range(n_free):
-        phi, table, laptop = _waypoint_terms(qs[:, i], env, cfg.features)
+        phi, table, laptop = _waypoint_terms(qs[:, i], env, cfg.features, learnt)
         phi_sum += phi
         constraints += [table, laptop]
     path = ca.horzcat(q_start, qs, q_goal)
     q = ca.SX.sym("q", N_ARM_JOINTS)
-    phi, table, laptop = _waypoint_terms(q, env, cfg.features)
-    waypoint = ca.Function("waypoint_terms", [q, env], [phi, ca.vertcat(table, laptop)])
+    phi, table, laptop = _waypoint_terms(q, env, cfg.features, learnt)
+    waypoint = ca.Function("waypoint_terms", [q, env, learnt], [phi, ca.vertcat(table, laptop)])
     return TrajectoryTerms(
         x=x,
         env=env,
@@ -397,6 +412,7 @@ def trajectory_terms(cfg: PlannerConfig) -> TrajectoryTerms:
         smoothness=ca.sumsqr(path[:, 1:] - path[:, :-1]),
         constraints=ca.vertcat(*constraints),
         waypoint=waypoint,
+        learnt=learnt,
     )
 
 
@@ -493,10 +509,12 @@ def stage_nlp(cfg: PlannerConfig) -> dict:
     terms = trajectory_terms(cfg)
     n, J = cfg.n_waypoints - 2, N_ARM_JOINTS
     theta = ca.SX.sym("theta", cfg.k)
-    pieces = ca.Function("pieces", [terms.x, terms.env], [terms.features, terms.constraints])
+    pieces = ca.Function(
+        "pieces", [terms.x, terms.env, terms.learnt], [terms.features, terms.constraints]
+    )
     qs = [ca.SX.sym(f"q{i}", J) for i in range(n)]
     us = [ca.SX.sym(f"u{i}", J) for i in range(n - 1)]
-    phi, clear = pieces(ca.vertcat(*qs), terms.env)
+    phi, clear = pieces(ca.vertcat(*qs), terms.env, terms.learnt)
     steps = ca.sumsqr(qs[0] - terms.q_start) + ca.sumsqr(terms.q_goal - qs[-1])
     w, g = [], []
     for i in range(n - 1):
@@ -507,7 +525,7 @@ def stage_nlp(cfg: PlannerConfig) -> dict:
     g.append(clear[2 * n - 2 :])
     return {
         "x": ca.vertcat(*w),
-        "p": ca.vertcat(theta, terms.env, terms.q_start, terms.q_goal),
+        "p": terms.params(theta),
         "f": -ca.dot(theta, phi) + cfg.smoothness * steps,
         "g": ca.vertcat(*g),
     }
@@ -526,10 +544,19 @@ def _load_solver(name: str, plugin: str, nlp: dict, opts: dict, cfg: PlannerConf
 
 
 class Planner:
-    """ξ*(θ, E) for one :class:`PlannerConfig`; build once per process, solve many times."""
+    """ξ*(θ, E) for one :class:`PlannerConfig`; build once per process, solve many times.
+
+    A learnt feature (:mod:`corrections_sim.planning.learnt`) among the config's features is
+    planned with through its shape's slot: the NLP is built (and compiled) for the shape, its
+    weights are the NLP's last parameters, so a newly learnt feature costs no build
+    (:meth:`bind`, :func:`shared_planner`)."""
 
     def __init__(self, config: PlannerConfig | None = None) -> None:
         self.config = config or PlannerConfig()
+        #: What the NLP is built for: the config with learnt features as their slots.
+        self._build = dataclasses.replace(self.config, features=canonical(self.config.features))
+        self._learnt = learnt_values(self.config.features)
+        self._base = self
         n = self._n_free = self.config.n_waypoints - 2
         lo, hi = joint_limits()
         self._lbx = np.tile(lo, n)
@@ -543,7 +570,7 @@ class Planner:
         if self.config.solver == "ipopt":
             self._ipopt_solver()
             return
-        cfg = self.config
+        cfg = self._build
         self._fatrop = _load_solver(
             "trajopt_stages", "fatrop", stage_nlp(cfg), _fatrop_options(cfg, n), cfg
         )
@@ -555,11 +582,26 @@ class Planner:
             "ubg": np.concatenate([*[np.r_[np.zeros(J), np.inf, np.inf]] * (n - 1), [np.inf] * 2]),
         }
 
+    def bind(self, config: PlannerConfig) -> Planner:
+        """This planner for ``config``, which differs from its own only in which learnt
+        features of the same shapes it plans with: the solvers are shared, nothing is built."""
+        mine = dataclasses.replace(config, features=canonical(config.features))
+        if mine != self._build:
+            raise ValueError(
+                f"bind: {list(config.features)} do not share this planner's build "
+                f"{list(self._build.features)}"
+            )
+        view = copy.copy(self)
+        view.config, view._learnt, view._base = config, learnt_values(config.features), self._base
+        return view
+
     def _ipopt_solver(self) -> ca.Function:
         """IPOPT on the waypoint form; a fatrop planner builds (or loads) it at its first
         fallback, sharing the library of the same config with ``solver = "ipopt"``."""
+        if self._base is not self:
+            return self._base._ipopt_solver()
         if self._ipopt is None:
-            cfg = dataclasses.replace(self.config, solver="ipopt")
+            cfg = dataclasses.replace(self._build, solver="ipopt")
             nlp, opts = self._nlp(cfg)
             self._ipopt = _load_solver("trajopt", "ipopt", nlp, opts, cfg)
         return self._ipopt
@@ -567,8 +609,10 @@ class Planner:
     def _newton_path(self) -> NewtonPath:
         """The Newton re-solve, built (or its compiled library loaded) at the first warm start;
         it is the waypoint form's, so every solver of a config shares one library."""
+        if self._base is not self:
+            return self._base._newton_path()
         if self._newton is None:
-            cfg = self.config
+            cfg = self._build
             library = None
             if cfg.jit:
                 key = newton_library_key(build_key(dataclasses.replace(cfg, solver="ipopt")))
@@ -605,12 +649,11 @@ class Planner:
         terms = trajectory_terms(cfg)
         theta = ca.SX.sym("theta", cfg.k)
         objective = -ca.dot(theta, terms.features) + cfg.smoothness * terms.smoothness
-        params = ca.vertcat(theta, terms.env, terms.q_start, terms.q_goal)
-        nlp = {"x": terms.x, "p": params, "f": objective, "g": terms.constraints}
+        nlp = {"x": terms.x, "p": terms.params(theta), "f": objective, "g": terms.constraints}
         return nlp, solver_options(cfg)
 
     def _params(self, theta: np.ndarray, env: Environment) -> np.ndarray:
-        return np.concatenate([theta, env.params(), env.q_start, env.q_goal])
+        return np.concatenate([theta, env.params(), env.q_start, env.q_goal, self._learnt])
 
     def _trajectory(self, x: np.ndarray, env: Environment) -> np.ndarray:
         inner = np.asarray(x, float).reshape(self._n_free, N_ARM_JOINTS)
@@ -722,8 +765,16 @@ class Planner:
         )
 
 
-@functools.cache
 def shared_planner(config: PlannerConfig) -> Planner:
     """This process's planner for ``config``, built (or its compiled solver loaded) once and
-    shared by every figure's worker tasks."""
+    shared by every figure's worker tasks; a config with learnt features gets a view
+    (:meth:`Planner.bind`) of the one planner of their shapes."""
+    build = dataclasses.replace(config, features=canonical(config.features))
+    if build == config:
+        return _shared(config)
+    return _shared(build).bind(config)
+
+
+@functools.cache
+def _shared(config: PlannerConfig) -> Planner:
     return Planner(config)

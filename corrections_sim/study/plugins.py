@@ -1,5 +1,7 @@
 """Plug-in files a study imports before anything else: they register users, learners,
-correction models or features, in the main process and in every worker."""
+correction models or features, in the main process and in every worker. A ``.json`` plug-in
+is a learnt feature (:meth:`corrections_sim.planning.learnt.Learnt.save`): loading it
+registers the feature under its name."""
 
 from __future__ import annotations
 
@@ -65,6 +67,12 @@ def load_plugins(plugins: tuple[PluginFile, ...]) -> None:
     for plugin in plugins:
         module = f"corrections_sim_plugin_{hashlib.sha256(plugin.path.encode()).hexdigest()[:12]}"
         if module in sys.modules:
+            continue
+        if plugin.path.endswith(".json"):  # a learnt feature
+            from corrections_sim.planning.learnt import load
+
+            load(plugin.path)
+            sys.modules[module] = sys.modules[__name__]  # loaded: once per process
             continue
         spec = importlib.util.spec_from_file_location(module, plugin.path)
         if spec is None or spec.loader is None:
