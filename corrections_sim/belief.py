@@ -102,6 +102,11 @@ class Belief:
         person: the belief over how this person corrects (how often relevantly, how
             precisely), for a learner that judges relevance across a person's corrections
             (:class:`PersonBelief`); None otherwise.
+        extra: the names of features the learner learnt beyond the study's (feature
+            expansion: θ̂ and P then have ``len(extra)`` more entries, after the study's).
+        asked: whether the learner has asked the person for feature traces (it asks once).
+        history: what a learner that may learn a feature keeps to read the past again over
+            it: the prior (θ̂⁰, P⁰) first, then each correction's (environment, ξ, ξ_h).
 
     Raises:
         ValueError: on wrong shapes, non-finite values, or a cov that is not symmetric
@@ -112,9 +117,17 @@ class Belief:
     cov: np.ndarray
     noise: NoisePosterior | None = None
     person: PersonBelief | None = None
+    extra: tuple[str, ...] = ()
+    asked: bool = False
+    history: tuple = ()
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "extra", tuple(self.extra))
         theta = _as_vector("Belief.theta", self.theta)
+        if len(self.extra) >= theta.shape[0]:
+            raise ValueError(
+                f"Belief.extra: {len(self.extra)} learnt features of {theta.shape[0]} weights"
+            )
         cov = _as_symmetric("Belief.cov", self.cov, theta.shape[0])
         _check_positive_definite("Belief.cov", cov)
         object.__setattr__(self, "theta", _freeze(theta))
@@ -170,6 +183,20 @@ class KalmanNoise:
     def dim(self) -> int:
         """Number of features k."""
         return int(self.process.shape[0])
+
+    def grown(self, dim: int) -> KalmanNoise:
+        """The noise over ``dim`` >= k features: a learnt feature's share (past the k) its
+        mean diagonal entry, uncorrelated (the studies' M and N are m·I and n·I)."""
+        k = self.dim
+        if dim == k:
+            return self
+
+        def grow(a: np.ndarray) -> np.ndarray:
+            out = np.eye(dim) * float(np.mean(np.diag(a)))
+            out[:k, :k] = a
+            return out
+
+        return KalmanNoise(process=grow(self.process), observation=grow(self.observation))
 
 
 @dataclass(frozen=True, eq=False)

@@ -118,13 +118,20 @@ def test_kf_c_is_calibrated_where_the_papers_kf_is_not(quick_run):
     assert stats["KF-C"]["coverage_2sigma_mean"] > stats["KF"]["coverage_2sigma_mean"]
 
 
-def _check_matrix(figure: str, keys: dict[str, float], *, labels: bool = False) -> int:
+def _check_matrix(
+    figure: str,
+    keys: dict[str, float],
+    *,
+    labels: bool = False,
+    column_keys: tuple[str, ...] | None = None,
+) -> int:
     """A matrix figure's quick preset against ``results/reference/<figure>``: per column
     (person) and learner, the mean curve of every key the reference has; the ``relevant``
     labels exactly with ``labels``. Returns how many curves were compared."""
     from corrections_sim.figures import robustness
 
-    settings = robustness.load_settings(quick=True, figure=figure)
+    more = {} if column_keys is None else {"column_keys": column_keys}
+    settings = robustness.load_settings(quick=True, figure=figure, **more)
     with open(REFERENCE / figure / "curves.csv", newline="") as fh:
         reference = list(csv.DictReader(fh))
     with ThreadPoolExecutor(max_workers=1) as executor:
@@ -167,3 +174,16 @@ def test_quick_relevance_curves_match_the_reference():
     per iteration), and the labels exactly."""
     checked = _check_matrix("relevance", {**TOLERANCE, "relevance": 0.03}, labels=True)
     assert checked == 4 * 9 * 2 + 4 * 3  # every person's error and regret, three learners' β̂
+
+
+def test_quick_ferl_curves_match_the_reference():
+    """The FERL study's quick preset (``run ferl --quick --out results/reference``): every
+    person's error and regret, and for KF-CRX whether it asked and expanded (exactly) and the
+    learnt feature's Spearman ρ against the person's."""
+    from corrections_sim.figures import ferl
+
+    keys = {**TOLERANCE, "asked": 0.0, "expanded": 0.0, "learnt_spearman": 0.02}
+    checked = _check_matrix("ferl", keys, column_keys=ferl.COLUMN_KEYS)
+    # Three people x three learners and the two upper bounds: error and regret; KF-CRX's
+    # asking for the two people it asks, its expanding and the learnt ρ where it expanded.
+    assert checked == (3 * 3 + 2) * 2 + 2 * 3

@@ -34,6 +34,7 @@ BUILT_IN = (
     "corrections_sim.figures.robustness",
     "corrections_sim.figures.physical",
     "corrections_sim.figures.relevance",
+    "corrections_sim.figures.ferl",
 )
 
 #: Options every figure takes (the command line's own: where, how big, which executor).

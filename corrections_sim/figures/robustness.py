@@ -65,11 +65,15 @@ class RobustnessSettings:
 
 
 def load_settings(
-    *, quick: bool, overrides: dict | None = None, figure: str = FIGURE
+    *,
+    quick: bool,
+    overrides: dict | None = None,
+    figure: str = FIGURE,
+    column_keys: tuple[str, ...] = COLUMN_KEYS,
 ) -> RobustnessSettings:
     """Settings of fig. 6 from ``experiments/fig6.toml`` (or of another matrix of users,
-    ``experiments/<figure>.toml``); ``overrides`` apply to every column (the user cannot be
-    overridden: the columns are the users).
+    ``experiments/<figure>.toml``, whose columns may take more ``column_keys``); ``overrides``
+    apply to every column (the user cannot be overridden: the columns are the users).
 
     Raises:
         ValueError: a bad value, named as ``columns[i].key`` or by its key path.
@@ -94,10 +98,10 @@ def load_settings(
     for i, column in enumerate(columns):
         if not isinstance(column, dict):
             raise ValueError(f"columns[{i}]: expected a table with label and user")
-        unknown = sorted(set(column) - set(COLUMN_KEYS))
+        unknown = sorted(set(column) - set(column_keys))
         if unknown:
             raise ValueError(
-                f"columns[{i}].{unknown[0]}: unknown key (a column takes {', '.join(COLUMN_KEYS)})"
+                f"columns[{i}].{unknown[0]}: unknown key (a column takes {', '.join(column_keys)})"
             )
         label = column.get("label")
         if not isinstance(label, str) or not label or label in labels:
@@ -106,7 +110,7 @@ def load_settings(
             raise ValueError(f"columns[{i}].user: missing (a name or a table with its parameters)")
         labels.add(label)
         try:
-            extra = {k: column[k] for k in COLUMN_KEYS[2:] if k in column}
+            extra = {k: column[k] for k in column_keys[2:] if k in column}
             settings = schema.parse_study({**values, "user": column["user"], **extra})
         except ValueError as exc:
             raise ValueError(f"columns[{i}] ({label}): {exc}") from None

@@ -33,7 +33,7 @@ in the registry's order.
 from __future__ import annotations
 
 import abc
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, ClassVar
 
@@ -73,6 +73,10 @@ class LearnerContext:
         declined: indices of the environments passed over since the last correction (a person
             skipped them, or their plan failed); a learner that chooses Eᵗ itself leaves them
             out, or it would offer the same environment again.
+        teach: asks the person for feature traces, ``teach(n, env)`` -> n traces (states, 7)
+            from where the feature they mind most and the robot lacks is high to where it is
+            low, or None (nobody to ask, or nothing they mind that the robot lacks); None when
+            the setting offers no teacher.
     """
 
     book: PlanBook
@@ -86,6 +90,7 @@ class LearnerContext:
     iteration: int = 0
     corrected: np.ndarray | None = None
     declined: frozenset[int] = frozenset()
+    teach: Callable[[int, Environment], list[np.ndarray] | None] | None = None
 
 
 class Learner(abc.ABC):

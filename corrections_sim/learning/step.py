@@ -29,6 +29,9 @@ class Step:
         relevance: β̂, the learner's probability that the correction is explained by its
             features at all (a relevance-aware learner), else None.
         residual: ρ, the unexplained fraction of the correction β̂ was computed from, or None.
+        expansion: what a learner that expands its features did after this correction:
+            plain values (``asked``, ``taught``, ``feature``, ``traces``, ``loss``, ``seconds``),
+            or None when it did not ask.
     """
 
     belief: Belief
@@ -38,3 +41,4 @@ class Step:
     repaired: bool = False
     relevance: float | None = None
     residual: float | None = None
+    expansion: dict | None = None

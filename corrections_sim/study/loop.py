@@ -30,11 +30,17 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from corrections_sim import calibration
+from corrections_sim.belief import KalmanNoise
 from corrections_sim.learning.base import LEARNERS, LearnerContext, Step
 from corrections_sim.metrics import estimate_error, regret_terms
 from corrections_sim.people.users import Situation, TaskOutcome, User
 from corrections_sim.planning.features import feature_counts
-from corrections_sim.planning.planner import Planner, PlanningError, smoothness_cost
+from corrections_sim.planning.planner import (
+    Planner,
+    PlanningError,
+    shared_planner,
+    smoothness_cost,
+)
 from corrections_sim.planning.plans import PlanBook, PlanEntries, Target, evaluate
 from corrections_sim.scene.environments import Environment
 
@@ -79,6 +85,24 @@ def run_learner(
     agent = settings.learners[learner]
     book = PlanBook(planner, known, warm_start=settings.warm_start)
     names = planner.config.features
+    # A learner that learns features (belief.extra) plans over more: one book per feature list.
+    books = {names: book}
+
+    def book_for(b) -> PlanBook:
+        mine = names + tuple(b.extra)
+        if mine not in books:
+            config = replace(planner.config, features=mine)
+            books[mine] = PlanBook(shared_planner(config), warm_start=settings.warm_start)
+        return books[mine]
+
+    def teach(n: int, env: Environment, current: tuple[str, ...]) -> list[np.ndarray] | None:
+        """The person's traces of the feature they mind most that the robot lacks (None:
+        there is none)."""
+        missing = _missing(target, current)
+        if missing is None:
+            return None
+        return settings.teacher.traces(missing, n, env, rng)
+
     noise, sigma = settings.noise(), settings.sigma()
     belief = agent.initial(settings.prior(), noise)
     k, n_iter = settings.k, settings.iterations
@@ -90,35 +114,41 @@ def run_learner(
     gains = np.full((n_iter, k, k), np.nan)
     records = []
 
+    learnt: dict = {}  # what the loop measured of a learnt feature (against the person's)
+
     def record(t: int, env_name: str, skipped: str, step: Step | None, task: dict) -> None:
-        regret, paper, failed = evaluate(book, target, envs, belief.theta)
+        regret, paper, failed = evaluate(book_for(belief), target, envs, belief.theta)
         rec = {
             "learner": learner,
             "run": run,
             "iteration": t,
             "environment": env_name,
-            "estimate_error": estimate_error(belief.theta, known),
+            "estimate_error": estimate_error(belief.theta[:k], known),
             "regret": regret,
             "regret_paper": paper,
             "regret_failures": failed,
             "update_skipped": skipped,
         }
         rec |= belief_columns(belief, step, known, cls.has_covariance)
+        rec |= _expansion_columns(belief, step, learnt, k)
         rec |= task
         records.append(rec)
 
     record(0, "", "", None, {})
     for t in range(n_iter):
+        book = book_for(belief)
+        current = names + tuple(belief.extra)
         ctx = LearnerContext(
             book=book,
             envs=envs,
-            features=names,
+            features=current,
             n_waypoints=planner.config.n_waypoints,
             alphas=alphas,
             rng=rng,
-            noise=noise,
+            noise=grown_noise(noise, belief.dim),
             sigma=sigma,
             iteration=t,
+            teach=lambda n, env, current=current: teach(n, env, current),
         )
         idx = _index(learner, agent.choose(ctx, belief, int(draws[t])), len(envs))
         env = envs[idx]
@@ -137,12 +167,21 @@ def run_learner(
             online: list[Step] = []
 
             def replan(
-                deformed, q_now, t_now, ctx=ctx, env=env, mine=mine, online=online, prior=belief
+                deformed,
+                q_now,
+                t_now,
+                ctx=ctx,
+                env=env,
+                mine=mine,
+                online=online,
+                prior=belief,
+                current=current,
+                book=book,
             ):
                 """Online: learn from the push now and plan anew (the arm joins the new plan
                 where it is; None, the old plan goes on, when the planner finds none). The
                 plan is the book's, so the regret that follows reuses it."""
-                phi = feature_counts(deformed, env, names)
+                phi = feature_counts(deformed, env, current)
                 seen = replace(ctx, corrected=deformed)
                 online.append(agent.update(seen, prior, env, mine, phi))
                 try:
@@ -157,14 +196,65 @@ def run_learner(
                 task["relevant"] = label
             seen = replace(ctx, corrected=outcome.corrected)
             phi_h = np.asarray(outcome.phi_h, dtype=float)
+            if belief.extra:  # the person's correction over the learner's features too
+                phi_h = feature_counts(outcome.corrected, env, current)
             step = online[0] if online else agent.update(seen, belief, env, mine, phi_h)
             belief = step.belief
             if step.gain is not None:
-                gains[t] = step.gain
+                gains[t] = step.gain[:k, :k]
+            if step.expansion is not None and step.expansion.get("taught"):
+                learnt.update(_learnt_quality(step.expansion["feature"], target, current, env))
+                learnt["expanded_at"] = t + 1
         except PlanningError as exc:
             skipped = str(exc).splitlines()[0]
         record(t + 1, env.name, skipped, step, task)
     return RunResult(records=tuple(records), gains=gains, solves=book.solves)
+
+
+def grown_noise(noise: KalmanNoise, dim: int) -> KalmanNoise:
+    """The filter noise over ``dim`` features (:meth:`KalmanNoise.grown`)."""
+    return noise.grown(dim)
+
+
+def _missing(target, current: tuple[str, ...]) -> str | None:
+    """The feature the person minds most (largest |θ*|) that ``current`` lacks, or None."""
+    theirs = target.features or current
+    weights = {n: abs(float(w)) for n, w in zip(theirs, target.theta_star, strict=True)}
+    lacking = [n for n in theirs if n not in current and weights[n] > 0]
+    return max(lacking, key=lambda n: weights[n]) if lacking else None
+
+
+def _learnt_quality(name: str, target, current: tuple[str, ...], env: Environment) -> dict:
+    """A learnt feature against the person's feature it was taught for: Spearman ρ and the
+    affine fit true ≈ a·learnt + b over random reachable configurations of the environment
+    it was taught in; the person's weight maps to a·θ* on the learnt feature."""
+    from corrections_sim.planning.learnt import quality
+
+    true = _missing(target, current)
+    if true is None:
+        return {}
+    q = quality(name, true, env)
+    weight = float(target.theta_star[list(target.features or current).index(true)])
+    return {"spearman": q.spearman, "r2": q.r2, "target": weight * q.scale}
+
+
+def _expansion_columns(belief, step: Step | None, learnt: dict, k: int) -> dict:
+    """Columns of a learner that can learn features: whether it asked, whether it has
+    expanded (and at which correction), the learnt feature's quality against the person's
+    (Spearman ρ, R² of the best affine fit), its weight θ̂ and the weight the person's maps
+    to through that fit (θ*·a), for every record after it expanded."""
+    if not (belief.asked or (step is not None and step.expansion is not None)):
+        return {}
+    out: dict = {"asked": float(belief.asked), "expanded": float(bool(belief.extra))}
+    if belief.extra and learnt:
+        out |= {
+            "expanded_at": learnt["expanded_at"],
+            "learnt_spearman": learnt.get("spearman"),
+            "learnt_r2": learnt.get("r2"),
+            "learnt_weight": float(belief.theta[k]),
+            "learnt_weight_target": learnt.get("target"),
+        }
+    return out
 
 
 def belief_columns(
@@ -173,7 +263,8 @@ def belief_columns(
     """A record's belief and calibration columns: θ̂ (``theta_i``), P (``cov_ij``, i ≤ j), N̂
     (``noise_ij``) for a learner that learns N, NEES against ``reference`` and the NIS of
     ``step``. None (an empty CSV cell) where there is nothing to normalize by: no covariance
-    (the perceptron), no reference, and for the prior no innovation."""
+    (the perceptron), no reference, and for the prior no innovation. A learner that learnt
+    features has more θ̂ and P entries; its NEES is over the study's features' block."""
     k = len(belief.theta)
     rec: dict = {f"theta_{i}": float(belief.theta[i]) for i in range(k)}
     upper = [(i, j) for i in range(k) for j in range(i, k)]
@@ -184,8 +275,9 @@ def belief_columns(
     if getattr(belief, "person", None) is not None:  # relevance judged across corrections
         rec["relevance_rate"] = belief.person.rate_mean
         rec["relevance_spread"] = belief.person.spread
+    known = slice(0, k - len(belief.extra))
     rec["nees"] = (
-        calibration.nees(belief.theta, belief.cov, reference)
+        calibration.nees(belief.theta[known], belief.cov[known, known], reference)
         if has_covariance and reference is not None
         else None
     )

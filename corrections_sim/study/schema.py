@@ -35,6 +35,7 @@ from corrections_sim import components
 from corrections_sim.belief import Belief
 from corrections_sim.learning.base import LEARNERS, make_learner
 from corrections_sim.people.corrections import CORRECTIONS
+from corrections_sim.people.teacher import Teacher
 from corrections_sim.people.users import USERS, make_user
 from corrections_sim.planning.features import FEATURES, check_feature_names
 from corrections_sim.planning.planner import PlannerConfig
@@ -128,6 +129,12 @@ STUDY_KEYS: dict[str, tuple[Any, str]] = {
         False,
         "learn during the motion: when a physical user's push ends, the learner updates and "
         "the robot replans the rest of the motion (needs user physical)",
+    ),
+    "teacher": (
+        {},
+        "how the person gives feature traces when a learner asks (KF-CRX): states (per trace, "
+        "12), candidates (places they look at to pick a start and an end, 20), path_noise "
+        "(rad, 0.1), label_noise (sd of their misjudged quantile, 0.1)",
     ),
 }
 #: Integer keys and their allowed ranges: beyond these a study cannot finish (or fit).
@@ -508,6 +515,19 @@ def _planner(value) -> tuple[tuple[str, Any], ...]:
     return settings
 
 
+def _teacher(value) -> Teacher:
+    """The ``teacher`` table."""
+    value = _table(value, "teacher")
+    known = Teacher.__dataclass_fields__
+    for key in value:
+        if key not in known:
+            raise ValueError(f"teacher.{key}: unknown key (a teacher takes {', '.join(known)})")
+    try:
+        return Teacher(**value)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(str(exc)) from None
+
+
 def parse_study(
     values: Mapping[str, Any], *, name: str = "", base: Path | None = None
 ) -> FigureSettings:
@@ -570,6 +590,7 @@ def parse_study(
     online = values.get("online", False)
     if not isinstance(online, bool):
         raise ValueError(f"online = {online!r}: expected true or false")
+    teacher = _teacher(values.get("teacher", {}))
     study = StudySettings(
         theta_star=theta_star,
         user_theta=person,
@@ -584,6 +605,7 @@ def parse_study(
         filter=_filter(values.get("filter")),
         warm_start=warm_start,
         online=online,
+        teacher=teacher,
     )
     return FigureSettings(
         study=study,

@@ -11,7 +11,7 @@ study file's schema (:mod:`corrections_sim.study.schema`) names the key path of 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
@@ -21,6 +21,7 @@ from corrections_sim.belief import Belief, KalmanNoise
 from corrections_sim.components import ParameterError
 from corrections_sim.learning.base import LEARNERS, Learner, make_learner
 from corrections_sim.learning.kalman import SigmaPoints
+from corrections_sim.people.teacher import Teacher
 from corrections_sim.people.users import USERS, BiasedUser, User
 from corrections_sim.planning.planner import PlannerConfig, shared_planner
 from corrections_sim.planning.plans import Target
@@ -105,6 +106,8 @@ class StudySettings:
         online: learn during the motion (the IJRR 2022 setting): when the user's correction
             ends, the learner updates and the robot replans the rest of the motion from its
             current state. Needs a user who corrects during the motion (``physical``).
+        teacher: how the person gives feature traces when a learner asks for them
+            (:class:`~corrections_sim.people.teacher.Teacher`).
     """
 
     theta_star: tuple[float, ...]
@@ -120,6 +123,7 @@ class StudySettings:
     warm_start: bool = False
     online: bool = False
     user_theta: tuple[float, ...] = ()
+    teacher: Teacher = field(default_factory=Teacher)
 
     def __post_init__(self) -> None:
         if not np.all(np.isfinite(np.asarray(self.user_theta, float))):
@@ -229,6 +233,7 @@ class StudySettings:
             "warm_start": self.warm_start,
             # Only when set, so that the run keys of studies without it stay as they were.
             **({"online": True} if self.online else {}),
+            **({"teacher": asdict(self.teacher)} if self.teacher != Teacher() else {}),
         }
 
 

@@ -1,0 +1,292 @@
+"""Learning the feature the robot lacks (FERL: Bobu, Wiggert, Tomlin & Dragan, HRI 2021 and
+IJRR 2022): a robot that asks for feature traces when a person's corrections are not
+explained, learns a feature from them and its weight from the corrections that follow.
+
+The columns of ``experiments/ferl.toml`` are people, as in the relevance figure: the paper's
+biased user (who should never make the robot ask), a person who also minds the coffee coming
+close to them (`human`, weight −2) and one who minds only that (−5); and the last two again
+with a robot that knows `human` from the start (a column may set ``features`` and
+``learners``): the upper bound. Rows are learners: KF-C, KF-CRP (which notices) and KF-CRX
+(which notices and asks, :meth:`~corrections_sim.learning.paper.PersonRelevanceKalman.expand`).
+
+Besides the study, the quality of a learnt feature against the number of traces and the
+teacher's noise: Spearman ρ between the learnt and the true `human` on 10,000 random
+reachable configurations (FERL's measure), over seeds.
+
+Files: ``matrix.csv`` (per person and learner: final regret of the person's whole objective
+and error on the study's features, mean ± SEM; how often the learner asked and expanded, when,
+the learnt feature's Spearman ρ and R² against the person's, and its weight against the
+person's weight mapped through the best affine fit), ``paired.csv`` (KF-CRX − KF-C and
+KF-CRX − the upper bound, paired by run: final regret and error), ``curves.csv``,
+``quality.csv`` (one row per traces × teacher noise × seed) and the plots ``ferl.png``
+(regret and error over corrections per person) and ``ferl-quality.png``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from corrections_sim.figures import robustness
+from corrections_sim.figures.registry import register
+from corrections_sim.metrics import estimate_error, mean_sem
+from corrections_sim.planning.learnt import learn, quality
+from corrections_sim.planning.learnt import register as register_learnt
+from corrections_sim.study import analysis
+from corrections_sim.study.runner import FigureResult
+
+FIGURE = "ferl"
+#: A column is a person, and may give the robot other features and learners (the upper
+#: bound: a robot that knows the person's feature from the start).
+COLUMN_KEYS = (*robustness.COLUMN_KEYS, "features", "learners")
+#: The quality sweep: traces per feature, the teacher's noise (relative to the study's
+#: teacher: none, as set, twice), seeds per cell; the quick preset's in brackets.
+TRACES, QUICK_TRACES = (1, 2, 5, 10, 20), (2, 10)
+NOISE_SCALES = {"noiseless": 0.0, "default": 1.0, "double": 2.0}
+SEEDS, QUICK_SEEDS = 10, 2
+#: The learner that expands, what it is compared with, and the upper bound's.
+EXPANDING, BASELINE = "KF-CRX", "KF-C"
+
+
+def _person(column) -> tuple[float, ...]:
+    s = column.settings
+    return tuple(s.study.user_theta or s.study.theta_star)
+
+
+def _knows_all(column) -> bool:
+    s = column.settings
+    return not s.user_features or set(s.user_features) <= set(s.features)
+
+
+def known_error(column, records: Sequence[dict], k0: int) -> dict[str, np.ndarray]:
+    """learner -> error ‖θ̂ − θ*‖₁ on the first ``k0`` features (the study's own), (runs, T+1)."""
+    s = column.settings
+    star = np.array(s.study.person()[:k0] if not s.user_features else _on(s, k0), float)
+    out: dict[str, dict[int, list]] = {}
+    for r in records:
+        theta = np.array([float(r[f"theta_{i}"]) for i in range(k0)])
+        out.setdefault(r["learner"], {}).setdefault(r["run"], []).append(
+            (r["iteration"], estimate_error(theta, star))
+        )
+    return {
+        name: np.array([[e for _, e in sorted(v)] for _, v in sorted(runs.items())])
+        for name, runs in out.items()
+    }
+
+
+def _on(settings, k0: int) -> list[float]:
+    """The person's weights on the first ``k0`` of the robot's features."""
+    names = settings.features[:k0]
+    return [settings.study.person()[settings.user_features.index(n)] for n in names]
+
+
+def matrix(settings, results: Sequence[FigureResult], k0: int) -> list[dict]:
+    """Per person and learner: final regret and error on the study's features (mean, SEM),
+    and for a learner that can expand: how often it asked and expanded, at which correction,
+    the learnt feature's quality and its weight's error against the person's mapped one."""
+    rows = []
+    for column, result in zip(settings.columns, results, strict=True):
+        data = analysis.curves(column.settings, result.records)
+        errors = known_error(column, result.records, k0)
+        for learner in column.settings.study.learners:
+            regret = data[learner]["regret"][:, -1]
+            error = errors[learner][:, -1]
+            row = {"user": column.label, "learner": learner, "runs": int(regret.size)}
+            row["regret_mean"], row["regret_sem"] = _ms(regret)
+            row["error_mean"], row["error_sem"] = _ms(error)
+            final = [
+                r
+                for r in result.records
+                if r["learner"] == learner and r["iteration"] == column.settings.study.iterations
+            ]
+            if any("asked" in r for r in final):
+                asked = np.array([float(r.get("asked") or 0.0) for r in final])
+                expanded = np.array([float(r.get("expanded") or 0.0) for r in final])
+                row |= {"asked": float(asked.mean()), "expanded": float(expanded.mean())}
+                grown = [r for r in final if r.get("expanded")]
+                if grown:
+                    got = {
+                        key: np.array([float(r[key]) for r in grown])
+                        for key in ("learnt_weight", "learnt_weight_target", "expanded_at")
+                        + ("learnt_spearman", "learnt_r2")
+                    }
+                    weight = got["learnt_weight"] - got["learnt_weight_target"]
+                    row |= {
+                        "expanded_at": float(np.mean(got["expanded_at"])),
+                        "spearman": float(np.mean(got["learnt_spearman"])),
+                        "r2": float(np.mean(got["learnt_r2"])),
+                        "weight_error": float(np.mean(np.abs(weight))),
+                    }
+            rows.append(row)
+    return rows
+
+
+def _ms(values: np.ndarray) -> tuple[float, float]:
+    m, s = mean_sem(values[:, None])
+    return float(np.ravel(m)[0]), float(np.ravel(s)[0])
+
+
+def paired(settings, results: Sequence[FigureResult], k0: int) -> list[dict]:
+    """Paired 95% intervals of KF-CRX minus KF-C (same person, same runs' draws) and minus
+    the upper bound (KF-C of the column where the robot knows the person's feature): final
+    regret and error on the study's features."""
+    out = []
+    final = {}
+    for column, result in zip(settings.columns, results, strict=True):
+        data = analysis.curves(column.settings, result.records)
+        errors = known_error(column, result.records, k0)
+        for learner in column.settings.study.learners:
+            final[(column.label, learner)] = (
+                data[learner]["regret"][:, -1],
+                errors[learner][:, -1],
+            )
+    for column in settings.columns:
+        if EXPANDING not in column.settings.study.learners:
+            continue
+        rivals = [(BASELINE, column.label)]
+        bound = _bound(settings, column)
+        if bound is not None:
+            rivals.append((BASELINE, bound.label))
+        for rival, where in rivals:
+            if (where, rival) not in final:
+                continue
+            a, b = final[(column.label, EXPANDING)], final[(where, rival)]
+            if a[0].shape != b[0].shape:
+                continue
+            for i, metric in enumerate(("final regret", "final error")):
+                out.append(
+                    {
+                        "user": column.label,
+                        "a": EXPANDING,
+                        "b": rival if where == column.label else f"{rival} ({where})",
+                        "metric": metric,
+                    }
+                    | analysis._mean_ci(a[i] - b[i])
+                )
+    return out
+
+
+def _bound(settings, column):
+    """The column where the robot knows the features this column's person minds."""
+    if _knows_all(column):
+        return None
+    for other in settings.columns:
+        if other is not column and _knows_all(other) and _person(other) == _person(column):
+            return other
+    return None
+
+
+def quality_sweep(settings, *, quick: bool) -> list[dict]:
+    """Spearman ρ (and R²) of features learnt from N traces against the true one, per teacher
+    noise and seed, in the study's first environment (each cell seeded from the study's
+    seed, so the sweep is the same on every run)."""
+    first = settings.columns[0].settings
+    env = first.envs()[0]
+    base = first.study.teacher
+    feature = _taught(settings)
+    rows = []
+    for n in QUICK_TRACES if quick else TRACES:
+        for j, (label, scale) in enumerate(NOISE_SCALES.items()):
+            teacher = replace(
+                base, path_noise=base.path_noise * scale, label_noise=base.label_noise * scale
+            )
+            for seed in range(QUICK_SEEDS if quick else SEEDS):
+                rng = np.random.default_rng([first.study.seed, n, j, seed])
+                traces = teacher.traces(feature, n, env, rng)
+                start = time.process_time()
+                learnt = learn(traces, env, rng)
+                seconds = time.process_time() - start
+                register_learnt(learnt)
+                q = quality(learnt.name, feature, env)
+                rows.append(
+                    {
+                        "traces": n,
+                        "noise": label,
+                        "path_noise": teacher.path_noise,
+                        "label_noise": teacher.label_noise,
+                        "seed": seed,
+                        "spearman": q.spearman,
+                        "r2": q.r2,
+                        "train_seconds": seconds,
+                    }
+                )
+    return rows
+
+
+def _taught(settings) -> str:
+    """The feature the people of the figure mind that the robot lacks."""
+    for column in settings.columns:
+        s = column.settings
+        for name in s.user_features:
+            if name not in s.features:
+                return name
+    raise ValueError(f"{FIGURE}: no column's person minds a feature the robot lacks")
+
+
+def write(settings, results: Sequence[FigureResult], folder: Path, sweep: list[dict]) -> dict:
+    """matrix.csv, paired.csv, curves.csv, quality.csv and the plots; the summary's fields."""
+    from corrections_sim.figures.output import write_csv
+    from corrections_sim.figures.plotting import plot_ferl, plot_ferl_quality
+
+    k0 = len(settings.columns[0].settings.features)
+    rows = matrix(settings, results, k0)
+    pairs = paired(settings, results, k0)
+    summary = robustness.write_matrix(settings, results, rows, folder, pairs)
+    write_csv(folder / "quality.csv", sweep)
+    title = robustness.title(settings, FIGURE)
+    curves = {}
+    for column, result in zip(settings.columns, results, strict=True):
+        data = analysis.curves(column.settings, result.records)
+        errors = known_error(column, result.records, k0)
+        curves[column.label] = {
+            learner: {"regret": data[learner]["regret"], "error": errors[learner]}
+            for learner in column.settings.study.learners
+        }
+    people = [c.label for c in settings.columns if not _knows_all(c) or c is settings.columns[0]]
+    bounds = {c.label: b.label for c in settings.columns if (b := _bound(settings, c)) is not None}
+    plot_ferl(curves, people, bounds, title, [folder / f"{FIGURE}.png", folder / f"{FIGURE}.pdf"])
+    plot_ferl_quality(sweep, title, [folder / f"{FIGURE}-quality.png"])
+    table = {}
+    for row in sweep:
+        table.setdefault(f"{row['noise']} x{row['traces']}", []).append(row["spearman"])
+    return summary | {
+        "quality": {
+            key: {"mean": float(np.mean(v)), "min": float(np.min(v))} for key, v in table.items()
+        },
+        "train_seconds_mean": float(np.mean([r["train_seconds"] for r in sweep])),
+    }
+
+
+@dataclass(frozen=True)
+class FerlFigure(robustness.RobustnessFigure):
+    """The FERL study as a registered figure: people as columns (with the upper bound's),
+    cached per column; the quality sweep is recomputed with every write (≈ 1 min)."""
+
+    name: str = FIGURE
+    help: str = "beyond the paper: a robot that learns the feature it lacks (FERL)"
+    in_all: bool = False
+
+    def load(self, *, quick: bool, overrides: Mapping[str, Any]) -> FerlSettings:
+        settings = robustness.load_settings(
+            quick=quick, overrides=dict(overrides), figure=FIGURE, column_keys=COLUMN_KEYS
+        )
+        return FerlSettings(columns=settings.columns, quick=quick)
+
+    def write(self, settings: FerlSettings, result: list[FigureResult], folder: Path) -> dict:
+        sweep = quality_sweep(settings, quick=settings.quick)
+        return write(settings, result, folder, sweep)
+
+
+@dataclass(frozen=True)
+class FerlSettings(robustness.RobustnessSettings):
+    """The columns, and whether the quality sweep is the quick preset's."""
+
+    quick: bool = False
+
+
+register(FerlFigure())
