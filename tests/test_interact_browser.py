@@ -379,3 +379,45 @@ def test_a_scripted_hand_makes_labelled_drags_through_the_page(playwright_browse
     for row in rows:
         moved = np.flatnonzero(np.any(row["xi_h"] != row["xi_robot"], axis=1))
         assert moved.size == 1 and row["drag"]["waypoint"] == moved[0]
+
+
+def test_a_scripted_person_teaches_a_feature_through_the_page(playwright_browser, tmp_path):
+    """interact.teach: KF-CRX asks after the first correction (here), the page turns to
+    teaching, two traces are dragged with the mouse and logged, the feature is learnt and
+    logged, the next plan is over it, and the session replays to the logged θ̂."""
+    from corrections_sim.interact import teach
+    from corrections_sim.interact.replay import replay
+    from corrections_sim.interact.session import teach_rng
+    from corrections_sim.planning.learnt import learn
+
+    db = tmp_path / "teach.sqlite"
+    params = {"expand_traces": 2, "expand_after": 1, "expand_below": 0.99}
+    session_id = teach.run(
+        db, after=1, params=params, most=3, port=_free_port(), browser=playwright_browser
+    )
+    with StudyLog(db) as log:
+        traces = log.events(session_id, "trace")
+        learnt = log.events(session_id, "learnt")
+        rows = log.corrections(session_id)
+        assert len(traces) == 2 and len(learnt) == 1
+        assert all(len(t["detail"]["states"]) >= 2 for t in traces)
+        assert rows[-1]["theta_after"].shape == (3,)  # planned and learnt over laptop, table, it
+        seed = log.session(session_id).seed
+        _, result, _ = replay(log, session_id, ["KF-CRX"], regret=False)
+    # The logged traces retrain to the logged feature (the name is a digest of the weights),
+    # as --resume and replay retrain it; the replay learns over it too.
+    detail = learnt[0]["detail"]
+    again = learn(
+        [np.asarray(t["detail"]["states"]) for t in traces],
+        _env(detail["env_index"]),
+        teach_rng(seed, learnt[0]["iteration"]),
+    )
+    assert again.name == detail["feature"]
+    assert any("theta_2" in r for r in result.records)
+
+
+def _env(index: int):
+    from corrections_sim.figures.presets import EXPERIMENTS_DIR
+    from corrections_sim.study import schema
+
+    return schema.load_study(EXPERIMENTS_DIR / "fig4.toml", name="fig4", quick=False).envs()[index]

@@ -18,6 +18,15 @@ action runs at a time: a click that arrives while another is being worked on (th
 update, the next plan, the deployment) is dropped and the page says so, rather than queued to
 act on a plan the person no longer sees. After "Done" the page shows the deployment until its
 tab closes (:attr:`Page.finished`, :attr:`Page.left`); a reload shows it again.
+
+When the learner asks for feature traces (KF-CRX, :attr:`Session.wanted`), the page turns to
+teaching before the next plan: it shows the robot's reward over the table (what it knows) as
+a heat map; the person drags the cup to where what they mind is strongest (not recorded),
+presses "Start a trace here", drags it to where it is weakest (every handle position on the
+way is recorded; several drags make one trace) and presses "End the trace"; the cup's path
+becomes arm configurations by IK (the cup kept upright) and a logged trace. With all of them
+the feature is learnt, the heat map shows it, and the next plan is made over it. "I cannot
+show it" declines.
 """
 
 from __future__ import annotations
@@ -30,7 +39,9 @@ import numpy as np
 
 from corrections_sim.interact.meshes import Poser, pieces
 from corrections_sim.interact.session import Deployment, Refused, Session
-from corrections_sim.scene.robot import cup_pose
+from corrections_sim.planning.features import pose_feature_function
+from corrections_sim.scene import geometry as g
+from corrections_sim.scene.robot import cup_inverse_kinematics, cup_pose
 from corrections_sim.scene.world import interpolate
 
 #: Where the page's camera starts: beyond the table's far corner, looking back at the robot.
@@ -46,6 +57,49 @@ HANDLE_SCALE = 0.16
 #: without a GPU) pays at every frame: the physical page during a motion drew 9–12 frames/s
 #: with it, 24–31 with this (measured, docs/physical.md).
 MESH_MATERIAL = "toon5"
+#: The teaching heat map: a grid over the table (points along x, along y), this high above
+#: the table top (m, the cup centre), and the states a trace keeps at most (evenly along the
+#: cup's path; FERL's traces had about as many).
+MAP_GRID = (28, 18)
+MAP_HEIGHT = 0.25
+TRACE_STATES = 20
+#: How far (m) the cup must move for a recorded handle position to count.
+TRACE_STEP = 0.005
+
+
+def reward_map(env, theta: np.ndarray, names, rotation: np.ndarray) -> tuple[np.ndarray, ...]:
+    """(points (n, 3), values (n,)): θ·φ with the cup at each point of a grid over the table
+    of ``env``, ``MAP_HEIGHT`` above its top, the hand at ``rotation``."""
+    hx, hy = g.TABLE_HALF_SIZE
+    tx, ty = env.table
+    xs = np.linspace(tx - hx, tx + hx, MAP_GRID[0])
+    ys = np.linspace(ty - hy, ty + hy, MAP_GRID[1])
+    cups = np.array([(x, y, g.TABLE_TOP_Z + MAP_HEIGHT) for x in xs for y in ys])
+    hands = cups - (rotation @ np.array(g.CUP_CENTER_IN_HAND))[None, :]
+    f = pose_feature_function(tuple(names)).map(cups.shape[0])
+    rots = np.tile(np.asarray(rotation, float).reshape(-1, order="F")[:, None], cups.shape[0])
+    phi = np.asarray(f(rots.reshape(3, 3 * cups.shape[0], order="F"), hands.T, env.params()))
+    return cups, np.asarray(theta, float) @ phi
+
+
+def heat_colours(values: np.ndarray) -> np.ndarray:
+    """RGB (n, 3) uint8 of ``values`` on viridis, scaled to their range."""
+    import matplotlib
+
+    span = float(np.ptp(values)) or 1.0
+    rgba = matplotlib.colormaps["viridis"]((values - values.min()) / span)
+    return (255 * rgba[:, :3]).astype(np.uint8)
+
+
+def resample_path(points: np.ndarray, count: int) -> np.ndarray:
+    """At most ``count`` points evenly along the polyline ``points`` (n, 3), its ends kept."""
+    points = np.asarray(points, float)
+    steps = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    arc = np.concatenate([[0.0], np.cumsum(steps)])
+    if points.shape[0] <= count or arc[-1] == 0.0:
+        return points
+    at = np.linspace(0.0, arc[-1], count)
+    return np.column_stack([np.interp(at, arc, points[:, i]) for i in range(3)])
 
 
 def cup_path(trajectory: np.ndarray, substeps: int = 6) -> np.ndarray:
@@ -187,6 +241,17 @@ class Page:
         self.left = threading.Event()
         self._busy = ""  # what the running action is doing, for the page ("" when idle)
         self._playing = False
+        #: teaching a feature (the learner asked for traces), recording a trace, the cup
+        #: positions of the trace so far, where the arm is (q) and where the trace began
+        self.teaching = False
+        self.recording = False
+        self.trace_points: list[np.ndarray] = []
+        self.teach_q: np.ndarray | None = None
+        self.trace_start_q: np.ndarray | None = None
+        self.traces_taken = 0  # traces submitted through this page (tests wait on it)
+        self.teach_moves = 0  # teaching drags handled (tests wait on it)
+        self.teach_handle = None
+        self.teach_env = None  # the environment the traces are given in
         server.initial_camera.position = CAMERA_POSITION
         server.initial_camera.look_at = CAMERA_LOOK_AT
         server.initial_camera.up = (0.0, 0.0, 1.0)
@@ -235,7 +300,7 @@ class Page:
         scene, gui = client.scene, client.gui
         self._add_meshes(scene)
         self._add_texts(gui)
-        features = s.features
+        features = s.settings.features  # the stated preference is over the study's
         with gui.add_folder("Your preference (before the first correction)"):
             gui.add_markdown("How much do you want the cup near each thing? −2 far … +2 near.")
             self.sliders = [
@@ -253,7 +318,14 @@ class Page:
         self.reset_button = gui.add_button("Reset the drag", disabled=True)
         self.skip_button = gui.add_button("Skip this environment", disabled=True)
         self.done_button = gui.add_button("Done: deploy", disabled=True)
+        with gui.add_folder("Teach the robot (when it asks)"):
+            self.start_trace = gui.add_button("Start a trace here", disabled=True)
+            self.end_trace = gui.add_button("End the trace", disabled=True)
+            self.decline = gui.add_button("I cannot show it", disabled=True)
         self._add_belief_panel(gui)
+        self.start_trace.on_click(self._act(self.start_trace, self._start_trace))
+        self.end_trace.on_click(self._act(self.end_trace, self._end_trace, "learning"))
+        self.decline.on_click(self._act(self.decline, self._decline, "planning"))
 
         self.state_button.on_click(self._act(self.state_button, self._state))
         self.waypoint.on_update(lambda _: self._show_waypoint())
@@ -271,9 +343,13 @@ class Page:
         self.where = gui.add_markdown("")
 
     def _first_view(self) -> None:
-        """What a tab that connects sees first: the end, or the plan (once it is solved)."""
+        """What a tab that connects sees first: the end, the teaching, or the plan (once it
+        is solved)."""
         if self.session.ended:
             self._show_end()
+            return
+        if self.session.wanted > len(self.session.traces) and not self.session.physical:
+            self._start_teaching()  # the physical page does not teach (not built)
             return
         self._say("Planning the robot's path…")
         self._new_proposal()
@@ -310,7 +386,7 @@ class Page:
         client = self.client
         if client is None:
             return
-        env = self.proposal.env
+        env = self.proposal.env if self.proposal is not None else self.teach_env
         with client.atomic():
             for geom, (position, wxyz) in self.poser.poses(q, env).items():
                 if moving_only and geom not in self._moving:
@@ -325,9 +401,13 @@ class Page:
         """Each control of the page with whether it works now (not ended, not busy, a plan
         on the page, and its own condition)."""
         s = self.session
-        ready = self.proposal is not None and not s.ended and not self._busy
+        teach = self.teaching and not s.ended and not self._busy
+        ready = self.proposal is not None and not s.ended and not self._busy and not self.teaching
         first = ready and s.iteration == 0 and self.stated is None
         return [
+            (self.start_trace, teach and not self.recording),
+            (self.end_trace, teach and self.recording and len(self.trace_points) >= 2),
+            (self.decline, teach and not self.recording),
             (self.state_button, first),
             *((slider, first) for slider in self.sliders),
             (self.waypoint, ready),
@@ -422,13 +502,7 @@ class Page:
     def _make_handle(self) -> None:
         i = int(self.waypoint.value)
         cup = cup_pose(self.proposal.plan.trajectory[i])[1]
-        self.handle = self.client.scene.add_transform_controls(
-            "/handle",
-            scale=HANDLE_SCALE,
-            disable_rotations=True,
-            depth_test=False,
-            position=cup,
-        )
+        self.handle = self._cup_handle("/handle", cup)
         self.handle.on_update(lambda event: self._dragged() if event.phase == "end" else None)
         self.where.content = f"Cup at waypoint {i}: ({cup[0]:.3f}, {cup[1]:.3f}, {cup[2]:.3f}) m"
         self._pose_arm(self.proposal.plan.trajectory[i])
@@ -446,7 +520,10 @@ class Page:
         s = self.session
         b = s.belief
         cov = b.cov if s.has_covariance else None
-        self.belief_image.image = render_belief(b.theta, cov, s.features, self.stated)
+        stated = self.stated
+        if stated is not None and b.dim > stated.size:  # no stated weight for a learnt one
+            stated = np.concatenate([stated, np.full(b.dim - stated.size, np.nan)])
+        self.belief_image.image = render_belief(b.theta, cov, s.features, stated)
         sigma = np.sqrt(np.diag(b.cov)) if cov is not None else None
         rows = "\n".join(
             f"| {name} | {b.theta[i]:+.3f} | "
@@ -551,13 +628,164 @@ class Page:
         self.corrected = None
         self._busy = "planning"
         self._clicked = t0
-        self._new_proposal()
+        if self.session.wanted:
+            self._start_teaching()
+        else:
+            self._new_proposal()
         self.submitted += 1
         skipped = f" (update skipped: {row['update_skipped']})" if row["update_skipped"] else ""
         self._say(
             f"Correction {row['iteration'] + 1} recorded{skipped}{relevance_note(row)}; "
             f"next plan in {time.perf_counter() - t0:.2f} s."
         )
+
+    # --- teaching a feature ----------------------------------------------------------------
+
+    def _start_teaching(self) -> None:
+        """The learner asks for traces: the heat map of what it knows, the teaching handle
+        where the cup last was, the instructions."""
+        s = self.session
+        self.teaching, self.recording, self.trace_points = True, False, []
+        self.proposal = None
+        if self.teach_q is None:
+            rows = s.log.corrections(s.id)
+            last = rows[-1]["xi_h"] if rows else s.envs[0].q_start[None, :]
+            self.teach_q = np.asarray(last[len(last) // 2], float)
+        self.teach_env = s.envs[int(s.last_env if s.last_env is not None else 0)]
+        client = self.client
+        if client is None:
+            return
+        if self.handle is not None:  # the correction's handle goes (an invisible one still
+            self.handle.remove()  # takes the mouse)
+            self.handle = None
+        self._draw_map(self.teach_env, "what I know: my reward θ̂·φ")
+        self._make_teach_handle()
+        left = s.wanted - len(s.traces)
+        self.title.content = (
+            "### Teach me what you mind\n"
+            "Your corrections are not explained by what I know. Show me what you mind with "
+            f"**{left} {plural(left, 'trace')}**: drag the cup to where it matters most, press "
+            "**Start a trace here**, drag it to where it matters least (as many drags as you "
+            "like), press **End the trace**."
+        )
+        self._show_belief()
+        self._refresh()
+        self._say("The heat map over the table is what I know now (yellow: what I seek).")
+
+    def _draw_map(self, env, what: str, names=None, theta=None) -> None:
+        s = self.session
+        names = s.features if names is None else names
+        theta = s.belief.theta if theta is None else theta
+        rotation = cup_pose(self.teach_q)[0]
+        points, values = reward_map(env, theta, names, rotation)
+        flat = points.copy()
+        flat[:, 2] = g.TABLE_TOP_Z + 0.004  # drawn on the table top, out of the hand's way
+        self.client.scene.add_point_cloud(
+            "/teach/map",
+            flat,
+            colors=heat_colours(values),
+            point_size=0.034,
+            point_shape="square",
+        )
+        self.where.content = (
+            f"Heat map on the table (the cup {MAP_HEIGHT:.2f} m above it): {what}; "
+            f"from {values.min():+.3f} (dark) to {values.max():+.3f} (yellow)."
+        )
+
+    def _cup_handle(self, name: str, cup: np.ndarray):
+        """Arrows at the cup ``cup`` (3,) that move it (no rotations, drawn over the scene)."""
+        return self.client.scene.add_transform_controls(
+            name, scale=HANDLE_SCALE, disable_rotations=True, depth_test=False, position=cup
+        )
+
+    def _make_teach_handle(self) -> None:
+        self.teach_handle = self._cup_handle("/teach/handle", cup_pose(self.teach_q)[1])
+        self.teach_handle.on_update(self._teach_moved)
+        self._pose_arm(self.teach_q)
+
+    def _teach_moved(self, event) -> None:
+        """A teaching drag: while recording every position counts; where a drag ends the arm
+        follows (IK, the cup upright), or the cup goes back if the arm cannot reach it."""
+        with self._lock:
+            if not self.teaching or self.client is None or self.teach_handle is None:
+                return
+            position = np.array(self.teach_handle.position, float)
+            if self.recording and (
+                not self.trace_points
+                or np.linalg.norm(position - self.trace_points[-1]) >= TRACE_STEP
+            ):
+                self.trace_points.append(position)
+            if event.phase != "end":
+                return
+            self.teach_moves += 1
+            q = cup_inverse_kinematics(position, cup_pose(self.teach_q)[0], self.teach_q)
+            if q is None:
+                self._say("**Out of reach**: the cup went back. Try somewhere nearer.")
+                if self.recording and self.trace_points:
+                    self.trace_points.pop()
+                self._make_teach_handle()
+            else:
+                self.teach_q = q
+                self._pose_arm(q)
+            self._refresh()
+
+    def _start_trace(self) -> None:
+        self.recording = True
+        self.trace_start_q = self.teach_q.copy()
+        self.trace_points = [cup_pose(self.teach_q)[1]]
+        self._say("Recording: drag the cup to where what you mind matters least, then end it.")
+
+    def _end_trace(self) -> None:
+        s = self.session
+        points = resample_path(np.array(self.trace_points), TRACE_STATES)
+        configurations, q = [], self.trace_start_q
+        rotation = cup_pose(self.trace_start_q)[0]
+        for point in points:
+            found = cup_inverse_kinematics(point, rotation, q)
+            if found is not None:
+                configurations.append(found)
+                q = found
+        self.recording = False
+        try:
+            left = s.add_trace(np.array(configurations), {"cup_path": points.tolist()})
+        except Refused as exc:
+            self.trace_points = []
+            self._say(f"**Refused**: {exc}. Start the trace again.")
+            return
+        self.traces_taken += 1
+        self.trace_points = []
+        if left:
+            self._say(f"Trace {len(s.traces)} recorded; {left} more, please.")
+            self.title.content = self.title.content.split("\n")[0] + (
+                f"\n{left} more {plural(left, 'trace')}: from where it matters most to where it "
+                "matters least."
+            )
+            return
+        self._say("Learning the feature from your traces…")
+        try:
+            name = s.learn_feature()
+        except Refused as exc:
+            self._say(f"**Refused**: {exc}")
+            return
+        self._finish_teaching(f"what I learnt from you: {name}")
+
+    def _finish_teaching(self, what: str) -> None:
+        s = self.session
+        self.teaching = False
+        if self.teach_handle is not None:
+            self.teach_handle.remove()
+            self.teach_handle = None
+        if s.belief.extra:
+            env = s.envs[int(s.last_env)]
+            self._draw_map(env, what, names=s.belief.extra[-1:], theta=np.ones(1))
+        self._new_proposal()
+
+    def _decline(self) -> None:
+        self.session.decline_traces()
+        self.client.scene.add_point_cloud(
+            "/teach/map", np.zeros((1, 3)), colors=(0, 0, 0), visible=False
+        )
+        self._finish_teaching("")
 
     def _skip(self) -> None:
         if self.corrected is not None:

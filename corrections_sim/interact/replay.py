@@ -29,13 +29,15 @@ from corrections_sim.interact.session import (
     build_learner,
     learner_rng,
     settings_from_log,
+    teach_rng,
 )
 from corrections_sim.learning.base import LEARNERS, LearnerContext
 from corrections_sim.learning.perceptron import learning_rate_schedule
 from corrections_sim.metrics import estimate_error, label_scores
+from corrections_sim.planning.features import feature_counts
 from corrections_sim.planning.planner import Plan, PlanningError, shared_planner
 from corrections_sim.planning.plans import PlanBook, Target, evaluate
-from corrections_sim.study.loop import belief_columns
+from corrections_sim.study.loop import belief_columns, grown_noise
 from corrections_sim.study.runner import FigureResult
 from corrections_sim.study.settings import FigureSettings
 
@@ -43,11 +45,12 @@ from corrections_sim.study.settings import FigureSettings
 DEFAULT_LEARNERS = ("PP", "KF", "KF-C", "BP")
 
 
-def logged_plan(row: dict) -> Plan:
-    """The robot's plan ξᵗ as the session showed it."""
+def logged_plan(row: dict, features: np.ndarray | None = None) -> Plan:
+    """The robot's plan ξᵗ as the session showed it (with ``features``: Φ(ξᵗ) over another
+    learner's features than the session's)."""
     return Plan(
         trajectory=row["xi_robot"],
-        features=row["phi_robot"],
+        features=row["phi_robot"] if features is None else features,
         reward=float("nan"),
         status="logged",
         iterations=0,
@@ -115,6 +118,7 @@ def replay(
 
     stated = row.stated_theta
     labels = log.labels(session_id)
+    teaching = _teaching(log, session_id)
     s = settings.study
     planner = shared_planner(settings.planner_config())
     envs = settings.envs()
@@ -137,13 +141,15 @@ def replay(
             alphas_of[name] = [float(a) for a in alphas]
         belief = agent.initial(s.prior(), s.noise())
         gains = np.full((n, k, k), np.nan)
+        books = {settings.features: book}
 
-        def record(t: int, env_name: str, skipped: str, step, belief, name=name, cls=cls):
+        def record(t, env_name, skipped, step, belief, name=name, cls=cls, books=books):
             rec = {"learner": name, "run": 0, "iteration": t, "environment": env_name}
             if stated is not None:
-                rec["estimate_error"] = estimate_error(belief.theta, stated)
+                rec["estimate_error"] = estimate_error(belief.theta[:k], stated)
                 if target is not None:
-                    full, paper, failed = evaluate(book, target, envs, belief.theta)
+                    mine = _book(books, settings, belief)
+                    full, paper, failed = evaluate(mine, target, envs, belief.theta)
                     rec |= {"regret": full, "regret_paper": paper, "regret_failures": failed}
             rec["update_skipped"] = skipped
             rec |= belief_columns(belief, step, stated, cls.has_covariance)
@@ -154,28 +160,36 @@ def replay(
         record(0, "", "", None, belief)
         for t, logged in enumerate(rows):
             env = envs[int(logged["env_index"])]
+            current = settings.features + tuple(belief.extra)
+            if belief.extra:  # Φ over the features this learner has learnt too
+                phi_h = feature_counts(logged["xi_h"], env, current)
+                plan = logged_plan(logged, feature_counts(logged["xi_robot"], env, current))
+            else:
+                phi_h = np.asarray(logged["phi_h"])[:k]
+                plan = logged_plan(logged, np.asarray(logged["phi_robot"])[:k])
             ctx = LearnerContext(
-                book=book,
+                book=_book(books, settings, belief),
                 envs=envs,
-                features=settings.features,
+                features=current,
                 n_waypoints=planner.config.n_waypoints,
                 alphas=alphas,
                 rng=learner_rng(row.seed, t),
-                noise=s.noise(),
+                noise=grown_noise(s.noise(), belief.dim),
                 sigma=s.sigma(),
                 iteration=t,
                 corrected=logged["xi_h"],
             )
             skipped, step = "", None
             try:
-                step = agent.update(ctx, belief, env, logged_plan(logged), logged["phi_h"])
+                step = agent.update(ctx, belief, env, plan, phi_h)
                 belief = step.belief
                 if step.gain is not None:
-                    gains[t] = step.gain
+                    gains[t] = step.gain[:k, :k]
             except PlanningError as exc:
                 skipped = str(exc).splitlines()[0]
+            belief = _teach(agent, belief, t + 1, teaching, envs, row.seed, ctx)
             record(t + 1, env.name, skipped, step, belief)
-            if name == row.learner:
+            if name == row.learner and belief.theta.shape == logged["theta_after"].shape:
                 gap = float(np.max(np.abs(belief.theta - logged["theta_after"])))
                 gap_to_log = gap if gap_to_log is None else max(gap_to_log, gap)
         gains_of[name] = gains
@@ -206,6 +220,7 @@ def replay(
         "final": {
             name: {
                 "theta": [r[f"theta_{i}"] for i in range(k)],
+                "learnt": [r.get(f"theta_{i}") for i in range(k, k + 4) if f"theta_{i}" in r],
                 "estimate_error": r.get("estimate_error"),
             }
             for name in order
@@ -213,6 +228,48 @@ def replay(
         },
     }
     return replayed, result, facts
+
+
+def _teaching(log: StudyLog, session_id: int) -> dict[int, dict]:
+    """After how many corrections the person gave feature traces: the traces, and the
+    feature learnt from them (or that they declined)."""
+    out: dict[int, dict] = {}
+    for event in log.events(session_id):
+        kind, detail = event["kind"], event["detail"]
+        if kind not in ("trace", "traces", "learnt"):
+            continue
+        at = out.setdefault(int(event["iteration"]), {"traces": []})
+        if kind == "trace":
+            at["traces"].append(np.asarray(detail["states"], float))
+        elif kind == "traces":
+            at["declined"] = bool(detail.get("declined"))
+        else:
+            at["learnt"] = detail
+    return out
+
+
+def _teach(agent, belief, corrections: int, teaching: dict, envs, seed: int, ctx):
+    """A learner that asks for traces after ``corrections`` corrections gets the session's:
+    it learns the feature from them as the session did (the same seed; the session's own
+    learner gives back the logged weights); where the person gave none it is told so."""
+    wants = getattr(agent, "wants_traces", None)
+    if wants is None or not wants(belief, corrections):
+        return belief
+    given = teaching.get(corrections)
+    if given is None or "learnt" not in given:
+        return dataclasses.replace(belief, asked=True, history=())
+    env = envs[int(given["learnt"]["env_index"])]
+    grown, _ = agent.grow(belief, env, given["traces"], teach_rng(seed, corrections), ctx)
+    return grown
+
+
+def _book(books: dict, settings: FigureSettings, belief) -> PlanBook:
+    """The replay's book over the features ``belief`` has (the study's and any learnt)."""
+    mine = settings.features + tuple(belief.extra)
+    if mine not in books:
+        config = dataclasses.replace(settings.planner_config(), features=mine)
+        books[mine] = PlanBook(shared_planner(config))
+    return books[mine]
 
 
 def labelled_scores(records: Sequence[dict], learners: Sequence[str]) -> dict:

@@ -24,6 +24,13 @@ driven by the page or by a simulated physical user); when the robot finds the pu
 profile, executed path, sensed τ_h, where the arm was held), and :meth:`Session.replan` plans
 anew, the arm joining the new plan where it is.
 
+A learner that learns the feature it lacks (KF-CRX, :mod:`corrections_sim.planning.learnt`)
+may ask, after a correction, for feature traces (:attr:`Session.wanted`): the person moves
+the cup from where the feature they mind is high to where it is low, each trace logged as a
+``trace`` event (:meth:`Session.add_trace`); with enough, :meth:`Session.learn_feature` trains
+the feature, logs it (a ``learnt`` event: its name, network and weights) and the robot plans
+over it from then on. :meth:`Session.decline_traces` tells the learner nobody will teach.
+
 The environment draws are stateless functions of (seed, draw index), and the learners' own
 generator of (seed, iteration), so a session resumed from its log (:meth:`Session.resume`)
 continues exactly where it stopped: its corrections are replayed through the learner and
@@ -32,6 +39,7 @@ each θ̂ checked against the logged one.
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 from collections.abc import Mapping
@@ -54,6 +62,7 @@ from corrections_sim.planning.risk import plan_a4
 from corrections_sim.scene.environments import Environment
 from corrections_sim.scene.robot import cup_inverse_kinematics, cup_pose
 from corrections_sim.scene.world import CollisionChecker
+from corrections_sim.study.loop import grown_noise
 from corrections_sim.study.schema import parse_study
 from corrections_sim.study.settings import FigureSettings
 
@@ -202,6 +211,11 @@ class Session:
         self.asks: list[str] = []
         self.preference: np.ndarray | None = None
         self._pending: Proposal | None = None
+        #: feature traces the learner asks for now (0: none), and those given so far
+        self.wanted = 0
+        self.traces: list[np.ndarray] = []
+        #: the environment of the last correction (where traces are given)
+        self.last_env: int | None = None
         self._lock = threading.RLock()
 
     # --- making one ------------------------------------------------------------------------
@@ -313,16 +327,47 @@ class Session:
         )
         asked = log.events(session_id, "asks")
         session._set_asks(asked[0]["detail"] if asked else None)
-        session._replay(log.corrections(session_id), log.events(session_id, "skip"))
+        teach = [e for e in log.events(session_id) if e["kind"] in ("trace", "traces", "learnt")]
+        session._replay(log.corrections(session_id), log.events(session_id, "skip"), teach)
         # Where the session goes on (a resume on another processor is exact to LOG_TOLERANCE).
         log.add_event(session_id, session.iteration, "machine", provenance.machine())
         return session
 
-    def _replay(self, rows: list[dict], skips: list[dict]) -> None:
+    def _replay_teaching(self, events: list[dict]) -> None:
+        """The traces given after a correction, and the feature learnt from them (retrained:
+        the same traces, the same seed give the logged weights, checked)."""
+        for event in events:
+            detail = event["detail"]
+            if event["kind"] == "trace":
+                self.traces.append(np.asarray(detail["states"], float))
+            elif event["kind"] == "traces" and detail.get("declined"):
+                self.belief = _asked(self.belief)
+                self.wanted, self.traces = 0, []
+            elif event["kind"] == "learnt":
+                belief, facts = self.agent.grow(
+                    self.belief,
+                    self.envs[int(detail["env_index"])],
+                    self.traces,
+                    teach_rng(self.seed, self.iteration),
+                    self._context(),
+                )
+                if facts["feature"] != detail["feature"]:
+                    raise ValueError(
+                        f"session {self.id}: retraining the feature learnt after correction "
+                        f"{self.iteration - 1} gives {facts['feature']}, the log has "
+                        f"{detail['feature']} (other code or settings?)"
+                    )
+                self._grown(belief)
+                self.wanted, self.traces = 0, []
+
+    def _replay(self, rows: list[dict], skips: list[dict], teach: list[dict] = ()) -> None:
         """Repeat the session's steps (each draw's choice and plan, each update) as they were
         made, so the plans solved, and with warm starts their history, are the same."""
         by_draw = {int(r["draw"]): r for r in rows}
         skipped = {int(e["detail"]["draw"]) for e in skips}
+        teaching: dict[int, list[dict]] = {}
+        for event in teach:
+            teaching.setdefault(int(event["iteration"]) - 1, []).append(event)
         last = max([*by_draw, *skipped], default=-1)
         for draw in range(last + 1):
             random_index = environment_draw(self.seed, draw, len(self.envs))
@@ -362,6 +407,9 @@ class Session:
                 self.belief = step.belief
             self.iteration += 1
             self.declined.clear()
+            self.last_env = index
+            self._ask_traces()
+            self._replay_teaching(teaching.get(self.iteration - 1, []))
         self.draws = last + 1
 
     @property
@@ -420,7 +468,7 @@ class Session:
             n_waypoints=self.n_waypoints,
             alphas=None if fixed is None else np.full(self.iteration + 1, fixed),
             rng=learner_rng(self.seed, self.iteration),
-            noise=self._noise,
+            noise=grown_noise(self._noise, self.belief.dim),
             sigma=self._sigma,
             iteration=self.iteration,
             corrected=corrected,
@@ -607,7 +655,107 @@ class Session:
             self.draws = pending.draw + 1
             self.declined.clear()
             self._pending = None
+            self.last_env = pending.env_index
+            self._ask_traces()
             return row
+
+    # --- teaching a feature ----------------------------------------------------------------
+
+    def _ask_traces(self) -> None:
+        """Whether the learner now asks for feature traces (after each correction)."""
+        wants = getattr(self.agent, "wants_traces", None)
+        self.wanted = 0 if wants is None else int(wants(self.belief, self.iteration))
+        self.traces = []
+
+    def add_trace(self, configurations, detail: Mapping | None = None) -> int:
+        """One feature trace, arm configurations (n, 7) from high to low, logged as a
+        ``trace`` event; returns how many are still wanted.
+
+        Raises:
+            Refused: none is asked for, or the trace is malformed (fewer than two states,
+                a value not finite: the message says which).
+        """
+        from corrections_sim.planning.learnt import check_traces
+
+        with self._lock:
+            self._check_open()
+            if self.wanted <= len(self.traces):
+                raise Refused("trace: the robot asks for no (more) traces now")
+            try:
+                (trace,) = check_traces([np.asarray(configurations, float)])
+            except ValueError as exc:
+                raise Refused(str(exc)) from None
+            self.log.add_event(
+                self.id,
+                self.iteration,
+                "trace",
+                {"index": len(self.traces), "states": trace.tolist(), **dict(detail or {})},
+            )
+            self.traces.append(trace)
+            return self.wanted - len(self.traces)
+
+    def learn_feature(self) -> str:
+        """Learn the feature from the traces given (all that were asked for), log it as a
+        ``learnt`` event and plan over it from now on; returns its name.
+
+        Raises:
+            Refused: fewer traces than asked for, or traces that rank nothing.
+        """
+        with self._lock:
+            self._check_open()
+            if not self.wanted or len(self.traces) < self.wanted:
+                raise Refused(
+                    f"learn: {len(self.traces)} of {self.wanted} traces given; give them all"
+                )
+            try:
+                name = self._grow(self.traces)
+            except ValueError as exc:
+                raise Refused(str(exc).splitlines()[0]) from None
+            self.wanted, self.traces = 0, []
+            return name
+
+    def decline_traces(self) -> None:
+        """Nobody will teach: the learner is told so (it does not ask again); logged."""
+        with self._lock:
+            self._check_open()
+            if not self.wanted:
+                raise Refused("decline: the robot asks for no traces now")
+            self.log.add_event(self.id, self.iteration, "traces", {"declined": True})
+            self.belief = _asked(self.belief)
+            self.wanted, self.traces = 0, []
+
+    def _grow(self, traces: list[np.ndarray]) -> str:
+        env = self.envs[int(self.last_env)]
+        rng = teach_rng(self.seed, self.iteration)
+        belief, facts = self.agent.grow(self.belief, env, traces, rng, self._context())
+        name = facts["feature"]
+        from corrections_sim.planning.features import FEATURES
+
+        f = FEATURES[name]
+        self.log.add_event(
+            self.id,
+            self.iteration,
+            "learnt",
+            {
+                "feature": name,
+                "env_index": int(self.last_env),
+                "traces": len(traces),
+                "inputs": list(f.network.inputs),
+                "hidden": list(f.network.hidden),
+                "weights": np.asarray(f.weights).tolist(),
+                "loss": facts["loss"],
+            },
+        )
+        self._grown(belief)
+        return name
+
+    def _grown(self, belief) -> None:
+        """The belief after learning a feature, and the planner over the features it has."""
+        self.belief = belief
+        self.features = self.settings.features + tuple(belief.extra)
+        config = dataclasses.replace(self.settings.planner_config(), features=self.features)
+        self.planner = shared_planner(config)
+        self.book = PlanBook(self.planner, warm_start=self.settings.study.warm_start)
 
     def _update(self, env_index: int, plan: Plan, phi_h: np.ndarray, corrected=None):
         """The learner's step for a correction with features ``phi_h`` and, where the person
@@ -618,8 +766,9 @@ class Session:
     def state(self, theta) -> np.ndarray:
         """Log the person's stated preference θ (k,) as the session's reference."""
         theta = np.asarray(theta, dtype=float)
-        if theta.shape != (len(self.features),) or not np.all(np.isfinite(theta)):
-            raise Refused(f"stated θ: expected {len(self.features)} finite numbers")
+        k = len(self.settings.features)  # over the study's features (not any learnt)
+        if theta.shape != (k,) or not np.all(np.isfinite(theta)):
+            raise Refused(f"stated θ: expected {k} finite numbers")
         with self._lock:
             self.log.state_theta(self.id, theta)
         return theta
@@ -650,6 +799,16 @@ class Session:
             self.log.end_session(self.id)
             self.ended = True
             return deployment
+
+
+def teach_rng(seed: int, iteration: int) -> np.random.Generator:
+    """The generator a feature learnt after ``iteration`` corrections is trained with."""
+    return np.random.default_rng(np.random.SeedSequence([seed, 39, iteration]))
+
+
+def _asked(belief):
+    """``belief`` marked as having asked for traces (the learner does not ask again)."""
+    return dataclasses.replace(belief, asked=True, history=())
 
 
 def push_record(motion: PushedMotion) -> dict:
@@ -692,7 +851,8 @@ def simulate(session: Session, user: User, theta_star, corrections: int) -> list
     theta_star = np.asarray(theta_star, dtype=float)
     session.state(theta_star)
     rng = np.random.default_rng(np.random.SeedSequence([session.seed, 22]))
-    own = PlanBook(session.planner)  # the user's plans stay out of the session's history
+    # The user's plans stay out of the session's history, over the study's features.
+    own = PlanBook(shared_planner(session.settings.planner_config()))
     rows = []
     while len(rows) < corrections:
         pending = session.proposal()
@@ -705,7 +865,7 @@ def simulate(session: Session, user: User, theta_star, corrections: int) -> list
             robot=pending.plan.trajectory,
             intended=intended,
             env=pending.env,
-            features=session.features,
+            features=session.settings.features,
             theta_star=theta_star,
         )
         if user.during_motion:
@@ -718,7 +878,10 @@ def simulate(session: Session, user: User, theta_star, corrections: int) -> list
         drag = {"simulated": True}
         if outcome.relevant is not None:
             drag["relevant"] = bool(outcome.relevant)
-        rows.append(session.submit(corrected, drag=drag, phi_h=outcome.phi_h))
+        # Φ over the learner's features when it has learnt more (a noiseless user's Φ_h is
+        # Φ(ξ_h) itself; a user with feature noise is simulated before any expansion).
+        phi_h = None if session.belief.extra else outcome.phi_h
+        rows.append(session.submit(corrected, drag=drag, phi_h=phi_h))
     return rows
 
 

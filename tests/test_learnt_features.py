@@ -1,0 +1,246 @@
+"""Learnt features (issue 39, FERL): traces, training, the planner's slots, the teacher, and a
+learner that expands its features in the study loop."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from corrections_sim.learning.base import make_learner
+from corrections_sim.people.teacher import Teacher
+from corrections_sim.planning import features as feats
+from corrections_sim.planning import learnt as L
+from corrections_sim.planning.planner import Planner, PlannerConfig, build_key, shared_planner
+from corrections_sim.scene.environments import paper_environments
+
+ENV = paper_environments()[0]
+
+
+@pytest.fixture(scope="module")
+def taught():
+    """Two features learnt from a noiseless teacher's 10 traces of `human` (seeds 0, 1)."""
+    out = []
+    for seed in (0, 1):
+        rng = np.random.default_rng(seed)
+        traces = Teacher(path_noise=0.0, label_noise=0.0).traces("human", 10, ENV, rng)
+        learnt = L.learn(traces, ENV, rng)
+        L.register(learnt)
+        out.append(learnt)
+    return out
+
+
+def test_a_network_knows_its_size_and_refuses_bad_shapes():
+    net = L.Network(inputs=("cup",), hidden=(4,))
+    assert net.n_params == 4 * 3 + 4 + 4 + 1
+    assert net.slot == "slot_cup_4"
+    with pytest.raises(ValueError, match="inputs"):
+        L.Network(inputs=("cup", "elbow"))
+    with pytest.raises(ValueError, match="hidden"):
+        L.Network(hidden=())
+
+
+@pytest.mark.parametrize(
+    ("traces", "message"),
+    [
+        ([np.zeros((1, 7))], "trace 0: 1 state"),
+        ([np.zeros((3, 7)), np.full((3, 7), np.nan)], "trace 1: a state is not finite"),
+        ([np.zeros((3, 7)), np.ones((4, 7)) * np.r_[0, 1, 1, 0][:, None]], "ends where"),
+        ([np.zeros((3, 6))], "expected shape"),
+        ([], "none given"),
+    ],
+)
+def test_bad_traces_are_refused_in_one_line(traces, message):
+    with pytest.raises(ValueError, match=message) as info:
+        L.check_traces(traces)
+    assert "\n" not in str(info.value)
+
+
+def test_a_learnt_feature_ranks_like_the_true_one_and_is_normalised(taught):
+    learnt = taught[0]
+    q = L.quality(learnt.name, "human", ENV, n=3000)
+    assert q.spearman > 0.8  # the figure measures ≥ 0.9 over seeds at 10,000 configurations
+    values = learnt.values(L.workspace(ENV, 2000))
+    assert values.min() == pytest.approx(0.0, abs=1e-9)
+    assert values.max() == pytest.approx(1.0, abs=1e-9)
+    starts = np.array([learnt.values(t[:1])[0] for t in learnt.traces])
+    ends = np.array([learnt.values(t[-1:])[0] for t in learnt.traces])
+    assert np.all(starts > ends)
+
+
+def test_the_same_seed_learns_the_same_feature():
+    weights = []
+    for _ in range(2):
+        rng = np.random.default_rng(7)
+        traces = Teacher().traces("human", 3, ENV, rng)
+        weights.append(L.learn(traces, ENV, rng).weights)
+    assert weights[0].tobytes() == weights[1].tobytes()
+
+
+def test_a_learnt_feature_named_like_a_registered_one_is_refused(taught):
+    clash = L.Learnt(**{**taught[0].__dict__, "name": "human"})
+    with pytest.raises(ValueError, match="'human': the name is a registered feature's"):
+        L.register(clash)
+    assert L.register(taught[0]) == taught[0].name  # the same feature again: a no-op
+
+
+def test_save_and_load_round_trip_and_never_overwrite_another(taught, tmp_path):
+    path = taught[0].save(tmp_path / "human.json")
+    loaded = L.load(path)
+    assert loaded.name == taught[0].name
+    np.testing.assert_array_equal(loaded.weights, taught[0].weights)
+    q = L.workspace(ENV, 50)
+    np.testing.assert_allclose(loaded.values(q), taught[0].values(q), rtol=0, atol=1e-12)
+    with pytest.raises(FileExistsError, match="another learnt feature"):
+        taught[1].save(path)
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"name": "x"}')
+    with pytest.raises(ValueError, match="not a learnt feature") as info:
+        L.load(bad)
+    assert "\n" not in str(info.value)
+
+
+def test_features_of_one_shape_share_one_planner_build(taught):
+    a, b = (PlannerConfig(features=("laptop", "table", t.name)) for t in taught)
+    slots = [feats.canonical(c.features) for c in (a, b)]
+    assert slots[0] == slots[1] == ("laptop", "table", f"{taught[0].network.slot}-2")
+    import dataclasses
+
+    keys = {
+        build_key(dataclasses.replace(c, features=s)) for c, s in zip((a, b), slots, strict=True)
+    }
+    assert len(keys) == 1  # one compiled library for every learnt feature of the shape
+    np.testing.assert_array_equal(feats.learnt_values(a.features), taught[0].weights)
+    assert feats.n_learnt(slots[0]) == taught[0].network.n_params
+
+
+def test_the_planner_plans_with_a_learnt_feature_through_its_parameters(taught):
+    config = PlannerConfig(features=("laptop", "table", taught[0].name), jit=False, n_starts=1)
+    planner = Planner(config)
+    other = planner.bind(
+        PlannerConfig(**{**config.__dict__, "features": config.features[:2] + (taught[1].name,)})
+    )
+    for p, learnt in ((planner, taught[0]), (other, taught[1])):
+        plan = p.solve(np.array([0.0, 0.0, -3.0]), ENV)
+        # The plan's features are the learnt feature's own values on its waypoints.
+        assert plan.features[2] == pytest.approx(learnt.values(plan.trajectory).sum(), abs=1e-9)
+    calm = planner.solve(np.array([0.0, 0.0, 0.0]), ENV)
+    away = planner.solve(np.array([0.0, 0.0, -3.0]), ENV)
+    assert away.features[2] < calm.features[2] - 0.3  # avoiding it moves the plan
+    true = feats.feature_counts
+    assert true(away.trajectory, ENV, ("human",))[0] < true(calm.trajectory, ENV, ("human",))[0]
+    with pytest.raises(ValueError, match="do not share"):
+        planner.bind(PlannerConfig(features=("laptop", "table"), jit=False))
+
+
+def test_a_shared_planner_for_a_new_learnt_feature_is_a_view_not_a_build(taught):
+    first = shared_planner(PlannerConfig(features=("laptop", "table", taught[0].name), jit=False))
+    second = shared_planner(PlannerConfig(features=("laptop", "table", taught[1].name), jit=False))
+    assert second._base is first._base and second is not first
+
+
+def test_the_teacher_starts_high_and_ends_low_and_checks_its_settings():
+    rng = np.random.default_rng(3)
+    traces = Teacher().traces("human", 6, ENV, rng)
+    assert all(t.shape == (12, 7) for t in traces)
+    values = [feats.waypoint_features(t, ENV, ("human",))[:, 0] for t in traces]
+    assert np.mean([v[0] - v[-1] for v in values]) > 0.1
+    with pytest.raises(ValueError, match="teacher.states"):
+        Teacher(states=1)
+    with pytest.raises(ValueError, match="teacher.label_noise"):
+        Teacher(label_noise=-1.0)
+    with pytest.raises(ValueError, match="unknown feature"):
+        Teacher().traces("elbow", 1, ENV, rng)
+
+
+def test_expansion_options_are_checked_in_one_line():
+    for params, key in (
+        ({"expand_traces": -1}, "expand_traces"),
+        ({"expand_below": 1.5}, "expand_below"),
+        ({"expand_after": 0}, "expand_after"),
+        ({"expand_inputs": ["elbow"]}, "expand_inputs"),
+    ):
+        with pytest.raises(ValueError, match=f"learners.KF-CRX.{key}") as info:
+            make_learner("KF-CRX", params)
+        assert "\n" not in str(info.value)
+    assert make_learner("KF-CRX").expand_traces == 10
+    assert make_learner("KF-CRP").expand_traces == 0  # KF-CRP never asks
+
+
+def test_a_session_asks_for_traces_learns_the_feature_logs_resumes_and_replays(tmp_path):
+    """KF-CRX at a session: after the corrections it asks for traces (here after the first:
+    ``expand_below`` 0.99), the person gives them, the feature is learnt and logged, the robot
+    plans over it; resumed from the log it retrains to the same feature and θ̂; replayed,
+    KF-CRX learns it again and KF-C is not asked."""
+    from corrections_sim.interact.log import StudyLog
+    from corrections_sim.interact.replay import replay
+    from corrections_sim.interact.session import Refused, Session, simulate
+    from corrections_sim.people.users import make_user
+    from corrections_sim.study.schema import parse_study
+
+    settings = parse_study(
+        {
+            "environments": ["s0-t0-l1", "s0-t0-l2", "s1-t1-l0"],
+            "theta_star": [1.0, -1.0],
+            "learners": ["KF-C", "KF-CRX"],
+            "seed": 5,
+            "iterations": 3,
+        },
+        name="teach",
+    )
+    params = {"expand_traces": 3, "expand_after": 1, "expand_below": 0.99}
+    with StudyLog(tmp_path / "t.sqlite") as log:
+        session = Session.start(settings, log, learner="KF-CRX", params=params)
+        with pytest.raises(Refused, match="asks for no"):
+            session.add_trace(np.zeros((3, 7)))
+        simulate(session, make_user("biased"), (1.0, -1.0), 1)
+        assert session.wanted == 3
+        env = session.envs[session.last_env]
+        traces = Teacher().traces("human", 3, env, np.random.default_rng(0))
+        with pytest.raises(Refused, match="trace 0: 1 state"):
+            session.add_trace(traces[0][:1])
+        assert session.add_trace(traces[0], {"how": "test"}) == 2
+        with pytest.raises(Refused, match="1 of 3 traces"):
+            session.learn_feature()
+        for trace in traces[1:]:
+            session.add_trace(trace)
+        name = session.learn_feature()
+        assert session.features == ("laptop", "table", name) and session.belief.dim == 3
+        assert session.proposal().plan.features.shape == (3,)
+        simulate(session, make_user("biased"), (1.0, -1.0), 1)
+        assert session.belief.dim == 3 and session.wanted == 0
+        learnt = log.events(session.id, "learnt")
+        assert len(learnt) == 1 and learnt[0]["detail"]["feature"] == name
+        assert len(log.events(session.id, "trace")) == 3
+
+        resumed = Session.resume(log, session.id)
+        assert resumed.features == session.features
+        np.testing.assert_array_equal(resumed.belief.theta, session.belief.theta)
+
+        _, result, facts = replay(log, session.id, ["KF-C", "KF-CRX"], regret=False)
+        assert facts["max_gap_to_log"] == 0.0
+        last = [r for r in result.records if r["iteration"] == 2]
+        mine = {r["learner"]: r for r in last}
+        assert "theta_2" in mine["KF-CRX"] and "theta_2" not in mine["KF-C"]
+
+
+def test_a_study_file_loads_a_saved_learnt_feature_by_name(taught, tmp_path):
+    """A saved feature is a study plug-in: its name is then a feature like any other (its
+    bytes are in the run key, as a plug-in's are); a missing file is one line."""
+    from corrections_sim.study.schema import parse_study
+
+    renamed = L.Learnt(**{**taught[0].__dict__, "name": "mine_human"})
+    path = renamed.save(tmp_path / "mine.json")
+    settings = parse_study(
+        {
+            "plugins": [str(path)],
+            "features": ["laptop", "table", "mine_human"],
+            "theta_star": [1.0, -1.0, -2.0],
+        },
+        base=tmp_path,
+    )
+    assert settings.features[-1] == "mine_human"
+    assert settings.as_dict()["plugins"][0]["sha256"]
+    assert feats.canonical(settings.features)[-1].startswith("slot_")
+    with pytest.raises(ValueError, match="plugins") as info:
+        parse_study({"plugins": ["gone.json"], "theta_star": [1.0, -1.0]}, base=tmp_path)
+    assert "\n" not in str(info.value)
