@@ -400,11 +400,12 @@ def main(argv: Sequence[str] | None = None) -> None:
         "warm re-solves captured from fig. 4 runs, in each warm mode (Newton, solver). "
         "'physical': the arm's real-time factor, sensing against the applied push, one "
         "physical correction end to end. 'relevance': the relevance study's learners' cost "
-        "per correction (seconds, planner solves).",
+        "per correction (seconds, planner solves). 'learnt': training a learnt feature, "
+        "planning with it against the hand-written feature it imitates, a new one's cost.",
     )
     parser.add_argument(
         "what",
-        choices=["planner", "fig4", "interact", "warm", "physical", "relevance"],
+        choices=["planner", "fig4", "interact", "warm", "physical", "relevance", "learnt"],
         help="which benchmark to run",
     )
     parser.add_argument(
@@ -436,6 +437,11 @@ def main(argv: Sequence[str] | None = None) -> None:
     )
     parser.add_argument(
         "--skip-full", action="store_true", help="fig4: only the slice, not the paper-scale run"
+    )
+    parser.add_argument(
+        "--build",
+        action="store_true",
+        help="learnt: also time the first build of a learnt shape's NLP in an empty cache",
     )
     parser.add_argument(
         "--problems",
@@ -542,6 +548,14 @@ def main(argv: Sequence[str] | None = None) -> None:
             print("\n".join(run_small_step(problems)))
         else:
             print("\n".join(run_warm(problems)))
+        return
+    if args.what == "learnt":
+        from benchmarks.bench_learnt import run_bench as run_learnt
+
+        n = 24 if args.problems is None else args.problems
+        if n < 2:
+            parser.error("--problems: learnt takes >= 2 problems (default 24)")
+        print("\n".join(run_learnt(n, 0 if args.seed is None else args.seed, args.build)))
         return
     if args.what == "relevance":
         from benchmarks.bench_relevance import run_bench as run_relevance
