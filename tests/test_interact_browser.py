@@ -346,7 +346,7 @@ def test_a_hand_catches_the_moving_handle_holds_past_the_end_and_done_waits(
         for i in range(1, 6):
             tab.mouse.move(box["x"] + x, box["y"] + y - 8 * i)
         drive.wait_for(lambda: page.motion.done, "the end of the motion", timeout=30)
-        drive.wait_for(lambda: page.pushes == pushes + 1, "the held push, learnt", timeout=30)
+        drive.wait_for(lambda: page.pushes == pushes + 1, "the held push, learnt", timeout=90)
         tab.mouse.up()
         row = log.corrections(session.id)[-1]
         assert row["drag"]["released_at"] == pytest.approx(page.duration, abs=0.02)

@@ -198,6 +198,12 @@ class Session:
         # environment (eq. (A1)'s 48 × (2k + 1) predictions for AL in well under a second);
         # --resume then repeats the very same solves in the same order.
         self.book = PlanBook(self.planner, warm_start=s.warm_start)
+        if getattr(agent, "expand_traces", 0) and self.planner.config.jit:
+            # A learner that may learn a feature: its shape's planner is built now, not while
+            # the person waits for the plan over it (a first build takes about two minutes).
+            from corrections_sim.planning.learnt import prepare_slot
+
+            prepare_slot(self.planner.config, agent.network())
         self.checker = CollisionChecker()
         self.iteration = 0
         #: β̂ and ρ of the last correction, for a relevance-aware learner (else None).

@@ -440,6 +440,23 @@ def learn(
     return Learnt(name, network, weights, raw, low, high, traces, env, loss, training)
 
 
+def prepare_slot(config, network: Network):
+    """The planner of ``config``'s features and one learnt feature of ``network``'s shape,
+    built now (fatrop's library and the Newton re-solve's: on a machine's first use about two
+    minutes, then loaded from the cache), so that a feature learnt later plans at once."""
+    import dataclasses
+
+    from corrections_sim.planning.planner import shared_planner
+
+    slot = f"{network.slot}-{len(config.features)}"
+    if slot not in feats.FEATURES:
+        feats.FEATURES.register(slot, feats.LearntFeature(network))
+    planner = shared_planner(dataclasses.replace(config, features=(*config.features, slot)))
+    if planner.config.warm == "newton":
+        planner._newton_path()  # what a first warm start builds (same package)
+    return planner
+
+
 def register(learnt: Learnt) -> str:
     """Register ``learnt`` as a feature under its name (again: a no-op when it is the same
     feature); refused in one line when the name is another feature's."""
