@@ -37,7 +37,7 @@ from corrections_sim.metrics import estimate_error, label_scores
 from corrections_sim.planning.features import feature_counts
 from corrections_sim.planning.planner import Plan, PlanningError, shared_planner
 from corrections_sim.planning.plans import PlanBook, Target, evaluate
-from corrections_sim.study.loop import belief_columns, grown_noise
+from corrections_sim.study.loop import belief_columns
 from corrections_sim.study.runner import FigureResult
 from corrections_sim.study.settings import FigureSettings
 
@@ -174,7 +174,7 @@ def replay(
                 n_waypoints=planner.config.n_waypoints,
                 alphas=alphas,
                 rng=learner_rng(row.seed, t),
-                noise=grown_noise(s.noise(), belief.dim),
+                noise=s.noise().grown(belief.dim),
                 sigma=s.sigma(),
                 iteration=t,
                 corrected=logged["xi_h"],

@@ -62,7 +62,6 @@ from corrections_sim.planning.risk import plan_a4
 from corrections_sim.scene.environments import Environment
 from corrections_sim.scene.robot import cup_inverse_kinematics, cup_pose
 from corrections_sim.scene.world import CollisionChecker
-from corrections_sim.study.loop import grown_noise
 from corrections_sim.study.schema import parse_study
 from corrections_sim.study.settings import FigureSettings
 
@@ -474,7 +473,7 @@ class Session:
             n_waypoints=self.n_waypoints,
             alphas=None if fixed is None else np.full(self.iteration + 1, fixed),
             rng=learner_rng(self.seed, self.iteration),
-            noise=grown_noise(self._noise, self.belief.dim),
+            noise=self._noise.grown(self.belief.dim),
             sigma=self._sigma,
             iteration=self.iteration,
             corrected=corrected,

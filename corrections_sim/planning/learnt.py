@@ -187,7 +187,7 @@ def reachable(
     have = 0
     while have < n:
         q = rng.uniform(lo, hi, size=(batch, N_ARM_JOINTS))
-        cup = state_inputs(q, env, Network(inputs=("cup",), hidden=(1,)))
+        cup = np.asarray(_input_function(("cup",)).map(q.shape[0])(q.T, env.params()))
         q = q[cup[2] > g.TABLE_TOP_Z + 0.02]
         report = checker.check_configurations(q, env)
         hit = {c.sample for c in report.contacts}

@@ -30,7 +30,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from corrections_sim import calibration
-from corrections_sim.belief import KalmanNoise
 from corrections_sim.learning.base import LEARNERS, LearnerContext, Step
 from corrections_sim.metrics import estimate_error, regret_terms
 from corrections_sim.people.users import Situation, TaskOutcome, User
@@ -145,7 +144,7 @@ def run_learner(
             n_waypoints=planner.config.n_waypoints,
             alphas=alphas,
             rng=rng,
-            noise=grown_noise(noise, belief.dim),
+            noise=noise.grown(belief.dim),
             sigma=sigma,
             iteration=t,
             teach=lambda n, env, current=current: teach(n, env, current),
@@ -209,11 +208,6 @@ def run_learner(
             skipped = str(exc).splitlines()[0]
         record(t + 1, env.name, skipped, step, task)
     return RunResult(records=tuple(records), gains=gains, solves=book.solves)
-
-
-def grown_noise(noise: KalmanNoise, dim: int) -> KalmanNoise:
-    """The filter noise over ``dim`` features (:meth:`KalmanNoise.grown`)."""
-    return noise.grown(dim)
 
 
 def _missing(target, current: tuple[str, ...]) -> str | None:
