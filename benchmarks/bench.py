@@ -401,17 +401,29 @@ def main(argv: Sequence[str] | None = None) -> None:
         "'physical': the arm's real-time factor, sensing against the applied push, one "
         "physical correction end to end. 'relevance': the relevance study's learners' cost "
         "per correction (seconds, planner solves). 'learnt': training a learnt feature, "
-        "planning with it against the hand-written feature it imitates, a new one's cost.",
+        "planning with it against the hand-written feature it imitates, a new one's cost. "
+        "'confidence': the iterated and particle learners' cost per correction against "
+        "KF-C's in figs. 4 and 5 (CPU seconds, planner solves).",
     )
     parser.add_argument(
         "what",
-        choices=["planner", "fig4", "interact", "warm", "physical", "relevance", "learnt"],
+        choices=[
+            "planner",
+            "fig4",
+            "interact",
+            "warm",
+            "physical",
+            "relevance",
+            "learnt",
+            "confidence",
+        ],
         help="which benchmark to run",
     )
     parser.add_argument(
         "--learners",
         help="interact: the learners, one session each (default KF-CL,KF-C,BP); relevance: "
-        "the learners costed (default KF-C,KF-CR,KF-CRP)",
+        "the learners costed (default KF-C,KF-CR,KF-CRP); confidence: (default "
+        "KF-CI,KF-CB,PF-C,AL-C,AL-PF)",
     )
     parser.add_argument(
         "--corrections", type=int, default=10, help="interact: corrections per session"
@@ -447,7 +459,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         "--problems",
         type=int,
         help="number of (theta, E) problems (default 60; warm: 300 of those captured); "
-        "relevance: runs per person and learner (default 3)",
+        "relevance, confidence: runs per person and learner (default 3)",
     )
     parser.add_argument(
         "--seed", type=int, help="seed of the problem set (default 0; warm: of fig. 4's runs, 7)"
@@ -556,6 +568,15 @@ def main(argv: Sequence[str] | None = None) -> None:
         if n < 2:
             parser.error("--problems: learnt takes >= 2 problems (default 24)")
         print("\n".join(run_learnt(n, 0 if args.seed is None else args.seed, args.build)))
+        return
+    if args.what == "confidence":
+        from benchmarks.bench_confidence import run_bench as run_confidence
+
+        names = (args.learners or "KF-CI,KF-CB,PF-C,AL-C,AL-PF").split(",")
+        runs = 3 if args.problems is None else args.problems
+        if runs < 1:
+            parser.error("--problems: confidence takes the runs per learner, >= 1")
+        print("\n".join(run_confidence(tuple(n for n in names if n), runs)))
         return
     if args.what == "relevance":
         from benchmarks.bench_relevance import run_bench as run_relevance

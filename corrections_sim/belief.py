@@ -87,6 +87,65 @@ def _freeze(arr: np.ndarray) -> np.ndarray:
 
 
 @dataclass(frozen=True, eq=False)
+class Particles:
+    """A weighted sample of θ: the particle learner's belief, whose mean and covariance are
+    the :class:`Belief`'s θ̂ and P.
+
+    Attributes:
+        thetas: the particles, shape (n, k).
+        log_weights: their normalized log weights (n,) (Σ exp = 1).
+        log_likelihood: each particle's log-likelihood of every correction so far (n,), up
+            to one constant (what a Metropolis move compares against).
+    """
+
+    thetas: np.ndarray
+    log_weights: np.ndarray
+    log_likelihood: np.ndarray
+
+    def __post_init__(self) -> None:
+        thetas = np.array(self.thetas, dtype=float, copy=True)
+        if thetas.ndim != 2 or thetas.shape[0] < 2 or not np.all(np.isfinite(thetas)):
+            raise ValueError(f"Particles.thetas: expected finite (n >= 2, k), got {thetas.shape}")
+        n = thetas.shape[0]
+        log_w = np.array(self.log_weights, dtype=float, copy=True)
+        log_l = np.array(self.log_likelihood, dtype=float, copy=True)
+        for name, arr in (("log_weights", log_w), ("log_likelihood", log_l)):
+            if arr.shape != (n,) or np.any(np.isnan(arr)):
+                raise ValueError(f"Particles.{name}: expected ({n},) without NaN, got {arr.shape}")
+        top = float(np.max(log_w))
+        if not np.isfinite(top):
+            raise ValueError("Particles.log_weights: every particle has weight zero")
+        log_w = log_w - (top + np.log(np.exp(log_w - top).sum()))
+        object.__setattr__(self, "thetas", _freeze(thetas))
+        object.__setattr__(self, "log_weights", _freeze(log_w))
+        object.__setattr__(self, "log_likelihood", _freeze(log_l))
+
+    @property
+    def count(self) -> int:
+        return int(self.thetas.shape[0])
+
+    def weights(self) -> np.ndarray:
+        return np.exp(self.log_weights)
+
+    def effective_size(self) -> float:
+        """Kish's effective sample size 1 / Σ w²."""
+        return float(1.0 / np.sum(self.weights() ** 2))
+
+    def moments(self) -> tuple[np.ndarray, np.ndarray]:
+        """The weighted mean (k,) and covariance (k, k), the covariance kept positive
+        definite (eigenvalues at least 1e-9 of the largest, as a filter's posterior)."""
+        w = self.weights()
+        mean = w @ self.thetas
+        d = self.thetas - mean
+        cov = symmetrize((w[:, None] * d).T @ d)
+        eigenvalues, vectors = np.linalg.eigh(cov)
+        floor = 1e-9 * max(float(eigenvalues[-1]), 1e-12)
+        if eigenvalues[0] < floor:
+            cov = symmetrize((vectors * np.maximum(eigenvalues, floor)) @ vectors.T)
+        return mean, cov
+
+
+@dataclass(frozen=True, eq=False)
 class Belief:
     """Gaussian belief θ ~ N(θ̂, P) over the human's preference weights.
 
@@ -105,8 +164,11 @@ class Belief:
         extra: the names of features the learner learnt beyond the study's (feature
             expansion: θ̂ and P then have ``len(extra)`` more entries, after the study's).
         asked: whether the learner has asked the person for feature traces (it asks once).
-        history: what a learner that may learn a feature keeps to read the past again over
-            it: the prior (θ̂⁰, P⁰) first, then each correction's (environment, ξ, ξ_h).
+        history: what a learner that reads the past again keeps: the prior (θ̂⁰, P⁰) first,
+            then each correction's (environment, ξ, ξ_h) for feature expansion, or
+            (environment, ξ, Φ_h, N) for an iterated or particle learner.
+        particles: the particle learner's weighted sample (θ̂ and P are its moments), or
+            None.
 
     Raises:
         ValueError: on wrong shapes, non-finite values, or a cov that is not symmetric
@@ -120,6 +182,7 @@ class Belief:
     extra: tuple[str, ...] = ()
     asked: bool = False
     history: tuple = ()
+    particles: Particles | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "extra", tuple(self.extra))
@@ -136,6 +199,11 @@ class Belief:
             raise ValueError(
                 f"Belief.noise: a posterior over {self.noise.dim} x {self.noise.dim} noise, "
                 f"expected {theta.shape[0]} x {theta.shape[0]}"
+            )
+        if self.particles is not None and self.particles.thetas.shape[1] != theta.shape[0]:
+            raise ValueError(
+                f"Belief.particles: particles over {self.particles.thetas.shape[1]} weights, "
+                f"expected {theta.shape[0]}"
             )
 
     @property

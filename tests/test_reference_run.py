@@ -85,3 +85,55 @@ def test_one_filter_step_from_the_reference(figure, capsys):
     assert reference.main([str(figure), "--learner", "KF-C", "--restart", "x"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: --restart x: expected iterations") and err.count("\n") == 1
+
+
+THREE = """\
+features = ["laptop", "table", "coffee"]
+theta_star = [1.0, -1.0, -1.0]
+theta0 = [0.0, 0.0, 0.0]
+cov0 = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+runs = 1
+iterations = 2
+seed = 3
+environments = ["s0-t0-l1", "s1-t1-l2"]
+warm_start = true
+
+[learners.PP]
+fixed_alpha = 0.2
+
+[learners."KF-C"]
+"""
+
+
+def test_the_particle_reference_at_k_3_and_against_the_grid_at_k_2(figure, tmp_path, capsys):
+    """Beyond k = 2 the particles are the reference (no grid there: asked without them, one
+    line); at k = 2 they are judged against the grid; a learner without a covariance and a
+    particle count < 2 are refused in one line; every iteration's summary has its CIs."""
+    (tmp_path / "three.toml").write_text(THREE)
+    argv = ["study", str(tmp_path / "three.toml"), "--out", str(tmp_path / "out"), "--workers", "1"]
+    assert cli.main(argv) == 0
+    three = tmp_path / "out" / "three"
+    capsys.readouterr()
+    assert reference.main([str(three), "--learner", "PP"]) == 2
+    err = capsys.readouterr().err
+    assert err == "error: learner PP: has no covariance to judge against a reference\n"
+    assert reference.main([str(three), "--learner", "KF-C"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: k = 3: no grid beyond k = 2") and err.count("\n") == 1
+    assert reference.main([str(three), "--learner", "KF-C", "--particles", "1"]) == 2
+    assert "--particles 1: expected an integer >= 2" in capsys.readouterr().err
+    assert reference.main([str(three), "--learner", "KF-C", "--particles", "40"]) == 0
+    final = json.loads((three / "reference-KF-C.json").read_text())
+    assert [s["iteration"] for s in final["by_iteration"]] == [1, 2]
+    assert "ref_kl" not in final and final["ref_kl_gaussian"] >= 0.0
+    assert final["ratio"] > 0 and len(final["ratio_ci95"]) == 2
+    with open(three / "reference-KF-C.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert all(float(r["ref_cov_22"]) > 0 for r in rows)
+    # At k = 2, 300 particles against the grid on the same corrections.
+    argv = [str(figure), "--learner", "KF-C", "--runs", "1", "--points", "31", "--particles", "300"]
+    assert reference.main(argv) == 0
+    final = json.loads((figure / "reference-KF-C.json").read_text())
+    assert final["particle_mean_gap"] < 0.3 and final["particle_var_gap"] < 0.3
+    assert 0.0 <= final["particle_kl"] < 0.3
+    assert "particles against the grid" in capsys.readouterr().out

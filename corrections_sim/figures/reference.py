@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import hashlib
 import json
 import sys
@@ -34,13 +35,16 @@ import numpy as np
 from corrections_sim.belief import Belief, PersonBelief
 from corrections_sim.figures.output import write_records
 from corrections_sim.learning import reference as ref
+from corrections_sim.learning.base import LearnerContext
 from corrections_sim.learning.paper import (
     BoltzmannPosterior,
     CorrectionAwareKalman,
+    ParticleCorrectionAware,
     PersonRelevanceKalman,
     RelevanceAwareKalman,
     UnscentedKalman,
 )
+from corrections_sim.learning.particles import smoothed_kl
 from corrections_sim.learning.relevance import (
     MOVED,
     NUDGE_DIMENSIONS,
@@ -48,6 +52,7 @@ from corrections_sim.learning.relevance import (
     embed,
     random_direction_shape,
 )
+from corrections_sim.people.corrections import OptimalCorrection
 from corrections_sim.people.users import Situation
 from corrections_sim.planning.features import waypoint_features
 from corrections_sim.planning.planner import Planner, PlanningError, build_key, cache_dir
@@ -175,8 +180,19 @@ def reference_run(
     *,
     one_step: bool = False,
     restarts: tuple[int, ...] = (),
+    particles: int = 0,
+    seed: int = 0,
 ) -> list[dict]:
     """The reference after every correction of one run (``rows``: its records, t = 0 … T).
+
+    With ``particles`` > 0 the particle machinery of PF-C (:mod:`~.learning.particles`) with
+    that many particles also runs on the same corrections under the learner's model (KF/KF-C
+    types with N fixed), seeded by ``seed``: where the grid exists (``grid`` not None) it is
+    judged against the grid (``particle_kl``, KL from the grid to the smoothed particles,
+    :func:`~.learning.particles.smoothed_kl`; ``particle_mean_gap``,
+    the largest |Δ mean| in the grid's sd; ``particle_var_gap``, the largest relative
+    |Δ variance|); without a grid (k > 2) it *is* the reference (its moments; no ``ref_kl``,
+    only its Gaussian part ``ref_kl_gaussian``).
 
     With ``one_step`` (a Kalman learner with N fixed), also the learner's own update started
     from the reference before the correction (its moments), as ``one_step_nees`` and
@@ -191,16 +207,24 @@ def reference_run(
         raise ValueError(
             f"user {study.user_name}: draws random numbers; its corrections cannot be replayed"
         )
+    if not model.has_covariance:
+        raise ValueError(f"learner {learner}: has no covariance to judge against a reference")
     if not isinstance(model, UnscentedKalman | BoltzmannPosterior):
         raise ValueError(f"learner {learner}: no reference for it (KF-type learners and BP)")
     if isinstance(model, RelevanceAwareKalman) and model.noise == "learnt":
         raise ValueError(f"learner {learner}: no reference for relevance with N learnt")
+    engine = _particle_engine(model, learner, particles, planner) if particles else None
+    if grid is None and (engine is None or one_step or restarts):
+        raise ValueError(
+            f"k = {study.k}: no grid beyond k = 2 (--particles N is the reference there; "
+            "--one-step and --restart need the grid)"
+        )
     k, names = study.k, planner.config.features
     envs = {e.name: e for e in settings.envs()}
     theta_star = np.array(study.theta_star)  # the learners' part, what NEES is against
     target = settings.person_target(list(envs.values()))
     intended = dict(zip(envs, (p.trajectory for p in target.plans), strict=True))
-    thetas = grid.thetas()
+    thetas = grid.thetas() if grid is not None else np.zeros((1, k))
     log_p = ref.gaussian_log_prior(thetas, study.prior())
     noise = study.noise().observation
     learnt = isinstance(model, UnscentedKalman) and model.noise == "learnt"
@@ -221,6 +245,18 @@ def reference_run(
         )
     book = PlanBook(planner)
     restarted: dict[int, Belief] = {}
+    if engine is not None:
+        cloud = engine.initial(study.prior(), study.noise())
+        ctx = LearnerContext(
+            book=PlanBook(planner, warm_start=study.warm_start),
+            envs=tuple(envs.values()),
+            features=names,
+            n_waypoints=planner.config.n_waypoints,
+            alphas=None,
+            rng=np.random.default_rng(seed),
+            noise=study.noise(),
+            sigma=study.sigma(),
+        )
     for row in rows[1:]:
         start = ref.moments(thetas, ref.posterior(log_p)) if one_step or restarts else None
         t = int(row["iteration"])
@@ -234,7 +270,12 @@ def reference_run(
         outcome = study.user.perform(seen, np.random.default_rng(0))
         z = np.asarray(outcome.phi_h, float)
         judged = {}
-        if isinstance(model, BoltzmannPosterior):
+        if engine is not None:
+            seen_ctx = dataclasses.replace(ctx, iteration=t - 1, corrected=outcome.corrected)
+            cloud = engine.update(seen_ctx, cloud, env, robot, z).belief
+        if grid is None:
+            log_post = None
+        elif isinstance(model, BoltzmannPosterior):
             betas = model.correction_model(0.0).betas
             log_l = ref.boltzmann_log_likelihood(thetas, z - robot.features, betas, model.lapse)
             log_p = log_p + log_l
@@ -288,9 +329,13 @@ def reference_run(
                 log_l = ref.gaussian_log_likelihood(z, h, noise)
                 log_p = log_p + log_l
                 log_post = log_p
-        weights = ref.posterior(log_post)
-        mean, cov = ref.moments(thetas, weights)
         belief = _belief(row, k)
+        if log_post is None:  # the particles are the reference
+            weights = None
+            mean, cov = cloud.particles.moments()
+        else:
+            weights = ref.posterior(log_post)
+            mean, cov = ref.moments(thetas, weights)
         rec = {"learner": learner, "run": int(row["run"]), "iteration": t, "environment": env.name}
         for i in range(k):
             rec[f"ref_theta_{i}"] = float(mean[i])
@@ -299,8 +344,12 @@ def reference_run(
                 rec[f"ref_cov_{i}{j}"] = float(cov[i, j])
         rec["ref_nees"] = ref.nees(mean, cov, theta_star)
         rec["nees"] = float(row["nees"]) if row["nees"] else None
-        rec["ref_kl"] = ref.kl_to_gaussian(grid, thetas, weights, belief)
+        rec["ref_kl"] = (
+            None if weights is None else ref.kl_to_gaussian(grid, thetas, weights, belief)
+        )
         rec["ref_kl_gaussian"] = ref.gaussian_kl(mean, cov, belief)
+        if engine is not None and weights is not None:
+            rec |= _particles_against_grid(cloud.particles, thetas, weights, mean, cov)
         if judged:
             rec["relevance"] = float(row["relevance"]) if row.get("relevance") else None
             rec |= judged
@@ -316,17 +365,50 @@ def reference_run(
     return out
 
 
+def _particle_engine(model, learner: str, count: int, planner: Planner):
+    """PF-C with ``count`` particles under ``model``'s observation model (KF's is KF-C's
+    with the correction C = ξ*), or a one-line refusal."""
+    if isinstance(count, bool) or not isinstance(count, int) or count < 2:
+        raise ValueError(f"--particles {count!r}: expected an integer >= 2")
+    plain = isinstance(model, UnscentedKalman) and model.noise == "fixed"
+    if not plain or isinstance(model, RelevanceAwareKalman | PersonRelevanceKalman):
+        raise ValueError(
+            f"learner {learner}: a particle reference needs a KF or KF-C type learner, N fixed"
+        )
+    correction = model.model if isinstance(model, CorrectionAwareKalman) else OptimalCorrection()
+    moves = model.moves if isinstance(model, ParticleCorrectionAware) else 2
+    return ParticleCorrectionAware(model=correction, particles=count, moves=moves)
+
+
+def _particles_against_grid(cloud, thetas, weights, mean, cov) -> dict:
+    """How far the particles are from the grid reference: KL (the particles smoothed on the
+    grid), moments."""
+    p_mean, p_cov = cloud.moments()
+    sd = np.sqrt(np.diag(cov))
+    return {
+        "particle_kl": smoothed_kl(thetas, weights, cloud),
+        "particle_mean_gap": float(np.max(np.abs(p_mean - mean) / sd)),
+        "particle_var_gap": float(np.max(np.abs(np.diag(p_cov) - np.diag(cov)) / np.diag(cov))),
+        "particle_ess": cloud.effective_size(),
+    }
+
+
 def final_summary(records: list[dict], *, resamples: int = 2000) -> dict:
-    """At the last iteration, over runs: NEES / reference NEES as the ratio of the means with
+    """:func:`summary_at` the last iteration."""
+    return summary_at(records, max(r["iteration"] for r in records), resamples=resamples)
+
+
+def summary_at(records: list[dict], iteration: int, *, resamples: int = 2000) -> dict:
+    """At ``iteration``, over runs: NEES / reference NEES as the ratio of the means with
     a 95% bootstrap interval over runs (seeded, so the same records give the same interval),
-    and ``ref_kl``'s mean with its 95% t-interval."""
+    and ``ref_kl``'s and its Gaussian part's means with their 95% t-intervals (``ref_kl``
+    only where the reference is a grid), and the particle reference's distance from the grid
+    where both were computed."""
     from scipy import stats
 
-    last = max(r["iteration"] for r in records)
-    at = [r for r in records if r["iteration"] == last and r["nees"] is not None]
+    at = [r for r in records if r["iteration"] == iteration and r["nees"] is not None]
     nees = np.array([r["nees"] for r in at], float)
     ref_nees = np.array([r["ref_nees"] for r in at], float)
-    kl = np.array([r["ref_kl"] for r in at], float)
     n = len(at)
     picks = np.random.default_rng(0).integers(n, size=(resamples, n))
 
@@ -335,18 +417,28 @@ def final_summary(records: list[dict], *, resamples: int = 2000) -> dict:
         boot = values[picks].mean(axis=1) / ref_nees[picks].mean(axis=1)
         return [float(np.quantile(boot, 0.025)), float(np.quantile(boot, 0.975))]
 
-    half = float(stats.t.ppf(0.975, n - 1) * kl.std(ddof=1) / np.sqrt(n)) if n > 1 else np.nan
+    def mean_ci(key: str) -> tuple[float, list[float]]:
+        values = np.array([r[key] for r in at], float)
+        half = (
+            float(stats.t.ppf(0.975, n - 1) * values.std(ddof=1) / np.sqrt(n)) if n > 1 else np.nan
+        )
+        mean = float(values.mean())
+        return mean, [mean - half, mean + half]
+
     out = {
-        "iteration": last,
+        "iteration": iteration,
         "runs": n,
         "nees": float(nees.mean()),
         "ref_nees": float(ref_nees.mean()),
         "ratio": float(nees.mean() / ref_nees.mean()),
         "ratio_ci95": ratio_ci(nees),
-        "ref_kl": float(kl.mean()),
-        "ref_kl_ci95": [float(kl.mean() - half), float(kl.mean() + half)],
-        "ref_kl_gaussian": float(np.mean([r["ref_kl_gaussian"] for r in at])),
     }
+    if at and at[0].get("ref_kl") is not None:
+        out["ref_kl"], out["ref_kl_ci95"] = mean_ci("ref_kl")
+    out["ref_kl_gaussian"], out["ref_kl_gaussian_ci95"] = mean_ci("ref_kl_gaussian")
+    if at and "particle_kl" in at[0]:
+        for key in ("particle_kl", "particle_mean_gap", "particle_var_gap", "particle_ess"):
+            out[key], out[f"{key}_ci95"] = mean_ci(key)
     if at and "one_step_nees" in at[0]:
         one = np.array([r["one_step_nees"] for r in at], float)
         out["one_step_ratio"] = float(one.mean() / ref_nees.mean())
@@ -367,7 +459,41 @@ def final_summary(records: list[dict], *, resamples: int = 2000) -> dict:
     return out
 
 
+def calibration_figure(folder: Path) -> Path:
+    """The calibration figure from the reference summaries in ``folder`` (``<figure>-<learner>
+    .json``, as in ``results/reference_posterior``, each with its ``by_iteration``): per
+    figure, every learner's NEES / reference NEES and the Gaussian part of ``ref_kl``
+    against t. Writes ``calibration.png`` there."""
+    from corrections_sim.figures.plotting import plot_reference_calibration
+
+    panels: dict[str, dict] = {}
+    for path in sorted(folder.glob("*.json")):
+        data = json.loads(path.read_text())
+        if "by_iteration" not in data:
+            continue
+        figure = path.stem.removesuffix(f"-{data['learner']}")
+        panels.setdefault(figure, {})[data["learner"]] = data["by_iteration"]
+    if not panels:
+        raise ValueError(f"{folder}: no reference summaries with by_iteration in it")
+    runs = sorted({rows[-1]["runs"] for learners in panels.values() for rows in learners.values()})
+    out = folder / "calibration.png"
+    title = "Each learner against exact Bayes under its own model (95% intervals over "
+    plot_reference_calibration(panels, f"{title}{'/'.join(map(str, runs))} runs)", [out])
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
+    if argv is None:
+        argv = sys.argv[1:]
+    if argv[:1] == ["plot"]:
+        try:
+            if len(argv) != 2:
+                raise ValueError("usage: python -m corrections_sim.figures.reference plot DIR")
+            print(f"wrote {calibration_figure(Path(argv[1]))}")
+        except (OSError, ValueError, KeyError) as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        return 0
     p = argparse.ArgumentParser(
         prog="python -m corrections_sim.figures.reference", description=__doc__.split("\n\n")[0]
     )
@@ -391,6 +517,15 @@ def main(argv: list[str] | None = None) -> int:
         "prior): NEES / reference NEES at the end for each",
     )
     p.add_argument(
+        "--particles",
+        type=int,
+        default=0,
+        metavar="N",
+        help="also run PF-C's particle machinery with N particles on the same corrections: "
+        "judged against the grid at k = 2, the reference itself at k > 2 (no grid there)",
+    )
+    p.add_argument("--seed", type=int, default=0, help="the particle reference's seed")
+    p.add_argument(
         "--check-grid",
         action="store_true",
         help="also on the halved grid (first run): how much mean and covariance move",
@@ -409,7 +544,12 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError(f"--restart {args.restart}: expected iterations like 0,1,4") from None
         if any(s < 0 for s in restarts):
             raise ValueError(f"--restart {args.restart}: iterations are >= 0")
-        grid = ref.Grid((-3.0,) * settings.study.k, (3.0,) * settings.study.k, args.points)
+        if args.check_grid and settings.study.k != 2:
+            raise ValueError(
+                f"--check-grid: the grid exists only for k = 2, not {settings.study.k}"
+            )
+        k = settings.study.k
+        grid = ref.Grid((-3.0,) * k, (3.0,) * k, args.points) if k == 2 else None
         planner = Planner(settings.planner_config())
         records = []
         for run in sorted(runs)[: args.runs]:
@@ -421,6 +561,8 @@ def main(argv: list[str] | None = None) -> int:
                 planner,
                 one_step=args.one_step,
                 restarts=restarts,
+                particles=args.particles,
+                seed=args.seed + run,
             )
             print(f"run {run}: done", file=sys.stderr, flush=True)
     except (OSError, KeyError, ValueError) as exc:
@@ -428,24 +570,48 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     path = write_records(args.folder / f"reference-{args.learner}.csv", records)
     n_runs = len({r["run"] for r in records})
+    iterations = sorted({r["iteration"] for r in records})
+    by_t = [summary_at(records, t) for t in iterations]
+    print(f"(means over {n_runs} runs; 95% intervals over runs)")
     print(
-        f"{'t':>3} {'ref NEES':>9} {'learner NEES':>13} {'ref_kl':>8}  (means over {n_runs} runs)"
+        f"{'t':>3} {'ref NEES':>9} {'NEES':>7} {'NEES / ref NEES':>22} {'ref_kl':>22} "
+        f"{'Gaussian part':>22}"
     )
-    for t in sorted({r["iteration"] for r in records}):
-        at = [r for r in records if r["iteration"] == t]
-        means = [np.mean([r[key] for r in at]) for key in ("ref_nees", "nees", "ref_kl")]
-        print(f"{t:>3} {means[0]:9.2f} {means[1]:13.2f} {means[2]:8.3f}")
-    final = final_summary(records)
+    for row in by_t:
+        ratio = f"{row['ratio']:.2f} [{row['ratio_ci95'][0]:.2f}, {row['ratio_ci95'][1]:.2f}]"
+        kl = (
+            f"{row['ref_kl']:.3f} [{row['ref_kl_ci95'][0]:.3f}, {row['ref_kl_ci95'][1]:.3f}]"
+            if "ref_kl" in row
+            else "-"
+        )
+        lo, hi = row["ref_kl_gaussian_ci95"]
+        gauss = f"{row['ref_kl_gaussian']:.3f} [{lo:.3f}, {hi:.3f}]"
+        print(
+            f"{row['iteration']:>3} {row['ref_nees']:9.2f} {row['nees']:7.2f} {ratio:>22} "
+            f"{kl:>22} {gauss:>22}"
+        )
+    final = by_t[-1]
     (args.folder / f"reference-{args.learner}.json").write_text(
-        json.dumps({"learner": args.learner, **final}, indent=1) + "\n"
+        json.dumps({"learner": args.learner, **final, "by_iteration": by_t}, indent=1) + "\n"
+    )
+    kl_text = (
+        f"ref_kl = {final['ref_kl']:.3f} [{final['ref_kl_ci95'][0]:.3f}, "
+        f"{final['ref_kl_ci95'][1]:.3f}], of which Gaussian "
+        if "ref_kl" in final
+        else "the reference is the particles': ref_kl's Gaussian part "
     )
     print(
         f"t = {final['iteration']}: NEES / reference NEES = {final['ratio']:.2f} "
-        f"[{final['ratio_ci95'][0]:.2f}, {final['ratio_ci95'][1]:.2f}], ref_kl = "
-        f"{final['ref_kl']:.3f} [{final['ref_kl_ci95'][0]:.3f}, {final['ref_kl_ci95'][1]:.3f}] "
-        f"(95% intervals over {final['runs']} runs), of which Gaussian "
-        f"{final['ref_kl_gaussian']:.3f}"
+        f"[{final['ratio_ci95'][0]:.2f}, {final['ratio_ci95'][1]:.2f}], {kl_text}"
+        f"{final['ref_kl_gaussian']:.3f} (95% intervals over {final['runs']} runs)"
     )
+    if "particle_kl" in final:
+        print(
+            f"{args.particles} particles against the grid: KL (smoothed on the grid) "
+            f"{final['particle_kl']:.3f}, mean within {final['particle_mean_gap']:.1%} of an "
+            f"sd, variances within {final['particle_var_gap']:.1%}, ESS "
+            f"{final['particle_ess']:.0f}"
+        )
     if "one_step_ratio" in final:
         low, high = final["one_step_ratio_ci95"]
         print(

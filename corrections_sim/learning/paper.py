@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from corrections_sim import components
-from corrections_sim.belief import Belief, KalmanNoise, NoisePosterior, PersonBelief
+from corrections_sim.belief import Belief, KalmanNoise, NoisePosterior, PersonBelief, symmetrize
 from corrections_sim.components import ParameterError
 from corrections_sim.learning.active import select_environment
 from corrections_sim.learning.attenuated import Attenuation
@@ -39,15 +39,21 @@ from corrections_sim.learning.attenuated import update as attenuated_update
 from corrections_sim.learning.base import Learner, LearnerContext, Step, register_learner
 from corrections_sim.learning.kalman import (
     Observe,
+    batch_update,
     ekf_update,
     finite_difference_jacobian,
+    iterated_update,
     ukf_predicted_covariance,
     ukf_update,
     vb_ukf_update,
 )
+from corrections_sim.learning.particles import belief_of as particles_belief
+from corrections_sim.learning.particles import correct as particles_correct
+from corrections_sim.learning.particles import draw as particles_draw
 from corrections_sim.learning.perceptron import perceptron_update
 from corrections_sim.learning.preference_posterior import BoltzmannCorrection
 from corrections_sim.learning.preference_posterior import update as posterior_update
+from corrections_sim.learning.reference import gaussian_log_likelihood as particle_likelihood
 from corrections_sim.learning.relevance import SPACES, Relevance, explain, judge, load_fit
 from corrections_sim.people.corrections import (
     CORRECTIONS,
@@ -118,6 +124,11 @@ class Perceptron(Learner):
 #: How a filter treats the person's observation noise N (the ``noise`` parameter).
 NOISE_MODES = ("fixed", "learnt")
 
+#: How a filter linearises its observation (the ``iterate`` parameter): "none" (the UKF),
+#: "each" (the correction again around its posterior, IPLF), "all" (every correction so far
+#: again around the current posterior).
+ITERATE_MODES = ("none", "each", "all")
+
 
 @register_learner("KF")
 @dataclass(frozen=True)
@@ -131,6 +142,15 @@ class UnscentedKalman(Learner):
             IW whose estimate is the study's N, held with ``noise_dof`` degrees of freedom.
         noise_dof: the prior's degrees of freedom ν₀ > k − 1 (how many corrections' worth
             the study's N counts for); None: k + 2.
+        iterate: "none" (the UKF step), "each" (the iterated posterior linearisation
+            filter: each correction's h linearised again w.r.t. the posterior it gives,
+            :func:`~.kalman.iterated_update`) or "all" (after that, every correction so far
+            linearised again w.r.t. the current posterior and the prior updated by all of
+            them at once, :func:`~.kalman.batch_update`: θ is static, so past corrections are
+            evidence to be read again once P has shrunk). Needs ``noise = "fixed"``.
+        iterations: at most this many linearisations per correction ("each"), and passes
+            over all corrections ("all"); >= 1.
+        tolerance: stop iterating once the posterior moves by less than this KL (nats, > 0).
     """
 
     label = "Kalman filter (KF)"
@@ -138,6 +158,9 @@ class UnscentedKalman(Learner):
 
     noise: str = "fixed"
     noise_dof: float | None = None
+    iterate: str = "none"
+    iterations: int = 3
+    tolerance: float = 0.01
 
     def __post_init__(self) -> None:
         if self.noise not in NOISE_MODES:
@@ -146,8 +169,22 @@ class UnscentedKalman(Learner):
             )
         if self.noise_dof is not None:
             _positive("noise_dof", self.noise_dof)
+        if self.iterate not in ITERATE_MODES:
+            raise ParameterError(
+                "iterate", f"must be one of {', '.join(ITERATE_MODES)}, got {self.iterate!r}"
+            )
+        count = self.iterations
+        if isinstance(count, bool) or not isinstance(count, int) or count < 1:
+            raise ParameterError("iterations", f"must be an integer >= 1, got {count!r}")
+        _positive("tolerance", self.tolerance)
+        if self.iterate != "none" and self.noise != "fixed":
+            raise ParameterError(
+                "iterate", f'{self.iterate!r} needs noise = "fixed" (N is learnt here)'
+            )
 
     def initial(self, belief: Belief, noise: KalmanNoise) -> Belief:
+        if self.iterate == "all":  # the prior first, then each correction (see update)
+            return Belief(theta=belief.theta, cov=belief.cov, history=((belief.theta, belief.cov),))
         if self.noise == "fixed":
             return belief
         dof = self.noise_dof if self.noise_dof is not None else belief.dim + 2.0
@@ -166,19 +203,44 @@ class UnscentedKalman(Learner):
         """What this learner believes a correction in ``env`` shows, as a function of θ."""
         return ctx.book.observe(env)
 
+    def observer_of(self, ctx: LearnerContext, env: Environment, robot: np.ndarray) -> Observe:
+        """What a correction in ``env`` to the robot's trajectory ``robot`` shows."""
+        return ctx.book.observe(env)
+
     def update(
         self, ctx: LearnerContext, belief: Belief, env: Environment, plan: Plan, phi_h: np.ndarray
     ) -> Step:
         # Innovation against Φ(ξᵗ) (eq. K5); for KF-C that is hₜ(θ̂), since C(ξᵗ, ξᵗ) = ξᵗ.
-        update = vb_ukf_update if belief.noise is not None else ukf_update
-        return update(
-            belief,
-            self.observer(ctx, belief, env),
-            phi_h,
-            ctx.noise,
+        observe = self.observer(ctx, belief, env)
+        if belief.noise is not None:
+            return vb_ukf_update(
+                belief, observe, phi_h, ctx.noise, ctx.sigma, reference=plan.features
+            )
+        if self.iterate == "none":
+            return ukf_update(belief, observe, phi_h, ctx.noise, ctx.sigma, reference=plan.features)
+        start = Belief(theta=belief.theta, cov=belief.cov)
+        step = iterated_update(
+            start, observe, phi_h, ctx.noise, ctx.sigma, reference=plan.features,
+            iterations=self.iterations, tolerance=self.tolerance,
+        )  # fmt: skip
+        if self.iterate == "each":
+            return step
+        entry = (env, plan.trajectory, np.asarray(phi_h, float), ctx.noise.observation)
+        (theta0, cov0), *past = (*belief.history, entry)
+        # θ is static here; the random walk's M over t corrections widens the prior instead.
+        prior = Belief(theta=theta0, cov=cov0 + len(past) * ctx.noise.process)
+        after, passes, change = batch_update(
+            prior,
+            [self.observer_of(ctx, e, robot) for e, robot, _, _ in past],
+            [z for _, _, z, _ in past],
+            [n for _, _, _, n in past],
+            step.belief,
             ctx.sigma,
-            reference=plan.features,
+            iterations=self.iterations,
+            tolerance=self.tolerance,
         )
+        kept = Belief(theta=after.theta, cov=after.cov, history=(*belief.history, entry))
+        return dataclasses.replace(step, belief=kept, passes=step.passes + passes, change=change)
 
 
 @register_learner("EKF")
@@ -308,6 +370,9 @@ class CorrectionAwareKalman(UnscentedKalman):
 
     def observer(self, ctx: LearnerContext, belief: Belief, env: Environment) -> Observe:
         robot = ctx.book.plan(belief.theta, env).trajectory
+        return self.observer_of(ctx, env, robot)
+
+    def observer_of(self, ctx: LearnerContext, env: Environment, robot: np.ndarray) -> Observe:
         return correction_observer(ctx.book, env, robot, self.model, ctx.features)
 
 
@@ -561,6 +626,8 @@ class PersonRelevanceKalman(CorrectionAwareKalman):
         super().__post_init__()
         if self.noise != "fixed":
             raise ParameterError("noise", "KF-CRP keeps N fixed (N / β̂ is its update)")
+        if self.iterate != "none":
+            raise ParameterError("iterate", "KF-CRP's update is not iterated (its own history)")
         for name, low in (("expand_traces", 0), ("expand_after", 1)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
@@ -845,3 +912,139 @@ class OneFeaturePerceptron(Perceptron):
             belief, plan.features, plan.features + only, float(ctx.alphas[ctx.iteration])
         )
         return Step(new, None, change, None)
+
+
+@register_learner("KF-CI")
+@dataclass(frozen=True)
+class IteratedCorrectionAwareKalman(CorrectionAwareKalman):
+    """KF-C whose every correction is linearised again around the posterior it gives, until
+    it settles (IPLF, ``iterate = "each"``)."""
+
+    label = "KF-C, iterated (KF-CI)"
+    style = ("#9467bd", "--")
+
+    iterate: str = "each"
+
+
+@register_learner("KF-CB")
+@dataclass(frozen=True)
+class BatchCorrectionAwareKalman(CorrectionAwareKalman):
+    """KF-C that reads every correction so far again around the current posterior after
+    each new one (batch iterated posterior linearisation, ``iterate = "all"``)."""
+
+    label = "KF-C, all corrections iterated (KF-CB)"
+    style = ("#8c564b", "--")
+
+    iterate: str = "all"
+
+
+@register_learner("PF-C")
+@dataclass(frozen=True)
+class ParticleCorrectionAware(CorrectionAwareKalman):
+    """A particle learner under KF-C's model: particles over θ from the prior, each weighed
+    by every correction's likelihood N(Φ_h; hₜ(θ), N) (one plan per particle, warm from the
+    run's nearest planned θ), resampled when the effective sample size falls below
+    ``resample_below`` × the count, and then moved by ``moves`` random-walk Metropolis steps
+    that re-evaluate every past correction (:mod:`~corrections_sim.learning.particles`). Its
+    mean and covariance are the belief every consumer reads. θ is static (no process noise
+    M, as in the exact reference); its random draws come from a child of the run's generator
+    (``rng.spawn``), so the person's draws are the same as for every other learner.
+
+    Attributes:
+        particles: how many (>= 2).
+        moves: Metropolis steps per particle after a resample (>= 0).
+        resample_below: resample once ESS < this × the count, in (0, 1].
+    """
+
+    label = "Particle filter, KF-C's model (PF-C)"
+    style = ("#bcbd22", "--")
+
+    particles: int = 200
+    moves: int = 2
+    resample_below: float = 0.5
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        for name, low in (("particles", 2), ("moves", 0)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < low:
+                raise ParameterError(name, f"must be an integer >= {low}, got {value!r}")
+        threshold = self.resample_below
+        ok = isinstance(threshold, int | float) and not isinstance(threshold, bool)
+        if not (ok and 0.0 < threshold <= 1.0):
+            raise ParameterError("resample_below", f"must be in (0, 1], got {threshold!r}")
+        if self.iterate != "none":
+            raise ParameterError("iterate", "a particle learner is not linearised")
+
+    def initial(self, belief: Belief, noise: KalmanNoise) -> Belief:
+        return Belief(theta=belief.theta, cov=belief.cov, history=((belief.theta, belief.cov),))
+
+    @staticmethod
+    def predict(observe: Observe, thetas: np.ndarray) -> np.ndarray:
+        """h(θ) at each of ``thetas`` (n, k), a row of NaN where the planner finds no plan."""
+        h = np.full(thetas.shape, np.nan)
+        for i, theta in enumerate(thetas):
+            try:
+                h[i] = observe(theta[None, :])[0]
+            except PlanningError:
+                continue
+        return h
+
+    def update(
+        self, ctx: LearnerContext, belief: Belief, env: Environment, plan: Plan, phi_h: np.ndarray
+    ) -> Step:
+        rng = ctx.rng.spawn(1)[0]
+        (theta0, cov0), *_ = belief.history or ((belief.theta, belief.cov),)
+        prior = Belief(theta=theta0, cov=cov0)
+        cloud = belief.particles or particles_draw(prior, self.particles, rng)
+        z = np.asarray(phi_h, float)
+        noise = ctx.noise.observation
+        h = self.predict(self.observer_of(ctx, env, plan.trajectory), cloud.thetas)
+        # What it expected before the correction: the particles' predictive mean and spread.
+        seen = np.all(np.isfinite(h), axis=1)
+        w = cloud.weights()[seen] / cloud.weights()[seen].sum()
+        expected = w @ h[seen]
+        spread = (w[:, None] * (h[seen] - expected)).T @ (h[seen] - expected)
+        entry = (env, plan.trajectory, z, noise)
+        past = [*belief.history[1:], entry]
+        observers = [(self.observer_of(ctx, e, robot), zi, ni) for e, robot, zi, ni in past]
+
+        def log_total(thetas: np.ndarray) -> tuple[np.ndarray, int]:
+            total = np.zeros(len(thetas))
+            for observe_i, zi, ni in observers:
+                total += particle_likelihood(zi, self.predict(observe_i, thetas), ni)
+            return total, len(thetas) * len(observers)
+
+        inverse = np.linalg.inv(prior.cov)
+
+        def log_prior(thetas: np.ndarray) -> np.ndarray:
+            d = thetas - prior.theta
+            return -0.5 * np.einsum("ni,ij,nj->n", d, inverse, d)
+
+        moved = particles_correct(
+            cloud,
+            particle_likelihood(z, h, noise),
+            log_prior,
+            log_total,
+            rng,
+            moves=self.moves,
+            threshold=self.resample_below,
+        )
+        after = particles_belief(moved.particles, history=((theta0, cov0), *past))
+        return Step(
+            after,
+            None,
+            z - plan.features,
+            symmetrize(spread + noise),
+        )
+
+
+@register_learner("AL-PF")
+@dataclass(frozen=True)
+class ParticleActive(_Active, ParticleCorrectionAware):
+    """PF-C with environments chosen by eq. (A1): the UKF's predicted covariance from the
+    particles' mean and covariance (2k + 1 plans per candidate environment; the particles'
+    own predicted posterior would cost a plan per particle per environment)."""
+
+    label = "AL on PF-C's belief (AL-PF)"
+    style = ("#ff7f0e", ":")

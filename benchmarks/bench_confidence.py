@@ -1,0 +1,56 @@
+"""What exact-Bayes confidence costs (``bench confidence``): the iterated and particle learners
+against KF-C, per correction.
+
+For figs. 4 and 5 (paper-scale settings, the same seeds and shared plans as the figures), each
+learner asked for runs ``runs`` runs of 12 corrections one at a time in this process: CPU
+seconds per correction and planner solves per correction (every ξ*(θ, E) the run's book solved,
+memoized ones not counted). Every run also evaluates the regret (the 48 environments at each
+θ̂) and plans the robot's trajectory; PP, which plans nothing else, gives that baseline, so
+"update solves" = a learner's solves − PP's, and the last column is that over KF-C's (the
+issue's ≤ 3× for the iterated update). An active learner's extra CPU over its passive
+twin is its choice of environment.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from corrections_sim.figures.learning import load_settings
+from corrections_sim.study import runner
+
+
+def run_bench(learners: tuple[str, ...], runs: int, figures=("fig4", "fig5")) -> list[str]:
+    names = tuple(dict.fromkeys(("PP", "KF-C", *learners)))
+    lines = [
+        f"{runs} runs x 12 corrections per learner, one process; CPU s and planner solves "
+        "per correction",
+        f"{'figure':6} {'learner':7} {'CPU s':>7} {'solves':>8} {'update solves':>14} "
+        f"{'/ KF-C':>7}",
+    ]
+    for figure in figures:
+        overrides = {"runs": runs, "learners": list(names), "learners.PP.fixed_alpha": 0.2}
+        settings = load_settings(figure, quick=False, overrides=overrides)
+        shared = runner.prepare(settings)
+        study = settings.study
+        cost: dict[str, tuple[float, float]] = {}
+        for name in names:
+            cpu, solves = 0.0, 0
+            for run in range(runs):
+                start = time.process_time()
+                alphas = None
+                if study.learners[name].needs_rates():
+                    alphas = np.full(study.iterations, 0.2)
+                result = runner.run_one(settings, shared, name, run, alphas)
+                cpu += time.process_time() - start
+                solves += result.solves
+            n = runs * study.iterations
+            cost[name] = (cpu / n, solves / n)
+        base = cost["PP"][1]
+        kfc = cost["KF-C"][1] - base
+        for name, (cpu, solves) in cost.items():
+            own = solves - base
+            ratio = f"{own / kfc:7.2f}" if name != "PP" and kfc > 0 else f"{'-':>7}"
+            lines.append(f"{figure:6} {name:7} {cpu:7.3f} {solves:8.1f} {own:14.1f} {ratio}")
+    return lines
