@@ -451,6 +451,12 @@ def main(argv: Sequence[str] | None = None) -> None:
         "--skip-full", action="store_true", help="fig4: only the slice, not the paper-scale run"
     )
     parser.add_argument(
+        "--local-optima",
+        action="store_true",
+        help="confidence: also how often PF-C's plans are local optima (best of 10 random "
+        "starts, 150 of its plans)",
+    )
+    parser.add_argument(
         "--build",
         action="store_true",
         help="learnt: also time the first build of a learnt shape's NLP in an empty cache",
@@ -576,7 +582,11 @@ def main(argv: Sequence[str] | None = None) -> None:
         runs = 3 if args.problems is None else args.problems
         if runs < 1:
             parser.error("--problems: confidence takes the runs per learner, >= 1")
-        print("\n".join(run_confidence(tuple(n for n in names if n), runs)))
+        print("\n".join(run_confidence(tuple(n for n in names if n), runs)), flush=True)
+        if args.local_optima:
+            from benchmarks.bench_confidence import local_optima
+
+            print("\n".join(local_optima(seed=0 if args.seed is None else args.seed)))
         return
     if args.what == "relevance":
         from benchmarks.bench_relevance import run_bench as run_relevance

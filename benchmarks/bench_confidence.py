@@ -54,3 +54,56 @@ def run_bench(learners: tuple[str, ...], runs: int, figures=("fig4", "fig5")) ->
             ratio = f"{own / kfc:7.2f}" if name != "PP" and kfc > 0 else f"{'-':>7}"
             lines.append(f"{figure:6} {name:7} {cpu:7.3f} {solves:8.1f} {own:14.1f} {ratio}")
     return lines
+
+
+def local_optima(problems: int = 150, restarts: int = 10, seed: int = 0) -> list[str]:
+    """How often PF-C's plans are local optima: every plan a fig. 4 PF-C run (run 0, the
+    figure's settings) solved is recorded; ``problems`` of them, drawn at random, are solved
+    again from ``restarts`` random starts (the straight line and smooth random bends, as
+    ``bench planner``), and the particle's reward compared with the best. A plan more than 1%
+    below the best puts the particle's likelihood on a trajectory the person would not
+    think optimal."""
+    from benchmarks.bench import random_restarts, relative_gap
+    from corrections_sim.planning.planner import PlanningError, shared_planner
+    from corrections_sim.planning.plans import PlanBook
+    from corrections_sim.study import loop
+
+    solved: list[tuple[np.ndarray, object, float]] = []
+
+    class Recording(PlanBook):
+        def plan(self, theta, env):
+            fresh = self._key(np.asarray(theta, float), env) not in self._plans
+            plan = super().plan(theta, env)
+            if fresh:
+                solved.append((np.array(theta, float), env, plan.reward))
+            return plan
+
+    settings = load_settings("fig4", quick=False, overrides={"runs": 1, "learners": ["PF-C"]})
+    shared = runner.prepare(settings)
+    original = loop.PlanBook
+    loop.PlanBook = Recording
+    try:
+        runner.run_one(settings, shared, "PF-C", 0)
+    finally:
+        loop.PlanBook = original
+    rng = np.random.default_rng(seed)
+    picks = rng.choice(len(solved), size=min(problems, len(solved)), replace=False)
+    planner = shared_planner(settings.planner_config())
+    gaps = []
+    for i in picks:
+        theta, env, reward = solved[i]
+        starts = random_restarts(env, planner.config.n_waypoints, restarts, rng)
+        best = reward
+        for start in starts:
+            try:
+                best = max(best, planner.solve(theta, env, inits=[start]).reward)
+            except PlanningError:
+                continue
+        gaps.append(relative_gap(best, reward))
+    gaps = np.array(gaps)
+    return [
+        f"PF-C's plans (fig. 4, run 0: {len(solved)} solved), {len(gaps)} drawn, each against "
+        f"the best of {restarts} random starts:",
+        f"  within 1% of the best: {np.mean(gaps <= 0.01):.1%}; within 0.1%: "
+        f"{np.mean(gaps <= 0.001):.1%}; worst gap {gaps.max():.1%}; median {np.median(gaps):.2e}",
+    ]

@@ -331,8 +331,7 @@ def vb_ukf_update(
     """
     if belief.noise is None:
         raise ValueError("belief.noise: a noise-learning update needs a posterior over N")
-    if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
-        raise ValueError(f"iterations = {iterations!r}: expected an integer >= 1")
+    _check_iterations(iterations)
     phi_human = _as_vector("phi_human", phi_human, belief.dim)
     moments = _sigma_moments(belief, observe, noise, sigma or SigmaPoints())
     base = moments.obs_mean if reference is None else _as_vector("reference", reference, belief.dim)
@@ -468,8 +467,7 @@ def iterated_update(
     A broad prior's sigma points straddle planner outcomes the unscented transform averages
     badly; the posterior's are where θ is, so the linear model is accurate where it
     matters."""
-    if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
-        raise ValueError(f"iterations = {iterations!r}: expected an integer >= 1")
+    _check_iterations(iterations)
     sigma = sigma or SigmaPoints()
     z = _as_vector("phi_human", phi_human, belief.dim)
     first = ukf_update(belief, observe, z, noise, sigma, reference=reference)
@@ -516,8 +514,7 @@ def batch_update(
     exactly under all those linear models at once, until the posterior moves by less than
     ``tolerance`` nats or after ``iterations`` passes. Returns (posterior, passes, last
     change). A pass solves 2k + 1 plans per correction (fewer where they are memoized)."""
-    if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
-        raise ValueError(f"iterations = {iterations!r}: expected an integer >= 1")
+    _check_iterations(iterations)
     sigma = sigma or SigmaPoints()
     current, change, passes = start, 0.0, 0
     while passes < iterations:
@@ -750,6 +747,11 @@ def _observe_batch(observe: Observe, thetas: np.ndarray, k: int) -> np.ndarray:
         bad = np.flatnonzero(~np.all(np.isfinite(out), axis=1)).tolist()
         raise ValueError(f"observe: returned non-finite features for rows {bad} (k={k})")
     return out
+
+
+def _check_iterations(iterations) -> None:
+    if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
+        raise ValueError(f"iterations = {iterations!r}: expected an integer >= 1")
 
 
 def _check_noise(noise: KalmanNoise, k: int) -> None:
