@@ -74,6 +74,12 @@ def _positive(name: str, value) -> None:
         raise ParameterError(name, f"must be a finite number > 0, got {value!r}")
 
 
+def _count(name: str, value, low: int) -> None:
+    """Refuse a parameter that is not an integer >= ``low``."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < low:
+        raise ParameterError(name, f"must be an integer >= {low}, got {value!r}")
+
+
 def _renamed(build, names: dict[str, str]):
     """``build()``, with a ValueError that names a field of the maths' own class (``a_min``)
     re-raised under the learner's parameter name (``attenuation_min``)."""
@@ -173,9 +179,7 @@ class UnscentedKalman(Learner):
             raise ParameterError(
                 "iterate", f"must be one of {', '.join(ITERATE_MODES)}, got {self.iterate!r}"
             )
-        count = self.iterations
-        if isinstance(count, bool) or not isinstance(count, int) or count < 1:
-            raise ParameterError("iterations", f"must be an integer >= 1, got {count!r}")
+        _count("iterations", self.iterations, 1)
         _positive("tolerance", self.tolerance)
         if self.iterate != "none" and self.noise != "fixed":
             raise ParameterError(
@@ -628,10 +632,8 @@ class PersonRelevanceKalman(CorrectionAwareKalman):
             raise ParameterError("noise", "KF-CRP keeps N fixed (N / β̂ is its update)")
         if self.iterate != "none":
             raise ParameterError("iterate", "KF-CRP's update is not iterated (its own history)")
-        for name, low in (("expand_traces", 0), ("expand_after", 1)):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < low:
-                raise ParameterError(name, f"must be an integer >= {low}, got {value!r}")
+        _count("expand_traces", self.expand_traces, 0)
+        _count("expand_after", self.expand_after, 1)
         if not (isinstance(self.expand_below, int | float) and 0 < self.expand_below < 1):
             raise ParameterError("expand_below", f"must lie in (0, 1), got {self.expand_below!r}")
         _positive("expand_variance", self.expand_variance)
@@ -965,16 +967,16 @@ class ParticleCorrectionAware(CorrectionAwareKalman):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        for name, low in (("particles", 2), ("moves", 0)):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < low:
-                raise ParameterError(name, f"must be an integer >= {low}, got {value!r}")
+        _count("particles", self.particles, 2)
+        _count("moves", self.moves, 0)
         threshold = self.resample_below
         ok = isinstance(threshold, int | float) and not isinstance(threshold, bool)
         if not (ok and 0.0 < threshold <= 1.0):
             raise ParameterError("resample_below", f"must be in (0, 1], got {threshold!r}")
         if self.iterate != "none":
             raise ParameterError("iterate", "a particle learner is not linearised")
+        if self.noise != "fixed":
+            raise ParameterError("noise", "PF-C keeps N fixed (its likelihood is N(h(θ), N))")
 
     def initial(self, belief: Belief, noise: KalmanNoise) -> Belief:
         return Belief(theta=belief.theta, cov=belief.cov, history=((belief.theta, belief.cov),))
@@ -1002,6 +1004,8 @@ class ParticleCorrectionAware(CorrectionAwareKalman):
         h = self.predict(self.observer_of(ctx, env, plan.trajectory), cloud.thetas)
         # What it expected before the correction: the particles' predictive mean and spread.
         seen = np.all(np.isfinite(h), axis=1)
+        if not seen.any():
+            raise PlanningError(f"{env.name}: no particle's plan exists; the update is skipped")
         w = cloud.weights()[seen] / cloud.weights()[seen].sum()
         expected = w @ h[seen]
         spread = (w[:, None] * (h[seen] - expected)).T @ (h[seen] - expected)
