@@ -15,6 +15,20 @@ Tables (``SCHEMA_VERSION`` 1):
 * ``events`` — everything else a page reports: ``stated``, ``skip``, ``undo``, ``refused``
   (a drag the page refused, with the reason), ``done``.
 
+A user study run from a protocol (:mod:`corrections_sim.interact.participant`) adds three
+tables, created the first time a participant is enrolled (a log of single sessions keeps its
+four, so older readers and committed logs are untouched), and the protocol in ``meta``:
+
+* ``participants`` — one row per participant: the code (a pseudonym), the index that fixes
+  their order of conditions, the SHA-256 of their link's secret (never the secret), when they
+  were enrolled, what a simulated participant was drawn as (JSON; NULL for a person), and
+  when they were withdrawn.
+* ``steps`` — one row per step a participant has begun (by position in their protocol): its
+  key, when it began and finished, the session of a trial, and the sessions of trials the
+  experimenter aborted.
+* ``answers`` — one row per answered item (participant, step, item), the value as JSON;
+  written with the step's end in one transaction, so a questionnaire is all there or not.
+
 Every write commits before it returns, so a confirmed correction survives the server being
 killed at any moment after. Arrays are stored as JSON lists of floats (``repr`` round trip,
 so replays see the very numbers the session used).
@@ -89,6 +103,35 @@ CREATE TABLE IF NOT EXISTS events (
 );
 """
 
+_STUDY_TABLES = """
+CREATE TABLE IF NOT EXISTS participants (
+    code TEXT PRIMARY KEY,
+    idx INTEGER NOT NULL UNIQUE,
+    token_hash TEXT NOT NULL UNIQUE,
+    enrolled TEXT NOT NULL,
+    simulated TEXT,
+    withdrawn TEXT
+);
+CREATE TABLE IF NOT EXISTS steps (
+    code TEXT NOT NULL REFERENCES participants(code),
+    position INTEGER NOT NULL,
+    key TEXT NOT NULL,
+    started TEXT NOT NULL,
+    finished TEXT,
+    session_id INTEGER,
+    aborted TEXT NOT NULL DEFAULT '[]',
+    PRIMARY KEY (code, position)
+);
+CREATE TABLE IF NOT EXISTS answers (
+    code TEXT NOT NULL REFERENCES participants(code),
+    step TEXT NOT NULL,
+    item TEXT NOT NULL,
+    value TEXT NOT NULL,
+    at TEXT NOT NULL,
+    PRIMARY KEY (code, step, item)
+);
+"""
+
 _ARRAYS = ("xi_robot", "xi_h", "phi_robot", "phi_h", "theta_before", "cov_before")
 _ARRAYS += ("theta_after", "cov_after", "noise_after")
 
@@ -99,6 +142,11 @@ ASK_KINDS = {"toward": 1, "nudge": 0}
 
 class LogError(ValueError):
     """A database that is not a study log of this version, or a session that is not in it."""
+
+
+class StudyError(ValueError):
+    """A participant or an answer the study log refuses (a used code, an answer posted twice,
+    a step out of turn); the message is one line."""
 
 
 def now() -> str:
@@ -325,6 +373,221 @@ class StudyLog:
             (session_id, iteration, kind, now(), _dump(dict(detail))),
         )
 
+    # --- a study's participants, steps and answers ----------------------------------------------
+
+    def _study(self) -> None:
+        """Create the study tables if this log has none yet (see the module)."""
+        with self._lock:
+            self._db.executescript("BEGIN;" + _STUDY_TABLES + "COMMIT;")
+
+    def has_study(self) -> bool:
+        with self._lock:
+            row = self._db.execute(
+                "SELECT 1 FROM sqlite_master WHERE name = 'participants'"
+            ).fetchone()
+        return row is not None
+
+    def meta(self, key: str) -> str | None:
+        with self._lock:
+            row = self._db.execute("SELECT value FROM meta WHERE key = ?", (key,)).fetchone()
+        return None if row is None else row[0]
+
+    def set_meta(self, key: str, value: str) -> None:
+        self._write("INSERT OR REPLACE INTO meta VALUES (?, ?)", (key, value))
+
+    def enroll(
+        self, code: str, index: int, token_hash: str, simulated: Mapping | None = None
+    ) -> None:
+        """A new participant; refused (one line) if the code or the index is taken."""
+        check_participant(code)
+        self._study()
+        try:
+            self._write(
+                "INSERT INTO participants (code, idx, token_hash, enrolled, simulated) "
+                "VALUES (?,?,?,?,?)",
+                (
+                    code,
+                    int(index),
+                    token_hash,
+                    now(),
+                    None if simulated is None else _dump(dict(simulated)),
+                ),
+            )
+        except sqlite3.IntegrityError:
+            if self.participant(code) is not None:
+                raise StudyError(
+                    f"participant {code}: the code is already used in {self.path.name} (a "
+                    "returning participant resumes through their link; a new one needs a "
+                    "new code)"
+                ) from None
+            raise StudyError(f"participant index {index}: already taken") from None
+
+    def participant(self, code: str) -> dict | None:
+        """A participant's row ({code, index, token_hash, enrolled, simulated, withdrawn})."""
+        if not self.has_study():
+            return None
+        with self._lock:
+            row = self._db.execute(
+                "SELECT code, idx, token_hash, enrolled, simulated, withdrawn FROM "
+                "participants WHERE code = ?",
+                (code,),
+            ).fetchone()
+        return None if row is None else _participant(row)
+
+    def participants(self) -> list[dict]:
+        """Every participant, by index."""
+        if not self.has_study():
+            return []
+        with self._lock:
+            rows = self._db.execute(
+                "SELECT code, idx, token_hash, enrolled, simulated, withdrawn FROM "
+                "participants ORDER BY idx"
+            ).fetchall()
+        return [_participant(r) for r in rows]
+
+    def set_token(self, code: str, token_hash: str) -> None:
+        """A new link secret for ``code`` (the old link stops working)."""
+        self._write("UPDATE participants SET token_hash = ? WHERE code = ?", (token_hash, code))
+
+    def withdraw(self, code: str, *, delete: bool = False) -> None:
+        """Withdraw a participant: their rows stay, marked, and leave every analysis; with
+        ``delete`` every row of theirs (sessions, corrections, events, steps, answers) is
+        deleted in one transaction."""
+        if self.participant(code) is None:
+            raise StudyError(f"participant {code}: not in {self.path.name}")
+        if not delete:
+            self._write("UPDATE participants SET withdrawn = ? WHERE code = ?", (now(), code))
+            return
+        with self._lock:
+            db = self._db
+            db.execute("BEGIN IMMEDIATE")
+            try:
+                ids = [
+                    r[0]
+                    for r in db.execute("SELECT id FROM sessions WHERE participant = ?", (code,))
+                ]
+                for sid in ids:
+                    db.execute("DELETE FROM corrections WHERE session_id = ?", (sid,))
+                    db.execute("DELETE FROM events WHERE session_id = ?", (sid,))
+                db.execute("DELETE FROM sessions WHERE participant = ?", (code,))
+                for table in ("answers", "steps"):
+                    db.execute(f"DELETE FROM {table} WHERE code = ?", (code,))
+                # The row stays, emptied, so the code and the index are not given again.
+                db.execute(
+                    "UPDATE participants SET simulated = NULL, withdrawn = ?, token_hash = ? "
+                    "WHERE code = ?",
+                    (now(), f"deleted:{code}", code),
+                )
+                db.execute("COMMIT")
+            except BaseException:
+                db.execute("ROLLBACK")
+                raise
+
+    def steps(self, code: str) -> list[dict]:
+        """The steps ``code`` has begun, by position."""
+        if not self.has_study():
+            return []
+        with self._lock:
+            rows = self._db.execute(
+                "SELECT position, key, started, finished, session_id, aborted FROM steps "
+                "WHERE code = ? ORDER BY position",
+                (code,),
+            ).fetchall()
+        return [
+            {
+                "position": p,
+                "key": k,
+                "started": s,
+                "finished": f,
+                "session_id": sid,
+                "aborted": json.loads(a),
+            }
+            for p, k, s, f, sid, a in rows
+        ]
+
+    def begin_step(self, code: str, position: int, key: str) -> None:
+        """Mark step ``position`` begun (nothing if it is)."""
+        self._write(
+            "INSERT OR IGNORE INTO steps (code, position, key, started) VALUES (?,?,?,?)",
+            (code, position, key, now()),
+        )
+
+    def set_step_session(self, code: str, position: int, session_id: int | None) -> None:
+        self._write(
+            "UPDATE steps SET session_id = ? WHERE code = ? AND position = ?",
+            (session_id, code, position),
+        )
+
+    def abort_step(self, code: str, position: int) -> int | None:
+        """The trial at ``position`` starts over: its session joins the aborted ones."""
+        with self._lock:
+            row = self._db.execute(
+                "SELECT session_id, aborted FROM steps WHERE code = ? AND position = ?",
+                (code, position),
+            ).fetchone()
+        if row is None or row[0] is None:
+            return None
+        aborted = [*json.loads(row[1]), row[0]]
+        self._write(
+            "UPDATE steps SET session_id = NULL, aborted = ? WHERE code = ? AND position = ?",
+            (_dump(aborted), code, position),
+        )
+        return int(row[0])
+
+    def finish_step(
+        self, code: str, position: int, key: str, answers: Mapping[str, Any] | None = None
+    ) -> None:
+        """End step ``position``, with its answers, in one transaction.
+
+        Raises:
+            StudyError: the step has ended already (an answer posted twice), or it was never
+                begun.
+        """
+        with self._lock:
+            db = self._db
+            db.execute("BEGIN IMMEDIATE")
+            try:
+                row = db.execute(
+                    "SELECT finished FROM steps WHERE code = ? AND position = ?", (code, position)
+                ).fetchone()
+                if row is None:
+                    raise StudyError(f"participant {code}: step {key} was never begun")
+                if row[0] is not None:
+                    raise StudyError(
+                        f"participant {code}: step {key} ended at {row[0]}; its answers are "
+                        "kept as first given (posted twice?)"
+                    )
+                at = now()
+                for item, value in (answers or {}).items():
+                    db.execute(
+                        "INSERT INTO answers (code, step, item, value, at) VALUES (?,?,?,?,?)",
+                        (code, key, item, _dump(value), at),
+                    )
+                db.execute(
+                    "UPDATE steps SET finished = ? WHERE code = ? AND position = ?",
+                    (at, code, position),
+                )
+                db.execute("COMMIT")
+            except BaseException:
+                db.execute("ROLLBACK")
+                raise
+
+    def answers(self, code: str | None = None) -> list[dict]:
+        """Every answer (of ``code``, or of everyone), in the order given."""
+        if not self.has_study():
+            return []
+        sql = "SELECT code, step, item, value, at FROM answers"
+        args: tuple = ()
+        if code is not None:
+            sql += " WHERE code = ?"
+            args = (code,)
+        with self._lock:
+            rows = self._db.execute(sql + " ORDER BY at, rowid", args).fetchall()
+        return [
+            {"code": c, "step": s, "item": i, "value": json.loads(v), "at": at}
+            for c, s, i, v, at in rows
+        ]
+
     def labels(self, session_id: int) -> dict[int, dict]:
         """The label of each labelled correction by iteration (the last ``label`` event of
         each iteration: {kind, label, preference}).
@@ -356,3 +619,15 @@ class StudyLog:
         return [
             {"iteration": i, "kind": k, "at": at, "detail": json.loads(d)} for i, k, at, d in rows
         ]
+
+
+def _participant(row) -> dict:
+    code, index, token_hash, enrolled, simulated, withdrawn = row
+    return {
+        "code": code,
+        "index": index,
+        "token_hash": token_hash,
+        "enrolled": enrolled,
+        "simulated": None if simulated is None else json.loads(simulated),
+        "withdrawn": withdrawn,
+    }

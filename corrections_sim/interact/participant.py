@@ -1,0 +1,504 @@
+"""A participant's way through a protocol: the state machine the study page and the
+simulated cohort share.
+
+:class:`StudyRun` holds a protocol (:mod:`corrections_sim.study.protocol`) and its study log;
+it enrolls participants (a code, the next index, a link secret whose SHA-256 alone is logged)
+and finds them again by code or by link. :class:`Participant` knows where one participant is:
+the first step of their protocol that has not finished, read from the log each time, so a
+crash, a reload or a closed tab resumes exactly there. A step moves on only through:
+
+* :meth:`Participant.proceed` — an instructions step read;
+* :meth:`Participant.session` / :meth:`Participant.finish_trial` — a trial's session (a new
+  one, or the one logged for this step resumed from its corrections), ended after the
+  protocol's number of corrections (or the page's "Done");
+* :meth:`Participant.answer` — a questionnaire's answers, checked item by item, written with
+  the step's end in one transaction (a second post is refused, the first kept).
+
+Nothing here draws or plans by itself: a trial is a :class:`~corrections_sim.interact.session.
+Session` like any other, so a study's trials replay and resume like single sessions.
+
+:func:`simulate_participant` takes a simulated participant (θ* drawn from the protocol's
+population) through the very same steps headless: the trials by the study's simulated user
+(:func:`~corrections_sim.interact.session.simulate`), the questionnaires answered from the
+protocol's response model of what they experienced. Their rows say they are simulated.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import hmac
+import json
+import secrets
+import threading
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from corrections_sim import components
+from corrections_sim.interact.log import StudyError, StudyLog, check_participant
+from corrections_sim.interact.session import Session, simulate
+from corrections_sim.learning.base import LEARNERS
+from corrections_sim.people.users import make_user
+from corrections_sim.planning.planner import PlanningError, shared_planner
+from corrections_sim.planning.plans import PlanBook
+from corrections_sim.study.protocol import Protocol, Step, likert_value, tlx_value
+from corrections_sim.study.settings import FigureSettings
+
+
+def token_hash(token: str) -> str:
+    return hashlib.sha256(token.encode()).hexdigest()
+
+
+def trial_seed(protocol: Protocol, index: int, key: str) -> int:
+    """The seed of participant ``index``'s trial ``key`` (its environment draws)."""
+    digest = hashlib.sha256(f"{protocol.seed}/{index}/{key}".encode()).digest()
+    return int.from_bytes(digest[:6], "big")
+
+
+def participant_rng(protocol: Protocol, index: int) -> np.random.Generator:
+    """The generator of simulated participant ``index`` (θ*, answers)."""
+    return np.random.default_rng(np.random.SeedSequence([protocol.seed, 42, index]))
+
+
+@dataclass(frozen=True)
+class Where:
+    """Where a participant is: the step, its position among ``total``, whether withdrawn."""
+
+    code: str
+    index: int
+    position: int
+    total: int
+    step: Step
+    withdrawn: bool
+    session_id: int | None
+
+
+class StudyRun:
+    """A protocol and its study log (see the module). Thread-safe.
+
+    Args:
+        settings_of: the study settings of a condition (name -> FigureSettings), made by the
+            caller (the command line reads the protocol's study file); checked up front.
+    """
+
+    def __init__(
+        self,
+        protocol: Protocol,
+        log: StudyLog,
+        settings_of: Mapping[str, FigureSettings],
+    ) -> None:
+        self.protocol = protocol
+        self.log = log
+        self.settings_of = dict(settings_of)
+        names = [*protocol.names, *([protocol.practice.name] if protocol.practice else [])]
+        missing = [n for n in names if n not in self.settings_of]
+        if missing:
+            raise ValueError(f"condition {missing[0]}: no study settings for it")
+        for name in names:
+            condition = protocol.condition(name)
+            Session.prepare(
+                self.settings_of[name],
+                condition.learner,
+                self.learner_params(name),
+                self.correction(name),
+            )
+        found = log.meta("protocol_sha256")
+        if found is None:
+            log.set_meta("protocol", json.dumps(protocol.source, sort_keys=True))
+            log.set_meta("protocol_sha256", protocol.fingerprint())
+        elif found != protocol.fingerprint():
+            raise ValueError(
+                f"{log.path}: this log belongs to another protocol (SHA-256 {found[:12]}…, "
+                f"this one {protocol.fingerprint()[:12]}…); use a new --db for it"
+            )
+        self._lock = threading.RLock()
+        self._sessions: dict[tuple[str, int], Session] = {}
+
+    # --- conditions ------------------------------------------------------------------------
+
+    def correction(self, name: str) -> str:
+        return "physical" if self.protocol.condition(name).mode == "physical" else "waypoint"
+
+    def learner_params(self, name: str) -> dict | None:
+        """A physical condition's learner takes the ``physical`` model of a push where it
+        takes a model (as ``interact --mode physical``)."""
+        condition = self.protocol.condition(name)
+        if condition.mode != "physical":
+            return None
+        cls = LEARNERS[condition.learner]
+        if "model" not in components.defaults(cls):
+            return None
+        agent = self.settings_of[name].study.learners.get(condition.learner)
+        params = components.params(agent) if agent is not None else {}
+        if "model" in dict(condition.set) or any(
+            k.startswith(f"learners.{condition.learner}.model") for k, _ in condition.set
+        ):
+            return params or None
+        return params | {"model": "physical"}
+
+    # --- participants ----------------------------------------------------------------------
+
+    def enroll(
+        self, code: str, *, simulated: Mapping | None = None, index: int | None = None
+    ) -> tuple[Participant, str]:
+        """A new participant under ``code`` (``index``: the next one by default; a simulated
+        cohort split over workers gives its own) and their link's secret (shown once, never
+        logged). Raises StudyError for a used code."""
+        check_participant(code)
+        with self._lock:
+            if index is None:
+                index = max((p["index"] for p in self.log.participants()), default=-1) + 1
+            token = secrets.token_urlsafe(24)
+            self.log.enroll(code, index, token_hash(token), simulated)
+            return self.participant(code), token
+
+    def participant(self, code: str) -> Participant:
+        row = self.log.participant(code)
+        if row is None:
+            raise StudyError(f"participant {code}: not enrolled in {self.log.path.name}")
+        return Participant(self, row["code"], int(row["index"]))
+
+    def by_token(self, token: str) -> Participant | None:
+        """The participant whose link carries ``token`` (compared in constant time), or None."""
+        if not isinstance(token, str) or not token:
+            return None
+        wanted = token_hash(token)
+        for row in self.log.participants():
+            if hmac.compare_digest(row["token_hash"], wanted) and row["withdrawn"] is None:
+                return Participant(self, row["code"], int(row["index"]))
+        return None
+
+    def new_link(self, code: str) -> str:
+        """A new link secret for ``code``; the old link stops working."""
+        self.participant(code)
+        token = secrets.token_urlsafe(24)
+        self.log.set_token(code, token_hash(token))
+        return token
+
+    def status(self) -> list[Where]:
+        """Where every participant is, by index."""
+        return [self.participant(row["code"]).where() for row in self.log.participants()]
+
+    def withdraw(self, code: str, *, delete: bool = False) -> None:
+        with self._lock:
+            for key in [k for k in self._sessions if k[0] == code]:
+                self._sessions.pop(key)
+            self.log.withdraw(code, delete=delete)
+
+
+class Participant:
+    """One participant of a :class:`StudyRun` (see the module)."""
+
+    def __init__(self, run: StudyRun, code: str, index: int) -> None:
+        self.run = run
+        self.code = code
+        self.index = index
+        self.steps = run.protocol.steps(index)
+        self._felt: dict[int, dict] = {}
+
+    @property
+    def log(self) -> StudyLog:
+        return self.run.log
+
+    def _rows(self) -> dict[int, dict]:
+        return {r["position"]: r for r in self.log.steps(self.code)}
+
+    def position(self) -> int:
+        """The first step not finished (len(steps) - 1 at the end, which never finishes)."""
+        rows = self._rows()
+        for position in range(len(self.steps)):
+            row = rows.get(position)
+            if row is None or row["finished"] is None:
+                return position
+        return len(self.steps) - 1
+
+    def withdrawn(self) -> bool:
+        row = self.log.participant(self.code)
+        return row is None or row["withdrawn"] is not None
+
+    def where(self) -> Where:
+        position = self.position()
+        row = self._rows().get(position)
+        return Where(
+            self.code,
+            self.index,
+            position,
+            len(self.steps),
+            self.steps[position],
+            self.withdrawn(),
+            None if row is None else row["session_id"],
+        )
+
+    def current(self) -> Step:
+        """The step the participant is at (begun in the log when first asked)."""
+        if self.withdrawn():
+            raise StudyError(f"participant {self.code}: withdrawn")
+        position = self.position()
+        step = self.steps[position]
+        self.log.begin_step(self.code, position, step.key)
+        return step
+
+    def _expect(self, kind: str, key: str | None) -> tuple[int, Step]:
+        step = self.current()
+        if step.kind != kind or (key is not None and step.key != key):
+            raise StudyError(
+                f"participant {self.code}: at step {step.key} ({step.kind}), not {key or kind}"
+            )
+        return self.position(), step
+
+    def proceed(self, key: str | None = None) -> Step:
+        """An instructions step read (``key``: the step the page showed; a stale click from
+        another step is refused); the next step."""
+        position, step = self._expect("instructions", key)
+        self.log.finish_step(self.code, position, step.key)
+        return self.current()
+
+    # --- trials ----------------------------------------------------------------------------
+
+    def corrections(self, step: Step) -> int:
+        p = self.run.protocol
+        return p.practice_corrections if step.trial == 0 else p.corrections
+
+    def session(self, key: str | None = None, *, corrector: Any = "person") -> Session:
+        """The session of the current trial step: the one this server holds, the one the log
+        has for it (resumed from its corrections), or a new one."""
+        run = self.run
+        with run._lock:
+            position, step = self._expect("trial", key)
+            held = run._sessions.get((self.code, position))
+            row = self._rows()[position]
+            if held is not None and held.id == row["session_id"]:
+                return held
+            name = step.condition
+            settings = run.settings_of[name]
+            if row["session_id"] is not None:
+                session = Session.resume(self.log, row["session_id"])
+            else:
+                condition = run.protocol.condition(name)
+                session = Session.start(
+                    settings,
+                    self.log,
+                    learner=condition.learner,
+                    params=run.learner_params(name),
+                    correction=run.correction(name),
+                    participant=self.code,
+                    corrector=corrector,
+                    seed=trial_seed(run.protocol, self.index, step.key),
+                )
+                self.log.add_event(
+                    session.id,
+                    -1,
+                    "trial",
+                    {
+                        "step": step.key,
+                        "condition": name,
+                        "trial": step.trial,
+                        "position": position,
+                    },
+                )
+                self.log.set_step_session(self.code, position, session.id)
+            run._sessions[(self.code, position)] = session
+            return session
+
+    def trial_over(self, session: Session) -> bool:
+        """The trial has its corrections (or its session ended)."""
+        step = self.steps[self.position()]
+        return session.ended or session.iteration >= self.corrections(step)
+
+    def finish_trial(self, key: str | None = None) -> Step:
+        """End the current trial (its session is finished first if it is not); the next step.
+
+        Raises:
+            StudyError: not at a trial, or the trial lacks corrections and its session is
+                still open.
+        """
+        run = self.run
+        with run._lock:
+            position, step = self._expect("trial", key)
+            session = self.session(step.key)
+            if not session.ended:
+                if session.iteration < self.corrections(step):
+                    raise StudyError(
+                        f"participant {self.code}: trial {step.key} has {session.iteration} "
+                        f"of {self.corrections(step)} corrections"
+                    )
+                session.finish()
+            self.log.finish_step(self.code, position, step.key)
+            run._sessions.pop((self.code, position), None)
+        return self.current()
+
+    def abort_trial(self) -> int | None:
+        """The experimenter aborts the current trial: its session ends (kept, marked aborted
+        and left out of every analysis) and the trial starts over with a new one."""
+        run = self.run
+        with run._lock:
+            position, step = self._expect("trial", None)
+            held = run._sessions.pop((self.code, position), None)
+            aborted = self.log.abort_step(self.code, position)
+            if aborted is not None:
+                self.log.add_event(aborted, -1, "aborted", {"step": step.key})
+                if held is None or not held.ended:
+                    self.log.end_session(aborted)
+                if held is not None:
+                    held.ended = True
+            return aborted
+
+    def trial_sessions(self, condition: str | None = None) -> list[tuple[Step, int]]:
+        """(step, session id) of every finished trial (of ``condition``), aborted ones not."""
+        rows = self._rows()
+        out = []
+        for position, step in enumerate(self.steps):
+            row = rows.get(position)
+            if step.kind != "trial" or row is None or row["finished"] is None:
+                continue
+            if step.trial == 0 or (condition is not None and step.condition != condition):
+                continue
+            out.append((step, int(row["session_id"])))
+        return out
+
+    def experienced(self, theta_star, condition: str | None = None) -> dict:
+        """The mean over the finished trials (of ``condition``) of :func:`experienced`."""
+        theta_star = np.asarray(theta_star, float)
+        felt = []
+        for step, sid in self.trial_sessions(condition):
+            if sid not in self._felt:
+                logged = self.log.events(sid, "experienced")
+                if logged:
+                    self._felt[sid] = logged[-1]["detail"]
+                else:
+                    settings = self.run.settings_of[step.condition]
+                    rows = self.log.corrections(sid)
+                    self._felt[sid] = experienced(settings, rows, theta_star)
+                    # Kept beside the trial: the analysis reads the very numbers the
+                    # simulated answers came from (a person's are computed there).
+                    self.log.add_event(sid, len(rows), "experienced", self._felt[sid])
+            felt.append(self._felt[sid])
+        if not felt:
+            return {"regret": 0.0, "error": 0.0}
+        return {m: float(np.nanmean([f[m] for f in felt])) for m in ("regret", "error")}
+
+    # --- questionnaires --------------------------------------------------------------------
+
+    def answer(self, answers: Mapping[str, Any], key: str | None = None) -> Step:
+        """The current questionnaire's answers (item -> value; a TLX's items are
+        ``id.scale``), checked and logged with the step's end; the next step.
+
+        Raises:
+            StudyError: not at a questionnaire, or it was answered already.
+            ValueError: an unknown item, a missing required one, or a value off its scale.
+        """
+        position, step = self._expect("questions", key)
+        by_item = {item: q for q in step.questions for item in q.items()}
+        unknown = [item for item in answers if item not in by_item]
+        if unknown:
+            raise ValueError(f"{unknown[0]}: not an item of {step.key}")
+        checked = {}
+        for item, question in by_item.items():
+            value = answers.get(item)
+            if value is None or value == "":
+                if question.required:
+                    raise ValueError(f"{item}: not answered (required)")
+                continue
+            checked[item] = question.check_answer(item, value)
+        self.log.finish_step(self.code, position, step.key, checked)
+        return self.current()
+
+
+# --- a simulated participant -------------------------------------------------------------
+
+
+def draw_simulated(protocol: Protocol, index: int, k: int) -> dict:
+    """Simulated participant ``index``'s θ* (k,) and user, from the protocol's population."""
+    sim = protocol.simulation
+    if sim is None:
+        raise ValueError("simulation: the protocol states no simulated population")
+    if len(sim.mean) != k:
+        raise ValueError(f"simulation.mean: expected {k} weights (the study's features)")
+    rng = participant_rng(protocol, index)
+    theta = np.asarray(sim.mean) + np.asarray(sim.sd) * rng.standard_normal(k)
+    return {"theta_star": theta.tolist(), "user": sim.user, "simulated": True}
+
+
+def experienced(settings: FigureSettings, rows: list[dict], theta_star: np.ndarray) -> dict:
+    """What a participant with preference ``theta_star`` experienced in a trial (its logged
+    ``rows``): the mean regret θ*·(Φ* − Φᵗ) of the plans shown (Φ* of their own optimal plan
+    in each environment) and the final error ‖θ̂ − θ*‖₁ / ‖θ*‖₁."""
+    book = PlanBook(shared_planner(settings.planner_config()))
+    envs = settings.envs()
+    regrets = []
+    for row in rows:
+        env = envs[int(row["env_index"])]
+        try:
+            best = book.plan(theta_star, env).features
+        except PlanningError:
+            continue
+        regrets.append(float(theta_star @ (best - np.asarray(row["phi_robot"]))))
+    theta = rows[-1]["theta_after"] if rows else np.zeros_like(theta_star)
+    scale = max(float(np.sum(np.abs(theta_star))), 1e-12)
+    error = float(np.sum(np.abs(np.asarray(theta) - theta_star)) / scale)
+    return {"regret": float(np.mean(regrets)) if regrets else float("nan"), "error": error}
+
+
+def simulated_answers(protocol: Protocol, step: Step, felt: dict, rng) -> dict:
+    """A simulated questionnaire from the protocol's response model (see
+    :class:`~corrections_sim.study.protocol.Response`); text items say they are simulated."""
+    answers: dict[str, Any] = {}
+    for q in step.questions:
+        response = protocol.simulation.response(q.id)
+        measure = felt.get(response.measure, 0.0)
+        if not np.isfinite(measure):
+            measure = 0.0
+        if q.kind == "likert":
+            answers[q.id] = likert_value(response, measure, q.points, rng)
+        elif q.kind == "tlx":
+            for item in q.items():
+                answers[item] = tlx_value(response, measure, rng)
+        else:
+            answers[q.id] = "(simulated participant)"
+    return answers
+
+
+def simulate_participant(run: StudyRun, code: str, index: int | None = None) -> Participant:
+    """Enroll simulated participant ``code`` (``index``: the next by default) and take them
+    through the whole protocol (see the module); one enrolled before resumes where they are."""
+    protocol = run.protocol
+    if run.log.participant(code) is None:
+        if index is None:
+            index = max((p["index"] for p in run.log.participants()), default=-1) + 1
+        any_settings = next(iter(run.settings_of.values()))
+        drawn = draw_simulated(protocol, index, any_settings.study.k)
+        person, _ = run.enroll(code, simulated=drawn, index=index)
+    else:
+        person = run.participant(code)
+        drawn = run.log.participant(code)["simulated"]
+        if drawn is None:
+            raise StudyError(f"participant {code}: a person, not a simulated participant")
+    theta = np.asarray(drawn["theta_star"], float)
+    user = (
+        make_user(drawn["user"])
+        if isinstance(drawn["user"], str)
+        else make_user(
+            drawn["user"]["name"], {k: v for k, v in drawn["user"].items() if k != "name"}
+        )
+    )
+    rng = participant_rng(protocol, person.index)
+    rng.standard_normal(len(theta))  # the draw of θ* (draw_simulated's)
+    while True:
+        step = person.current()
+        if step.kind == "end":
+            return person
+        if step.kind == "instructions":
+            person.proceed(step.key)
+        elif step.kind == "trial":
+            session = person.session(step.key, corrector={"simulated": True, **drawn})
+            left = person.corrections(step) - session.iteration
+            if left > 0:
+                simulate(session, user, theta, left)
+            person.finish_trial(step.key)
+        elif step.kind == "questions":
+            # What they experienced in the condition's trials (all conditions at the end),
+            # read back from the log: a participant resumed after a crash answers the same.
+            felt = person.experienced(theta, step.condition)
+            person.answer(simulated_answers(protocol, step, felt, rng), step.key)
