@@ -403,7 +403,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         "per correction (seconds, planner solves). 'learnt': training a learnt feature, "
         "planning with it against the hand-written feature it imitates, a new one's cost. "
         "'confidence': the iterated and particle learners' cost per correction against "
-        "KF-C's in figs. 4 and 5 (CPU seconds, planner solves).",
+        "KF-C's in figs. 4 and 5 (CPU seconds, planner solves). 'study': several participants "
+        "at once on one study server (scripted websocket clients submitting together): "
+        "server submit -> next plan, and each one's isolation.",
     )
     parser.add_argument(
         "what",
@@ -416,6 +418,7 @@ def main(argv: Sequence[str] | None = None) -> None:
             "relevance",
             "learnt",
             "confidence",
+            "study",
         ],
         help="which benchmark to run",
     )
@@ -574,6 +577,15 @@ def main(argv: Sequence[str] | None = None) -> None:
         if n < 2:
             parser.error("--problems: learnt takes >= 2 problems (default 24)")
         print("\n".join(run_learnt(n, 0 if args.seed is None else args.seed, args.build)))
+        return
+    if args.what == "study":
+        from benchmarks.bench_study import report, run
+
+        learner = (args.learners or "KF-CL").split(",")[0]
+        corrections = 6 if args.problems is None else args.problems
+        if corrections < 1:
+            parser.error("--problems: study takes the corrections per participant, >= 1")
+        print("\n".join(report(run(4, corrections, learner))), flush=True)
         return
     if args.what == "confidence":
         from benchmarks.bench_confidence import run_bench as run_confidence

@@ -28,7 +28,7 @@ def test_every_figure_has_the_protocol(name):
     for method in ("load", "folder", "cache_keys", "recorded", "run", "write"):
         assert callable(getattr(figure, method)), method
     assert figure.name == name and figure.help and figure.unit in ("run", "task")
-    assert set(figure.options) <= {a.dest for a in cli.parser()._actions}
+    assert set(figure.options) <= {a.dest for a in cli.catalogue()._actions}
     if name != "study":
         settings = figure.load(quick=True, overrides={})
         assert figure.folder(settings) == name

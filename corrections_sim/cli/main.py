@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import copy
 import json
 import os
 import re
@@ -30,7 +31,8 @@ from pathlib import Path
 import numpy as np
 
 from corrections_sim import provenance
-from corrections_sim.cli import output_folder
+from corrections_sim.cli import output_folder, study_commands
+from corrections_sim.cli.errors import UsageError
 from corrections_sim.cli.executors import (
     Interrupted,
     check_scheduler_address,
@@ -45,10 +47,6 @@ from corrections_sim.cli.executors import (
 SCHEDULER_TIMEOUT_S = 5
 #: New process pools to try when a worker process dies mid-run (finished runs are kept).
 WORKER_DEATH_RETRIES = 2
-
-
-class UsageError(Exception):
-    """Bad input from the command line: printed as one line, exit status 2."""
 
 
 def _out(args: argparse.Namespace) -> Path:
@@ -244,6 +242,18 @@ def _matrix(text: str) -> tuple[tuple[float, ...], ...]:
             f"{text!r}: expected a square matrix, rows separated by ';'"
         )
     return tuple(rows)
+
+
+def _counts(text: str) -> tuple[int, ...]:
+    try:
+        values = tuple(int(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected whole numbers like 4,8,12, got {text!r}"
+        ) from None
+    if not values or any(v < 1 for v in values):
+        raise argparse.ArgumentTypeError(f"expected whole numbers >= 1, got {text!r}")
+    return values
 
 
 def _names(text: str) -> tuple[str, ...]:
@@ -755,6 +765,23 @@ TOOLS: dict[str, tuple[Callable[[argparse.Namespace], list[Path]], str]] = {
     "video": (run_video, "animate corrections of a recorded fig4/fig5 run (MP4 or GIF)"),
     "interact": (run_interact, "a person corrects the robot in a browser page (or --headless)"),
     "replay": (run_replay, "replay a logged session (FILE: the database) through learners"),
+    "serve-study": (
+        study_commands.run_serve_study,
+        "serve a protocol's study to several participants at once, with the experimenter's page",
+    ),
+    "study-status": (study_commands.run_study_status, "who is where in a study log"),
+    "analyze": (
+        study_commands.run_analyze,
+        "a study log's tidy CSVs, mixed model, paired comparisons, plots and report",
+    ),
+    "pilot": (
+        study_commands.run_pilot,
+        "simulated participants through a protocol, then its analysis",
+    ),
+    "power": (
+        study_commands.run_power,
+        "the power to detect a protocol's condition effect, from simulated studies",
+    ),
 }
 #: The options each tool takes; a figure takes the common ones and its own ``options``.
 TOOL_OPTIONS: dict[str, tuple[str, ...]] = {
@@ -782,6 +809,11 @@ TOOL_OPTIONS: dict[str, tuple[str, ...]] = {
         "cov0",
     ),
     "replay": ("study_file", "out", "session", "learners", "set"),
+    "serve-study": ("study_file", "db", "host", "port", "speed", "enroll"),
+    "study-status": ("db",),
+    "analyze": ("study_file", "out"),
+    "pilot": ("study_file", "out", "db", "participants"),
+    "power": ("study_file", "out", "pool", "sizes", "outcome", "workers"),
 }
 
 
@@ -799,24 +831,10 @@ def applies(command: str) -> tuple[str, ...]:
 
 
 def command_help(command: str) -> str:
-    """``COMMAND --help``: the command's own options only (every option is in ``--help``)."""
+    """``COMMAND --help``: the command's own options only."""
     p = parser()
-    allowed = {"help", "figure", *applies(command)}
-    for group in p._action_groups:
-        group._group_actions = [a for a in group._group_actions if a.dest in allowed]
-    p._action_groups = [g for g in p._action_groups if g._group_actions]
-    p._actions = [a for a in p._actions if a.dest in allowed]
-    figures = _figures()
-    what = figures[command].help if command in figures else TOOLS[command][1]
-    p.prog = f"python -m corrections_sim.run {command}"
-    p.description = f"{command}: {what}. The options below are the ones it takes."
-    for action in p._actions:
-        if action.dest == "figure":
-            action.help = f"{command} (python -m corrections_sim.run --help lists every command)"
-            action.choices = [command]
-        elif (command, action.dest) in _COMMAND_HELP:
-            action.help = _COMMAND_HELP[command, action.dest]
-    return p.format_help()
+    sub = next(a for a in p._actions if isinstance(a, argparse._SubParsersAction))
+    return sub.choices[command].format_help()
 
 
 #: An option's help where one command reads it otherwise than the others do.
@@ -829,6 +847,19 @@ _COMMAND_HELP = {
     ("replay", "learners"): "which learners to replay, any registered ones (default "
     "PP,KF,KF-C,BP and the session's own); their parameters are the session's",
     ("interact", "learner"): "who learns (default KF-CL)",
+    ("serve-study", "study_file"): "the protocol (TOML; experiments/protocol.toml)",
+    ("pilot", "study_file"): "the protocol (TOML) with its [simulation] population",
+    ("power", "study_file"): "the protocol (TOML) with its [simulation] population",
+    ("analyze", "study_file"): "the study log (SQLite) a protocol's study wrote",
+    ("serve-study", "db"): "the study log (default results/study/study.sqlite; a log "
+    "belongs to one protocol)",
+    ("study-status", "db"): "the study log (default results/study/study.sqlite)",
+    ("pilot", "db"): "the pilot's log (default OUT/study.sqlite)",
+    ("analyze", "out"): "where the tables, plots and report go (default: LOG's folder/analysis)",
+    ("pilot", "out"): "the pilot's folder (default results/pilot)",
+    ("power", "out"): "the power analysis' folder (default results/power; the pool's logs "
+    "in OUT/.pool, resumable)",
+    ("power", "workers"): "worker processes simulating the pool (default 2)",
     ("video", "learner"): "whose run to show (default KF)",
 }
 
@@ -882,35 +913,21 @@ class _Parser(argparse.ArgumentParser):
         return super()._parse_optional(arg_string)
 
 
-def parser() -> argparse.ArgumentParser:
+def catalogue() -> argparse.ArgumentParser:
+    """Every option of every command, once (each command's parser takes its own from here,
+    :func:`parser`)."""
     # Imported here, not at the top: they load the planner's stack (CasADi, MuJoCo, pinocchio),
     # and main() has its interrupt handlers in place by the time this runs.
     from corrections_sim.learning.base import LEARNERS
     from corrections_sim.people.corrections import CORRECTIONS
     from corrections_sim.people.users import USERS
 
-    figures = _figures()
-    commands = {**{n: f.help for n, f in figures.items()}, **{n: t[1] for n, t in TOOLS.items()}}
-
-    p = _Parser(
-        prog="python -m corrections_sim.run",
-        description="Reproduce a figure of Losey & O'Malley (CoRL 2018) headless. "
-        "Figures 4-6 and study files are resumable: finished runs are kept in OUT/.runs/<figure>/ "
-        "(keyed by a hash of the settings and the code) and an interrupted command, run "
-        "again, only computes what is missing. Ctrl-C or SIGTERM stops the command within "
-        "seconds (exit status 130). A figure folder made with other settings or another "
-        "preset is replaced only with --force.",
-    )
-    p.add_argument(
-        "figure",
-        choices=sorted(commands),
-        help="what to produce: " + "; ".join(f"{k}: {v}" for k, v in commands.items()),
-    )
+    p = _Parser(prog="python -m corrections_sim.run", allow_abbrev=False)
     p.add_argument(
         "study_file",
         nargs="?",
         metavar="FILE",
-        help="for 'study': the study file (TOML; see README, and experiments/ for examples)",
+        help="the study file (TOML; see README, and experiments/ for examples)",
     )
     p.add_argument(
         "--out",
@@ -1053,6 +1070,29 @@ def parser() -> argparse.ArgumentParser:
         "seeded order; the page says which, the log keeps the label",
     )
     i.add_argument("--session", type=int, help="for replay: which session (default the last)")
+    u = p.add_argument_group("a user study from a protocol")
+    u.add_argument(
+        "--enroll",
+        metavar="CODE,CODE",
+        help="enroll these participant codes (pseudonyms) and print each one's link",
+    )
+    u.add_argument("--participants", type=_positive_int, help="simulated participants (default 12)")
+    u.add_argument(
+        "--pool",
+        type=_positive_int,
+        help="simulated participants to cut into studies (default 2400: 200 studies of 12)",
+    )
+    u.add_argument(
+        "--sizes",
+        type=_counts,
+        metavar="N,N",
+        help="study sizes to measure the power at (default 4,8,12,16,24,32,48)",
+    )
+    u.add_argument(
+        "--outcome",
+        help="the outcome to power for: final_error, mean_regret, seconds (default: the "
+        "protocol's primary)",
+    )
     x = p.add_argument_group("where the runs execute")
     x.add_argument(
         "--workers",
@@ -1065,6 +1105,89 @@ def parser() -> argparse.ArgumentParser:
         help="run on an existing Dask cluster instead of local processes",
     )
     return p
+
+
+def parser() -> argparse.ArgumentParser:
+    """The command line: one subcommand per figure and tool, each with its own options
+    (from :func:`catalogue`), help and errors."""
+    flat = catalogue()
+    figures = _figures()
+    commands = {**{n: f.help for n, f in figures.items()}, **{n: t[1] for n, t in TOOLS.items()}}
+    p = _Parser(
+        prog="python -m corrections_sim.run",
+        allow_abbrev=False,
+        description="Reproduce a figure of Losey & O'Malley (CoRL 2018) headless, or run a "
+        "user study. Figures 4-6 and study files are resumable: finished runs are kept in "
+        "OUT/.runs/<figure>/ (keyed by a hash of the settings and the code) and an "
+        "interrupted command, run again, only computes what is missing. Ctrl-C or SIGTERM "
+        "stops the command within seconds (exit status 130). A figure folder made with other "
+        "settings or another preset is replaced only with --force. "
+        "COMMAND --help lists the command's own options.",
+    )
+    sub = p.add_subparsers(
+        dest="figure", metavar="COMMAND", title="commands", parser_class=_Parser, required=True
+    )
+    every = [a for a in flat._actions if a.dest != "help"]
+    for name, what in commands.items():
+        allowed = set(applies(name))
+        sp = sub.add_parser(
+            name,
+            help=what,
+            description=f"{name}: {what}.",
+            prog=f"python -m corrections_sim.run {name}",
+            allow_abbrev=False,
+        )
+        groups: dict[str, argparse._ArgumentGroup] = {}
+        for group in flat._action_groups:
+            for action in group._group_actions:
+                if action.dest not in allowed:
+                    continue
+                mine = copy.copy(action)
+                mine.help = _COMMAND_HELP.get((name, action.dest), action.help)
+                if action.dest == "study_file":
+                    mine.metavar = _FILE.get(name, "FILE")
+                    sp._add_action(mine)
+                    continue
+                title = group.title if group.title == "where the runs execute" else "options"
+                if title not in groups:
+                    groups[title] = (
+                        sp._optionals if title == "options" else sp.add_argument_group(title)
+                    )
+                groups[title]._add_action(mine)
+        # Options of other commands read as unset, as the code that reads them expects.
+        sp.set_defaults(**{a.dest: a.default for a in every if a.dest not in allowed})
+    return p
+
+
+#: What FILE is, by command.
+_FILE = {
+    "analyze": "LOG",
+    "replay": "LOG",
+    "serve-study": "PROTOCOL",
+    "pilot": "PROTOCOL",
+    "power": "PROTOCOL",
+}
+
+
+def _parse(given: Sequence[str]) -> argparse.Namespace:
+    """``given`` parsed by its command's parser; an option of another command is refused in
+    one line that says which options the command takes."""
+    p = parser()
+    args, extra = p.parse_known_args(given)
+    if extra:
+        token = extra[0]
+        allowed = applies(args.figure)
+        takes = ", ".join(_label(n) for n in allowed)
+        if token.startswith("-"):
+            option = token.split("=")[0]
+            known = {o for a in catalogue()._actions for o in a.option_strings}
+            if option in known:
+                raise UsageError(f"{option}: does not apply to {args.figure} (it takes {takes})")
+            raise UsageError(f"{option}: no such option of {args.figure} (it takes {takes})")
+        if "study_file" not in allowed:
+            raise UsageError(f"FILE: does not apply to {args.figure} (it takes {takes})")
+        raise UsageError(f"{token}: an argument {args.figure} does not take (it takes {takes})")
+    return args
 
 
 def _nothing_kept(args: argparse.Namespace | None) -> str:
@@ -1093,7 +1216,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             if command is not None:
                 print(command_help(command), end="")
                 return 0
-            args = parser().parse_args(given)
+            args = _parse(given)
             args.argv = given
             _check_applies(args)
             figures = _figures()

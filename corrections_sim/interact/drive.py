@@ -215,6 +215,30 @@ def set_number(tab, index: int, value: float) -> None:
     box.press("Enter")
 
 
+def _shown(tab, selector: str, index: int):
+    """The ``index``-th element matching ``selector`` that the page lays out, once there is
+    one (viser has inputs of its own: hidden ones, and the server's address, ws://…)."""
+    script = (
+        "s => Array.from(document.querySelectorAll(s)).filter(e => e.offsetParent !== null"
+        " && !/^wss?:/.test(e.value)).map(e => e.id)"
+    )
+    ids = wait_for(lambda: (found := tab.evaluate(script, selector))[index:] and found, selector)
+    return tab.locator(f"[id='{ids[index]}']")
+
+
+def fill_text(tab, index: int, text: str) -> None:
+    """Type ``text`` into the page's ``index``-th shown text box (in order)."""
+    box = _shown(tab, "input.mantine-TextInput-input", index)
+    box.fill(text)
+    box.press("Enter")
+
+
+def choose(tab, index: int, option: str) -> None:
+    """Pick ``option`` (the start of its text) in the page's ``index``-th shown drop-down."""
+    _shown(tab, "input.mantine-Select-input", index).click()
+    tab.get_by_role("option", name=option).first.click()
+
+
 class SocketTab:
     """A tab without a browser: a websocket that speaks just enough of viser's protocol (the
     viewer's camera, which is when viser counts a client as connected) and drains whatever

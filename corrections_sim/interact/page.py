@@ -63,6 +63,8 @@ MESH_MATERIAL = "toon5"
 MAP_GRID = (28, 18)
 MAP_HEIGHT = 0.25
 TRACE_STATES = 20
+#: pyplot is not safe from two threads at once (several participants' pages on one server).
+_DRAWING = threading.Lock()
 #: How far (m) the cup must move for a recorded handle position to count.
 TRACE_STEP = 0.005
 
@@ -163,6 +165,11 @@ def draw_path(scene, name: str, trajectory: np.ndarray, rgb) -> None:
 def render_belief(theta: np.ndarray, cov: np.ndarray | None, features, stated=None) -> np.ndarray:
     """θ̂ with its uncertainty: the 1σ and 2σ ellipses for k = 2, bars with ±σ otherwise; an
     RGB image (H, W, 3) straight from the canvas (no PNG in between: the page encodes it)."""
+    with _DRAWING:
+        return _render_belief(theta, cov, features, stated)
+
+
+def _render_belief(theta, cov, features, stated) -> np.ndarray:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -214,9 +221,28 @@ def relevance_note(row: dict) -> str:
 class Page:
     """The page of one session on a viser server (see the module)."""
 
-    def __init__(self, server, session: Session):
+    def __init__(
+        self,
+        server,
+        session: Session,
+        *,
+        attach: bool = True,
+        limit: int | None = None,
+        on_end: Callable[[], None] | None = None,
+        blind: bool = False,
+    ):
+        """``attach``: the page takes the server's connections (a study's server hands each
+        participant's tab to their page itself, :meth:`connect`); ``limit``: the session ends
+        (as "Done") after this many corrections, a study's trial; ``on_end``: called once the
+        end is on the page; ``blind``: the page does not name the learner (a study's
+        participant is blind to the condition)."""
+        self.blind = blind
         self.server = server
         self.session = session
+        self.limit = limit
+        self.on_end = on_end
+        #: The page has left its tab (a study moved on to its next step): no more drawing.
+        self.closed = False
         self.owner = None
         self.client = None
         self._lock = threading.RLock()
@@ -256,8 +282,23 @@ class Page:
         server.initial_camera.look_at = CAMERA_LOOK_AT
         server.initial_camera.up = (0.0, 0.0, 1.0)
         server.initial_camera.fov = CAMERA_FOV
-        server.on_client_connect(self._connect)
-        server.on_client_disconnect(self._disconnect)
+        if attach:
+            server.on_client_connect(self._connect)
+            server.on_client_disconnect(self._disconnect)
+
+    def connect(self, client) -> None:
+        """Show the page on ``client`` (a study's server, which chose the tab)."""
+        self._connect(client)
+
+    def disconnect(self, client) -> None:
+        self._disconnect(client)
+
+    def close(self) -> None:
+        """Leave the tab to whoever draws on it next (nothing of this page is drawn again)."""
+        with self._lock:
+            self.closed = True
+            self.client = None
+            self.owner = None
 
     # --- clients ---------------------------------------------------------------------------
 
@@ -347,6 +388,8 @@ class Page:
         is solved)."""
         if self.session.ended:
             self._show_end()
+            if self.on_end is not None:
+                self.on_end()
             return
         if self.session.wanted > len(self.session.traces) and not self.session.physical:
             self._start_teaching()  # the physical page does not teach (not built)
@@ -377,7 +420,7 @@ class Page:
 
     def _say(self, text: str) -> None:
         self.last_message = text
-        if self.client is not None:
+        if self.client is not None and not self.closed:
             self.status.content = text
 
     def _pose_arm(self, q: np.ndarray, *, moving_only: bool = False) -> None:
@@ -420,7 +463,7 @@ class Page:
 
     def _refresh(self) -> None:
         """Enable what works now, disable the rest (see :meth:`_controls`)."""
-        if self.client is None:
+        if self.client is None or self.closed:
             return
         for control, works in self._controls():
             control.disabled = not works
@@ -481,8 +524,12 @@ class Page:
         k = s.iteration
         self.title.content = (
             f"### Correction {k + 1}: environment {self.proposal.env.name}\n"
-            f"Learner **{s.learner}**, correction model **{s.correction_name}**. "
-            "Drag the arrows on the cup to move it at the chosen waypoint, then submit."
+            + (
+                ""
+                if self.blind
+                else f"Learner **{s.learner}**, correction model **{s.correction_name}**. "
+            )
+            + "Drag the arrows on the cup to move it at the chosen waypoint, then submit."
             + self._ask_line()
         )
         if self._clicked is not None:  # set before the title can reach a reader of the page
@@ -628,6 +675,10 @@ class Page:
         self.corrected = None
         self._busy = "planning"
         self._clicked = t0
+        if self.limit is not None and self.session.iteration >= self.limit:
+            self.submitted += 1
+            self._done()  # the trial has its corrections
+            return
         if self.session.wanted:
             self._start_teaching()
         else:
@@ -825,12 +876,15 @@ class Page:
         self.deployment = s.finish()
         self._show_end()
         self.finished.set()
+        if self.on_end is not None:
+            self.on_end()
 
     def _ended_text(self) -> str:
         s, deployment = self.session, self.deployment
         done = f"Session ended after {s.iteration} {plural(s.iteration, 'correction')}."
         if deployment is None:
-            why = "no plan to deploy" if s.has_covariance else f"{s.learner} has no covariance"
+            learner = "the robot" if self.blind else s.learner
+            why = "no plan to deploy" if s.has_covariance else f"{learner} has no covariance"
             return f"**{done}** Nothing deployed ({why}). You may close this tab."
         f = s.features
 

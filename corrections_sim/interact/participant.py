@@ -114,6 +114,8 @@ class StudyRun:
                 f"this one {protocol.fingerprint()[:12]}…); use a new --db for it"
             )
         self._lock = threading.RLock()
+        #: Every session of this run plans under it (see Session's ``lock``).
+        self.planning = threading.RLock()
         self._sessions: dict[tuple[str, int], Session] = {}
 
     # --- conditions ------------------------------------------------------------------------
@@ -274,7 +276,7 @@ class Participant:
             name = step.condition
             settings = run.settings_of[name]
             if row["session_id"] is not None:
-                session = Session.resume(self.log, row["session_id"])
+                session = Session.resume(self.log, row["session_id"], lock=run.planning)
             else:
                 condition = run.protocol.condition(name)
                 session = Session.start(
@@ -286,6 +288,7 @@ class Participant:
                     participant=self.code,
                     corrector=corrector,
                     seed=trial_seed(run.protocol, self.index, step.key),
+                    lock=run.planning,
                 )
                 self.log.add_event(
                     session.id,

@@ -75,6 +75,7 @@ class PhysicalPage(Page):
         stiffness: float = 300.0,
         force_cap: float = 30.0,
         duration: float = 5.0,
+        **options,
     ) -> None:
         self.speed = float(speed)
         self.stiffness = float(stiffness)
@@ -95,7 +96,7 @@ class PhysicalPage(Page):
         self._in_motion = False
         self._force_shown = False
         self._force_line = None
-        super().__init__(server, session)
+        super().__init__(server, session, **options)
 
     def _connect(self, client) -> None:
         runner = self._runner
@@ -150,7 +151,8 @@ class PhysicalPage(Page):
         self.where.content = ""  # the last push's time and force belong to the last plan
         self.title.content = (
             f"### Push {s.iteration + 1}: environment {self.proposal.env.name}\n"
-            f"Learner **{s.learner}**. Press Play; while the arm moves, drag the arrows of the "
+            + ("" if self.blind else f"Learner **{s.learner}**. ")
+            + "Press Play; while the arm moves, drag the arrows of the "
             f"cup's handle to push the cup (a spring, at most {self.force_cap:.0f} N); let go "
             "and the robot learns and replans." + self._ask_line()
         )
@@ -267,6 +269,9 @@ class PhysicalPage(Page):
             self._put_handle(motion.cup())
             self.where.content = ""
             self._say("No push was felt. Play again, or skip this environment.")
+            return
+        if self.limit is not None and self.session.iteration >= self.limit:
+            self._done()  # a study's trial has its pushes
             return
         self._new_proposal()
         self._say(

@@ -118,21 +118,35 @@ def stop(server) -> None:
         server.stop()
 
 
-def show(server, session: Session, *, speed: float = 1.0) -> Page:
-    """``session``'s page on ``server``: a physical session's page plays its motions at
-    ``speed`` (simulated seconds per real second)."""
+def configure(server) -> None:
+    """The page's theme and lights on ``server`` (every tab's)."""
     server.gui.configure_theme(control_width="large", show_share_button=False)
     server.gui.main_panel.dock_right()
     # No shadow maps: a second render pass per light that people rarely miss in this scene and
     # that chromium's software WebGL pays at every frame (5 → 9.7 frames/s during a motion).
     server.scene.configure_default_lights(enabled=True, cast_shadow=False)
+
+
+def make_page(server, session: Session, *, speed: float = 1.0, **options) -> Page:
+    """The page that shows ``session`` (the physical one for a physical session)."""
     if session.physical:
         model = session.correction
-        page: Page = PhysicalPage(
-            server, session, speed=speed, stiffness=model.stiffness, force_cap=model.force_cap
+        return PhysicalPage(
+            server,
+            session,
+            speed=speed,
+            stiffness=model.stiffness,
+            force_cap=model.force_cap,
+            **options,
         )
-    else:
-        page = Page(server, session)
+    return Page(server, session, **options)
+
+
+def show(server, session: Session, *, speed: float = 1.0) -> Page:
+    """``session``'s page on ``server``: a physical session's page plays its motions at
+    ``speed`` (simulated seconds per real second)."""
+    configure(server)
+    page = make_page(server, session, speed=speed)
     # How the session is shown, so that --resume plays a physical session at its speed.
     mode = "physical" if session.physical else "drag"
     detail = {"mode": mode, "speed": float(speed), "port": int(server.get_port())}

@@ -175,6 +175,7 @@ class Session:
         seed: int,
         *,
         planner: Planner | None = None,
+        lock: threading.RLock | None = None,
     ) -> None:
         cls = LEARNERS[learner]
         self.settings = settings
@@ -221,7 +222,10 @@ class Session:
         self.traces: list[np.ndarray] = []
         #: the environment of the last correction (where traces are given)
         self.last_env: int | None = None
-        self._lock = threading.RLock()
+        # Sessions served side by side in one process (a study's participants) share one:
+        # the planner, its collision checker and CasADi's function building are not safe
+        # to use from two threads at once (a segfault, measured).
+        self._lock = lock or threading.RLock()
 
     # --- making one ------------------------------------------------------------------------
 
@@ -240,6 +244,7 @@ class Session:
         planner: Planner | None = None,
         asks: list[str] | None = None,
         preference=None,
+        lock: threading.RLock | None = None,
     ) -> Session:
         """A new session, logged in ``log`` (its row is written first). ``asks``: the kinds
         of correction (:data:`ASK_KINDS`) to ask the person for, one per correction from the
@@ -271,7 +276,9 @@ class Session:
         asked = {"kinds": asks, "preference": preference.tolist()} if asks else None
         if asked:
             log.add_event(session_id, -1, "asks", asked)
-        session = cls(settings, learner, agent, model, log, session_id, seed, planner=planner)
+        session = cls(
+            settings, learner, agent, model, log, session_id, seed, planner=planner, lock=lock
+        )
         session._set_asks(asked)
         return session
 
@@ -313,7 +320,14 @@ class Session:
         return agent, model
 
     @classmethod
-    def resume(cls, log: StudyLog, session_id: int, *, planner: Planner | None = None) -> Session:
+    def resume(
+        cls,
+        log: StudyLog,
+        session_id: int,
+        *,
+        planner: Planner | None = None,
+        lock: threading.RLock | None = None,
+    ) -> Session:
         """Session ``session_id`` of ``log``, continued after its last confirmed correction.
 
         Raises:
@@ -328,7 +342,15 @@ class Session:
         agent = build_learner(settings, row.learner, row.learner_params)
         model = build_correction(row.correction)
         session = cls(
-            settings, row.learner, agent, model, log, session_id, row.seed, planner=planner
+            settings,
+            row.learner,
+            agent,
+            model,
+            log,
+            session_id,
+            row.seed,
+            planner=planner,
+            lock=lock,
         )
         asked = log.events(session_id, "asks")
         session._set_asks(asked[0]["detail"] if asked else None)

@@ -233,15 +233,18 @@ class Protocol:
         if self.practice is not None:
             text = self.practice.instructions or "A practice trial: nothing here is analysed."
             out.append(Step("practice", "trial", self.practice.name, 0, text))
-        for name in self.order_of(index):
+        # The page names a condition by its place in the participant's order ("robot 2"),
+        # never by its name or learner: the participant is blind to the condition.
+        order = self.order_of(index)
+        for k, name in enumerate(order, 1):
             c = self.condition(name)
             if c.instructions:
                 out.append(Step(f"{name}.instructions", "instructions", name, 0, c.instructions))
             for t in range(1, self.trials + 1):
-                text = f"Condition {name}, trial {t} of {self.trials}."
+                text = f"**Robot {k} of {len(order)}**, trial {t} of {self.trials}."
                 out.append(Step(f"{name}.trial{t}", "trial", name, t, text))
             if self.after_condition:
-                text = f"About the robot you just worked with (condition {name})."
+                text = f"About robot {k}, the one you just worked with."
                 out.append(
                     Step(f"{name}.questions", "questions", name, 0, text, self.after_condition)
                 )

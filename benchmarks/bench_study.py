@@ -1,0 +1,204 @@
+"""``python -m benchmarks.bench study``: several participants at once on one study server.
+
+Four participants (``--participants``) each go through a protocol of one KF-CL condition in
+drag mode (fig. 4's paper settings, the 48 environments) on one server in this process, each
+driven by a scripted websocket client that speaks viser's messages as a browser's tab does:
+the participant's code and "Start", "Continue", then per correction a drag of the cup's
+handle (lifted 6 cm at the waypoint shown) and a click on "Submit correction". The four
+submit at the same moment (a barrier), the worst case for one server. Latency is the
+server's: from the submit's arrival to the next plan sent (``Page.last_submit``), per
+correction and participant. Isolation: each participant's page holds only their own session,
+and each session's logged θ̂ is the one their page showed last.
+
+It prints figures and never asserts.
+"""
+
+from __future__ import annotations
+
+import socket
+import statistics
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import msgspec
+import numpy as np
+
+from corrections_sim.interact import drive
+from corrections_sim.interact.cohort import open_run
+from corrections_sim.interact.server import open_server
+from corrections_sim.interact.study_page import StudyServer
+from corrections_sim.scene.robot import cup_pose
+
+PROTOCOL = """description = "bench: {n} at once"
+study = "fig4"
+seed = 5
+corrections = {corrections}
+welcome = "Bench."
+[[conditions]]
+name = "CL"
+learner = "{learner}"
+"""
+
+
+def _port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _send(tab, message: dict) -> None:
+    tab.socket.send(msgspec.msgpack.encode(message))
+
+
+def _click(tab, handle) -> None:
+    _send(tab, {"type": "GuiUpdateMessage", "uuid": handle._impl.uuid, "updates": {"value": True}})
+
+
+def _participant(study, code, link, corrections, barrier, out, errors) -> None:
+    try:
+        ws = "http://" + link.split("ws://")[1]
+        with drive.SocketTab(ws) as tab:
+            view = drive.wait_for(lambda: study.participant_views().get(code), "the view")
+            box = drive.wait_for(lambda: view.controls.get("code"), "the code box")
+            _send(
+                tab,
+                {"type": "GuiUpdateMessage", "uuid": box._impl.uuid, "updates": {"value": code}},
+            )
+            drive.wait_for(lambda: box.value == code, "the code typed")
+            _click(tab, view.controls["start"])
+            button = drive.wait_for(lambda: view.controls.get("continue"), "the welcome")
+            _click(tab, button)
+            page = drive.wait_for(lambda: view.page, "the trial's page", timeout=300)
+            spans = []
+            for _ in range(corrections):
+                # The plan and its handle on the page (the handle comes after the plan).
+                drive.wait_for(
+                    lambda: (
+                        page.handle is not None and not page._busy and page.proposal is not None
+                    ),
+                    "the plan",
+                    timeout=300,
+                )
+                plan = page.proposal.plan.trajectory
+                i = int(page.waypoint.value)
+                cup = cup_pose(plan[i])[1] + np.array([0.0, 0.0, 0.06])
+                drags = page.drags
+                # A client echoes the owner of the node it moves: its connection's id.
+                owner = str(view.client.client_id)
+                _send(
+                    tab,
+                    {
+                        "type": "TransformControlsDragStartMessage",
+                        "name": "/handle",
+                        "owner": owner,
+                    },
+                )
+                _send(
+                    tab,
+                    {
+                        "type": "TransformControlsUpdateMessage",
+                        "name": "/handle",
+                        "wxyz": [1.0, 0.0, 0.0, 0.0],
+                        "position": cup.tolist(),
+                        "owner": owner,
+                    },
+                )
+                _send(
+                    tab,
+                    {"type": "TransformControlsDragEndMessage", "name": "/handle", "owner": owner},
+                )
+                try:
+                    drive.wait_for(lambda d=drags: page.drags > d, "the drag", timeout=60)
+                except TimeoutError:
+                    raise TimeoutError(
+                        f"drag: handle {page.handle.position} sent {cup} owner {owner} "
+                        f"scene {view.client.scene._owner_id} msg {page.last_message!r}"
+                    ) from None
+                if page.corrected is None:
+                    _click(tab, page.skip_button)
+                    drive.wait_for(lambda: not page.skip_button.disabled, "skipped", 120)
+                    continue
+                submitted = page.submitted
+                barrier.wait(timeout=600)
+                _click(tab, page.submit_button)
+                drive.wait_for(lambda s=submitted: page.submitted > s, "the submit", 300)
+                drive.wait_for(lambda: not page._busy, "the next plan", 300)
+                arrived, sent = page.last_submit
+                spans.append(sent - arrived)
+            out[code] = {
+                "spans": spans,
+                "session": page.session.id,
+                "theta": page.session.belief.theta.copy(),
+            }
+    except Exception as exc:  # reported, and the others are let go
+        errors.append(f"{code}: {exc!r}")
+        barrier.abort()
+
+
+def run(participants: int = 4, corrections: int = 6, learner: str = "KF-CL") -> dict:
+    folder = Path(tempfile.mkdtemp(prefix="bench-study-"))
+    protocol = folder / "protocol.toml"
+    protocol.write_text(
+        PROTOCOL.format(n=participants, corrections=corrections + 20, learner=learner)
+    )
+    run_ = open_run(protocol, folder / "study.sqlite")
+    server = open_server("127.0.0.1", _port())
+    study = StudyServer(server, run_, host="127.0.0.1")
+    links = {f"B{i}": study.enroll(f"B{i}") for i in range(participants)}
+    barrier = threading.Barrier(participants)
+    out: dict = {}
+    errors: list[str] = []
+    threads = [
+        threading.Thread(
+            target=_participant, args=(study, code, link, corrections, barrier, out, errors)
+        )
+        for code, link in links.items()
+    ]
+    started = time.perf_counter()
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    wall = time.perf_counter() - started
+    isolated = len({r["session"] for r in out.values()}) == len(out)
+    for code, r in out.items():
+        rows = run_.log.corrections(r["session"])
+        isolated &= run_.log.session(r["session"]).participant == code
+        isolated &= bool(rows) and np.array_equal(rows[-1]["theta_after"], r["theta"])
+    server.stop()
+    run_.log.close()
+    spans = [s for r in out.values() for s in r["spans"]]
+    return {
+        "spans": spans,
+        "per": {c: r["spans"] for c, r in out.items()},
+        "wall": wall,
+        "errors": errors,
+        "isolated": isolated,
+        "learner": learner,
+        "participants": participants,
+    }
+
+
+def report(result: dict) -> list[str]:
+    spans = np.array(result["spans"])
+    lines = [
+        f"{result['participants']} participants at once, {result['learner']} drag, "
+        f"fig. 4 settings, submits together (a barrier); {len(spans)} corrections, "
+        f"{result['wall']:.0f} s",
+    ]
+    if len(spans):
+        lines.append(
+            f"server submit -> next plan: median {np.median(spans):.3f} s (target <= 0.6), "
+            f"p90 {np.percentile(spans, 90):.3f} s, max {spans.max():.3f} s"
+        )
+        for code, per in result["per"].items():
+            lines.append(f"  {code}: median {statistics.median(per):.3f} s over {len(per)}")
+    lines.append(f"isolation (own session, own θ̂ logged): {result['isolated']}")
+    lines += [f"error: {e}" for e in result["errors"]]
+    return lines
+
+
+if __name__ == "__main__":
+    print("\n".join(report(run())))

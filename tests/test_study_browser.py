@@ -1,0 +1,289 @@
+"""A study served to several participants at once: each reaches only their own page, a whole
+short protocol in chromium for two people side by side, and a killed server that loses no
+correction and no answer.
+
+Marked ``browser`` (chromium, as tests/test_interact_browser.py)."""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import msgspec
+import pytest
+import viser
+
+from corrections_sim.interact import drive
+from corrections_sim.interact.cohort import open_run
+from corrections_sim.interact.log import StudyLog
+from corrections_sim.interact.server import open_server
+from corrections_sim.interact.study_page import StudyServer
+
+pytestmark = pytest.mark.browser
+
+STUDY = """environments = ["s0-t0-l1", "s0-t0-l2", "s1-t1-l0", "s2-t0-l1"]
+theta_star = [1.0, -1.0]
+learners = ["KF-C"]
+seed = 3
+iterations = 3
+"""
+PROTOCOL = """description = "two robots in a browser"
+study = "small.toml"
+seed = 3
+corrections = CORRECTIONS
+welcome = "Hello there."
+[practice]
+learner = "KF-C"
+corrections = 1
+[[conditions]]
+name = "C"
+learner = "KF-C"
+[[conditions]]
+name = "CL"
+learner = "KF-CL"
+[[questionnaires.condition]]
+id = "understood"
+text = "The robot understood me."
+points = 5
+"""
+
+
+def _write(folder: Path, corrections: int = 1) -> Path:
+    (folder / "small.toml").write_text(STUDY)
+    path = folder / "protocol.toml"
+    path.write_text(PROTOCOL.replace("CORRECTIONS", str(corrections)))
+    return path
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def browser():
+    if drive.chromium() is None:
+        if os.environ.get("CI"):
+            pytest.fail("CI needs chromium for the browser tests (.ci/setup installs it)")
+        pytest.skip("no chromium (apt-get install chromium)")
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        launched = drive.launch(p)
+        yield launched
+        launched.close()
+
+
+@pytest.fixture
+def study(tmp_path):
+    run = open_run(_write(tmp_path), tmp_path / "study.sqlite")
+    server = open_server("127.0.0.1", _free_port())
+    served = StudyServer(server, run, host="127.0.0.1")
+    yield served
+    server.stop()
+    run.log.close()
+
+
+def _enter(tab, code: str) -> None:
+    tab.get_by_text("Type the participant code").wait_for(timeout=60_000)
+    drive.fill_text(tab, 0, code)
+    drive.click(tab, "Start")
+
+
+def _correct(tab) -> None:
+    """One drag of the cup and its submission; the trial's end then offers to go on."""
+    tab.get_by_text("Submit correction").wait_for(timeout=120_000)
+    drive.wait_for(lambda: drive.cup_position(tab), "the cup on the page")
+    drive.until_landed(lambda: drive.drag_cup(tab, 50), lambda: "orange path" in drive.status(tab))
+    drive.click(tab, "Submit correction")
+
+
+def test_two_participants_go_through_a_whole_protocol_at_once(browser, study):
+    links = {code: study.enroll(code) for code in ("P1", "P2")}
+    tabs = {}
+    try:
+        for code, link in links.items():
+            tabs[code] = browser.new_page(viewport=drive.VIEWPORT)
+            tabs[code].goto(link)
+            _enter(tabs[code], code)
+        for tab in tabs.values():
+            tab.get_by_text("Hello there.").wait_for(timeout=60_000)
+            drive.click(tab, "Continue")
+        for round_ in range(3):  # the practice, then each robot
+            for tab in tabs.values():
+                _correct(tab)
+            for tab in tabs.values():
+                text = drive.wait_for(
+                    lambda t=tab: (
+                        "Continue to the next step" in drive.status(t) and drive.status(t)
+                    ),
+                    "the trial's end",
+                )
+                # Blind: the page never names the learner.
+                assert "KF-C" not in text and "KF-CL" not in text
+                drive.click(tab, "Continue to the next step")
+            if round_ == 0:
+                continue
+            for tab in tabs.values():
+                tab.get_by_text("The robot understood me.").wait_for(timeout=60_000)
+                drive.click(tab, "Submit answers")  # unanswered: refused on the page
+                tab.get_by_text("understood: not answered").wait_for(timeout=30_000)
+                drive.choose(tab, 0, "4")
+                drive.click(tab, "Submit answers")
+        for tab in tabs.values():
+            tab.get_by_text("you are done").wait_for(timeout=60_000)
+    finally:
+        for tab in tabs.values():
+            tab.close()
+    log = study.run.log
+    for code in links:
+        where = study.run.participant(code).where()
+        assert where.step.kind == "end"
+        answers = [a for a in log.answers(code) if a["item"] == "understood"]
+        assert [a["value"] for a in answers] == [4, 4]
+        sessions = [s for s in log.session_ids() if log.session(s).participant == code]
+        assert len(sessions) == 3  # the practice and two trials, each its own session
+        assert all(len(log.corrections(s)) == 1 for s in sessions)
+    # Counterbalanced: the two participants met the robots in opposite orders.
+    assert study.run.protocol.order_of(0) == study.run.protocol.order_of(1)[::-1]
+
+
+def test_a_link_reaches_only_its_own_participant(browser, study):
+    p1 = study.enroll("P1")
+    study.enroll("P2")
+    token = re.search(r"/p/([^/]+)$", p1).group(1)
+    tabs = []
+    try:
+        # A guessed link: one line, no scene, no control.
+        guessed = browser.new_page()
+        tabs.append(guessed)
+        guessed.goto(p1.replace(token, token[:-4] + "AAAA"))
+        guessed.get_by_text("This link is not valid").wait_for(timeout=60_000)
+        assert guessed.get_by_role("button").count() == 0 or "Start" not in drive.status(guessed)
+        # Another participant's code typed on one's link is refused.
+        mine = browser.new_page()
+        tabs.append(mine)
+        mine.goto(p1)
+        _enter(mine, "P2")
+        mine.get_by_text("not the code of this link").wait_for(timeout=30_000)
+        drive.fill_text(mine, 0, "P1")
+        drive.click(mine, "Start")
+        mine.get_by_text("Hello there.").wait_for(timeout=60_000)
+        # A second tab of the same link is turned away.
+        second = browser.new_page()
+        tabs.append(second)
+        second.goto(p1)
+        second.get_by_text("open in another tab").wait_for(timeout=60_000)
+    finally:
+        for tab in tabs:
+            tab.close()
+    assert study.refused >= 1
+    assert study.run.participant("P2").where().position == 0
+
+
+def test_messages_replayed_on_another_connection_change_nothing(study):
+    p1, p2 = study.enroll("P1"), study.enroll("P2")
+    port = study.server.get_port()
+
+    def ws(link: str) -> str:
+        return "http://" + link.split("ws://")[1]
+
+    with drive.SocketTab(ws(p1)):
+        view = drive.wait_for(lambda: study.participant_views().get("P1"), "P1's page")
+        view.entered = True  # past the code (as typed)
+        view.render()
+        button = drive.wait_for(lambda: view.controls.get("continue"), "P1's Continue")
+        uuid = button._impl.uuid
+        click = {"type": "GuiUpdateMessage", "uuid": uuid, "updates": {"value": True}}
+        # P2's connection, and one with no valid link, replay P1's click: nothing moves.
+        for link in (ws(p2), f"http://127.0.0.1:{port}/p/guess"):
+            with drive.SocketTab(link) as other:
+                other.socket.send(msgspec.msgpack.encode(click))
+                drive.wait_for(lambda o=other: o.received > 0, "the server's answer")
+        assert study.run.participant("P1").where().position == 0
+        assert study.run.participant("P2").where().position == 0
+    assert viser.__version__ == "1.1.1"  # connection_path reads viser 1.1.1's connections
+
+
+def _serve(protocol: Path, db: Path, port: int, *enroll: str):
+    command = [sys.executable, "-m", "corrections_sim.run", "serve-study", str(protocol)]
+    command += ["--db", str(db), "--port", str(port)]
+    if enroll:
+        command += ["--enroll", ",".join(enroll)]
+    server = subprocess.Popen(command, stderr=subprocess.PIPE, text=True, cwd=Path.cwd())
+    links = {}
+    while True:
+        line = server.stderr.readline()
+        assert line, "the server ended before serving"
+        if line.startswith("participant "):
+            code, link = line.split(": ", 1)
+            links[code.split()[1]] = link.strip()
+        if "experimenter's page" in line:
+            links["experimenter"] = re.search(r"(http://\S+)", line).group(1)
+            return server, links
+
+
+def test_a_killed_server_loses_nothing_and_the_participant_resumes_at_the_same_step(
+    browser, tmp_path
+):
+    protocol = _write(tmp_path, corrections=2)
+    db = tmp_path / "study.sqlite"
+    port = _free_port()
+    server, links = _serve(protocol, db, port, "P1")
+    tab = browser.new_page(viewport=drive.VIEWPORT)
+    try:
+        tab.goto(links["P1"])
+        _enter(tab, "P1")
+        tab.get_by_text("Hello there.").wait_for(timeout=60_000)
+        drive.click(tab, "Continue")
+        _correct(tab)  # the practice's one correction
+        tab.get_by_role("button", name="Continue to the next step").wait_for(timeout=120_000)
+        drive.click(tab, "Continue to the next step")
+        _correct(tab)  # the first robot's first of two
+        drive.wait_for(lambda: "Correction 2" in drive.status(tab), "the next plan")
+        server.send_signal(signal.SIGKILL)  # mid-condition
+        server.wait(timeout=30)
+        with StudyLog(db) as log:
+            session = log.steps("P1")[-1]["session_id"]
+            assert len(log.corrections(session)) == 1
+        # A new server (a new experimenter's secret); the participant's link still works.
+        server, links2 = _serve(protocol, db, port)
+        tab.goto(links["P1"])
+        _enter(tab, "P1")
+        tab.get_by_text("Welcome back").wait_for(timeout=60_000)
+        boss = browser.new_page()
+        boss.goto(links2["experimenter"])
+        boss.get_by_text("P1").first.wait_for(timeout=60_000)
+        drive.fill_text(boss, 1, "P1")  # the "Code" box (the first is "New code")
+        drive.click(boss, "Let continue")
+        tab.get_by_text("Correction 2").wait_for(timeout=120_000)  # the same trial, resumed
+        _correct(tab)
+        tab.get_by_role("button", name="Continue to the next step").wait_for(timeout=120_000)
+        drive.click(tab, "Continue to the next step")
+        tab.get_by_text("The robot understood me.").wait_for(timeout=60_000)
+        drive.choose(tab, 0, "5")
+        drive.click(tab, "Submit answers")
+        tab.get_by_text("Robot 2 of 2").wait_for(timeout=60_000)
+        server.send_signal(signal.SIGKILL)  # right after the questionnaire
+        server.wait(timeout=30)
+        boss.close()
+    finally:
+        tab.close()
+        if server.poll() is None:
+            server.kill()
+    with StudyLog(db) as log:
+        assert [a["value"] for a in log.answers("P1")] == [5]
+        steps = log.steps("P1")
+        trials = [s for s in steps if s["key"].endswith("trial1")]
+        assert len(log.corrections(trials[0]["session_id"])) == 2
+        assert steps[-1]["key"].endswith("trial1") or steps[-1]["finished"] is not None
+    run = open_run(protocol, db)
+    assert run.participant("P1").current().text.startswith("**Robot 2 of 2**")
+    run.log.close()
