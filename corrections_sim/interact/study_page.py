@@ -77,6 +77,8 @@ class StudyServer:
         self.confirmed: set[str] = set()
         #: participants who typed their code on this server and have not been let in yet
         self.waiting: set[str] = set()
+        #: participants who went on from their code on this server (a reload goes on too)
+        self.entered: set[str] = set()
         self.refused = 0  # connections with no valid link (tests count them)
         configure(server)
         server.on_client_connect(self._connect)
@@ -289,8 +291,11 @@ class ParticipantView:
             self.entered = True
             begun = any(r["finished"] for r in self.person.log.steps(self.code))
             with self.study._lock:
-                if begun and self.code not in self.study.confirmed:
-                    self.study.waiting.add(self.code)
+                known = self.code in self.study.confirmed or self.code in self.study.entered
+                if begun and not known:
+                    self.study.waiting.add(self.code)  # returning: the experimenter confirms
+                else:
+                    self.study.entered.add(self.code)  # a reload on this server goes on
 
         start = gui.add_button("Start")
         start.on_click(self._guarded(enter))

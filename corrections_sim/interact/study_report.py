@@ -291,7 +291,8 @@ def plot(tables: dict, result: dict, out: Path) -> list[Path]:
         for ax, item in zip(axes.flat, items, strict=True):
             mine = [a for a in likert if a["item"] == item]
             points = int(mine[0]["points"])
-            groups = list(dict.fromkeys(a["condition"] or "end" for a in mine))
+            present = {a["condition"] or "end" for a in mine}
+            groups = [g for g in (*conditions, "end") if g in present]
             width = 0.8 / len(groups)
             for g, group in enumerate(groups):
                 values = [a["value"] for a in mine if (a["condition"] or "end") == group]
