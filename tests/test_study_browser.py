@@ -300,3 +300,33 @@ def test_a_killed_server_loses_nothing_and_the_participant_resumes_at_the_same_s
     run = open_run(protocol, db)
     assert run.participant("P1").current().text.startswith("**Robot 2 of 2**")
     run.log.close()
+
+
+def test_the_experimenters_page_enrolls_and_withdraws(study):
+    """Driven by websocket messages as the page's buttons send them (no browser needed)."""
+    with drive.SocketTab("http://" + study.experimenter_link().split("ws://")[1]) as tab:
+        view = drive.wait_for(
+            lambda: next((v for v in study.views.values() if hasattr(v, "buttons")), None),
+            "the experimenter's page",
+        )
+
+        def send(handle, value) -> None:
+            message = {
+                "type": "GuiUpdateMessage",
+                "uuid": handle._impl.uuid,
+                "updates": {"value": value},
+            }
+            tab.socket.send(msgspec.msgpack.encode(message))
+
+        send(view.new_code, "P7")
+        drive.wait_for(lambda: view.new_code.value == "P7", "the code typed")
+        send(view.buttons["enroll"], True)
+        drive.wait_for(lambda: "/p/" in view.last_link, "the new participant's link")
+        assert study.run.by_token(view.last_link.rsplit("/p/", 1)[1]).code == "P7"
+        send(view.buttons["enroll"], True)  # the same code again: refused on the page
+        drive.wait_for(lambda: "already used" in view.said.content, "the refusal")
+        send(view.who, "P7")
+        drive.wait_for(lambda: view.who.value == "P7", "the code typed")
+        send(view.buttons["Withdraw"], True)
+        drive.wait_for(lambda: study.run.log.participant("P7")["withdrawn"], "withdrawn")
+        drive.wait_for(lambda: "withdrawn" in view.table.content, "the table")

@@ -351,3 +351,29 @@ def test_a_person_is_not_simulated(short, tmp_path):
     with pytest.raises(StudyError, match="a person, not a simulated participant"):
         simulate_participant(run, "P01")
     run.log.close()
+
+
+def test_an_aborted_trial_starts_over_and_its_session_leaves_the_analysis(short, tmp_path):
+    from corrections_sim.interact.session import simulate
+    from corrections_sim.people.users import make_user
+
+    db = tmp_path / "study.sqlite"
+    run = open_run(short, db)
+    person, _ = run.enroll("P01")
+    person.proceed("welcome")
+    user = make_user("noisy", {"noise": 0.5})
+    first = person.session("practice")
+    simulate(first, user, [1.0, -1.0], 1)
+    aborted = person.abort_trial()
+    assert aborted == first.id and run.log.session(first.id).ended is not None
+    assert run.log.events(first.id, "aborted")
+    again = person.session("practice")
+    assert again.id != first.id and again.iteration == 0
+    simulate(again, user, [1.0, -1.0], 1)
+    person.finish_trial("practice")
+    assert run.log.steps("P01")[1]["aborted"] == [first.id]
+    with pytest.raises(StudyError, match="at step"):
+        person.abort_trial()  # not at a trial now
+    run.log.close()
+    with StudyLog(db) as log:
+        assert tidy(log)["excluded"]["aborted_trials"] == 1

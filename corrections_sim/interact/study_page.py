@@ -374,25 +374,26 @@ class ExperimenterView:
         gui = self.client.gui
         gui.add_markdown(f"### Study: {self.study.run.protocol.description or 'protocol'}")
         self.table = gui.add_markdown("")
+        b = self.buttons = {}
         with gui.add_folder("Enroll a participant"):
             self.new_code = gui.add_text("New code", initial_value="")
-            gui.add_button("Enroll").on_click(lambda _: self._do(self._enroll))
+            b["enroll"] = gui.add_button("Enroll")
+            b["enroll"].on_click(lambda _: self._do(self._enroll))
             self.link = gui.add_markdown("")
         with gui.add_folder("A participant"):
             self.who = gui.add_text("Code", initial_value="")
-            gui.add_button("Let continue").on_click(
-                lambda _: self._do(lambda: self.study.let_continue(self._code()))
-            )
-            gui.add_button("New link").on_click(lambda _: self._do(self._new_link))
-            gui.add_button("Abort the trial").on_click(
-                lambda _: self._do(lambda: self.study.abort_trial(self._code()))
-            )
-            gui.add_button("Withdraw").on_click(
-                lambda _: self._do(lambda: self.study.withdraw(self._code()))
-            )
-            gui.add_button("Withdraw and delete their rows").on_click(
-                lambda _: self._do(lambda: self.study.withdraw(self._code(), delete=True))
-            )
+            actions = {
+                "Let continue": lambda: self.study.let_continue(self._code()),
+                "New link": self._new_link,
+                "Abort the trial": lambda: self.study.abort_trial(self._code()),
+                "Withdraw": lambda: self.study.withdraw(self._code()),
+                "Withdraw and delete their rows": lambda: self.study.withdraw(
+                    self._code(), delete=True
+                ),
+            }
+            for label, action in actions.items():
+                b[label] = gui.add_button(label)
+                b[label].on_click(lambda _, a=action: self._do(a))
         self.said = gui.add_markdown("")
         self.refresh()
         self._thread = threading.Thread(target=self._loop, name="experimenter", daemon=True)
