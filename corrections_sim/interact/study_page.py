@@ -60,6 +60,12 @@ def connection_path(server, client) -> str | None:
         return None
 
 
+def _same(given: str, secret: str) -> bool:
+    """``given == secret`` in constant time (any text: a path or a typed code may hold
+    characters that are not ASCII)."""
+    return hmac.compare_digest(given.encode("utf-8"), secret.encode("utf-8"))
+
+
 class StudyServer:
     """A study on a viser server (see the module)."""
 
@@ -107,7 +113,7 @@ class StudyServer:
     def _connect(self, client) -> None:
         path = connection_path(self.server, client) or ""
         kind, _, secret = path.strip("/").partition("/")
-        if kind == "x" and secret and hmac.compare_digest(secret, self.secret):
+        if kind == "x" and secret and _same(secret, self.secret):
             view: ParticipantView | ExperimenterView = ExperimenterView(self, client)
         elif kind == "p" and (person := self.run.by_token(secret)) is not None:
             with self._lock:
@@ -286,7 +292,7 @@ class ParticipantView:
         self.error = gui.add_markdown("")
 
         def enter() -> None:
-            if not hmac.compare_digest(code.value.strip(), self.code):
+            if not _same(code.value.strip(), self.code):
                 raise ValueError("that is not the code of this link")
             self.entered = True
             begun = any(r["finished"] for r in self.person.log.steps(self.code))
