@@ -330,3 +330,43 @@ def test_the_experimenters_page_enrolls_and_withdraws(study):
         send(view.buttons["Withdraw"], True)
         drive.wait_for(lambda: study.run.log.participant("P7")["withdrawn"], "withdrawn")
         drive.wait_for(lambda: "withdrawn" in view.table.content, "the table")
+
+
+def test_a_physical_condition_shows_the_physical_page_blind_to_the_learner(tmp_path):
+    from corrections_sim.interact.physical_page import PhysicalPage
+
+    (tmp_path / "small.toml").write_text(STUDY)
+    protocol = tmp_path / "protocol.toml"
+    protocol.write_text(
+        'study = "small.toml"\nseed = 1\ncorrections = 1\nwelcome = "Hi."\n'
+        '[[conditions]]\nname = "P"\nlearner = "KF-C"\nmode = "physical"\n'
+    )
+    run = open_run(protocol, tmp_path / "study.sqlite")
+    server = open_server("127.0.0.1", _free_port())
+    study = StudyServer(server, run, host="127.0.0.1")
+    try:
+        link = study.enroll("P1")
+        with drive.SocketTab("http://" + link.split("ws://")[1]) as tab:
+            view = drive.wait_for(lambda: study.participant_views().get("P1"), "the page")
+
+            def send(handle, value) -> None:
+                message = {
+                    "type": "GuiUpdateMessage",
+                    "uuid": handle._impl.uuid,
+                    "updates": {"value": value},
+                }
+                tab.socket.send(msgspec.msgpack.encode(message))
+
+            send(drive.wait_for(lambda: view.controls.get("code"), "the code box"), "P1")
+            drive.wait_for(lambda: view.controls["code"].value == "P1", "the code typed")
+            send(view.controls["start"], True)
+            send(drive.wait_for(lambda: view.controls.get("continue"), "the welcome"), True)
+            page = drive.wait_for(lambda: view.page, "the trial's page", timeout=120)
+            assert isinstance(page, PhysicalPage) and page.limit == 1
+            drive.wait_for(lambda: page.proposal is not None, "the plan", timeout=120)
+            drive.wait_for(lambda: "Push 1" in page.title.content, "the title")
+            assert "KF-C" not in page.title.content and "Learner" not in page.title.content
+            assert page.session.correction_name == "physical"
+    finally:
+        server.stop()
+        run.log.close()

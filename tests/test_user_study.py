@@ -377,3 +377,26 @@ def test_an_aborted_trial_starts_over_and_its_session_leaves_the_analysis(short,
     run.log.close()
     with StudyLog(db) as log:
         assert tidy(log)["excluded"]["aborted_trials"] == 1
+
+
+def test_a_simulated_participant_pushes_in_a_physical_condition_and_drags_in_the_other(
+    tmp_path,
+):
+    path = tmp_path / "protocol.toml"
+    path.write_text(
+        'study = "fig4"\nseed = 1\ncorrections = 1\n'
+        '[[conditions]]\nname = "P"\nlearner = "KF-C"\nmode = "physical"\n'
+        '[[conditions]]\nname = "D"\nlearner = "KF-C"\n'
+        "[simulation]\nmean = [1.0, -1.0]\n"
+    )
+    run = open_run(path, tmp_path / "study.sqlite")
+    simulate_cohort(run, [0])
+    person = run.participant("sim00000")
+    assert person.where().step.kind == "end"
+    by_condition = {step.condition: sid for step, sid in person.trial_sessions()}
+    physical = run.log.corrections(by_condition["P"])[0]["drag"]
+    dragged = run.log.corrections(by_condition["D"])[0]["drag"]
+    assert physical["simulated"] and "released_at" in physical  # a push, let go of
+    assert dragged == {"simulated": True}
+    assert run.log.session(by_condition["P"]).correction["name"] == "physical"
+    run.log.close()

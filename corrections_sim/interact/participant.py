@@ -421,7 +421,17 @@ def draw_simulated(protocol: Protocol, index: int, k: int) -> dict:
         raise ValueError(f"simulation.mean: expected {k} weights (the study's features)")
     rng = participant_rng(protocol, index)
     theta = np.asarray(sim.mean) + np.asarray(sim.sd) * rng.standard_normal(k)
-    return {"theta_star": theta.tolist(), "user": sim.user, "simulated": True}
+    drawn = {"theta_star": theta.tolist(), "user": sim.user, "simulated": True}
+    if any(c.mode == "physical" for c in (*protocol.conditions, protocol.practice) if c):
+        drawn["physical_user"] = sim.physical_user
+    return drawn
+
+
+def _user(spec):
+    """A simulated user from a name or a table {name, params...}."""
+    if isinstance(spec, str):
+        return make_user(spec)
+    return make_user(spec["name"], {k: v for k, v in spec.items() if k != "name"})
 
 
 def experienced(settings: FigureSettings, rows: list[dict], theta_star: np.ndarray) -> dict:
@@ -479,13 +489,12 @@ def simulate_participant(run: StudyRun, code: str, index: int | None = None) -> 
         if drawn is None:
             raise StudyError(f"participant {code}: a person, not a simulated participant")
     theta = np.asarray(drawn["theta_star"], float)
-    user = (
-        make_user(drawn["user"])
-        if isinstance(drawn["user"], str)
-        else make_user(
-            drawn["user"]["name"], {k: v for k, v in drawn["user"].items() if k != "name"}
-        )
-    )
+    # Who corrects: the population's user in drag conditions, its physical user (pushing
+    # the moving arm) in physical ones.
+    users = {
+        "drag": _user(drawn["user"]),
+        "physical": _user(drawn.get("physical_user", "physical")),
+    }
     rng = participant_rng(protocol, person.index)
     rng.standard_normal(len(theta))  # the draw of θ* (draw_simulated's)
     while True:
@@ -498,7 +507,8 @@ def simulate_participant(run: StudyRun, code: str, index: int | None = None) -> 
             session = person.session(step.key, corrector={"simulated": True, **drawn})
             left = person.corrections(step) - session.iteration
             if left > 0:
-                simulate(session, user, theta, left)
+                mode = protocol.condition(step.condition).mode
+                simulate(session, users[mode], theta, left)
             person.finish_trial(step.key)
         elif step.kind == "questions":
             # What they experienced in the condition's trials (all conditions at the end),

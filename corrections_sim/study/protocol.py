@@ -139,12 +139,15 @@ class Response:
 class Simulation:
     """The simulated population a pilot or a power analysis draws participants from: θ* ~
     N(mean, diag(sd²)) per participant, the simulated user (a name or a table, as a study's
-    ``user``), the mode, and a response model per question id (``default`` for the rest)."""
+    ``user``) in drag conditions and ``physical_user`` in physical ones, and a response model
+    per question id (``default`` for the rest)."""
 
     mean: tuple[float, ...]
     sd: tuple[float, ...]
     user: Any = "noisy"
     responses: tuple[tuple[str, Response], ...] = ()
+    #: who pushes the moving arm in a physical condition (``user`` corrects in the others)
+    physical_user: Any = "physical"
 
     def response(self, question_id: str) -> Response:
         table = dict(self.responses)
@@ -388,12 +391,23 @@ def _simulation(value, k: int | None) -> Simulation:
     user = values.pop("user", "noisy")
     if not isinstance(user, str | Mapping):
         raise ValueError(f"simulation.user = {user!r}: expected a user's name or table")
+    physical = values.pop("physical_user", "physical")
+    if not isinstance(physical, str | Mapping):
+        raise ValueError(
+            f"simulation.physical_user = {physical!r}: expected a user's name or table"
+        )
     responses = _table("simulation.responses", values.pop("responses", {}))
     parsed = tuple(
         (qid, _response(f"simulation.responses.{qid}", r)) for qid, r in sorted(responses.items())
     )
     reject_unknown(values, "simulation")
-    return Simulation(mean, sd, user if isinstance(user, str) else dict(user), parsed)
+    return Simulation(
+        mean,
+        sd,
+        user if isinstance(user, str) else dict(user),
+        parsed,
+        physical if isinstance(physical, str) else dict(physical),
+    )
 
 
 def parse_protocol(values: Mapping[str, Any], *, k: int | None = None) -> Protocol:
