@@ -147,3 +147,11 @@ def test_the_committed_pilot_analyses_to_its_committed_numbers(tmp_path):
         # The analysis reads the log's numbers; only the model's optimizer rounds per CPU.
         assert np.isclose(new[key], value, rtol=1e-4, atol=1e-6, equal_nan=True), key
     assert "Simulated participants" in (tmp_path / "report.md").read_text()
+
+
+def test_study_status_prints_where_everyone_is(capsys):
+    db = ROOT / "results" / "pilot" / "study.sqlite"
+    assert cli.main(["study-status", "--db", str(db)]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert len(lines) == 12
+    assert all(re.fullmatch(r"sim\d{5} simulated: step 10/10 end", line) for line in lines)
