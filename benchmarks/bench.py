@@ -519,6 +519,11 @@ def main(argv: Sequence[str] | None = None) -> None:
         help="physical: also the page in chromium (poses/s, frames/s, let-go -> new path)",
     )
     parser.add_argument(
+        "--browser",
+        action="store_true",
+        help="study: the fourth participant is a chromium tab driven with the mouse",
+    )
+    parser.add_argument(
         "--pushes", type=int, default=2, help="physical --page: pushes, one a plan (default 2)"
     )
     parser.add_argument(
@@ -585,7 +590,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         corrections = 6 if args.problems is None else args.problems
         if corrections < 1:
             parser.error("--problems: study takes the corrections per participant, >= 1")
-        print("\n".join(report(run(4, corrections, learner))), flush=True)
+        print("\n".join(report(run(4, corrections, learner, chromium=args.browser))), flush=True)
         return
     if args.what == "confidence":
         from benchmarks.bench_confidence import run_bench as run_confidence

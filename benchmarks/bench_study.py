@@ -10,6 +10,9 @@ server's: from the submit's arrival to the next plan sent (``Page.last_submit``)
 correction and participant. Isolation: each participant's page holds only their own session,
 and each session's logged θ̂ is the one their page showed last.
 
+With ``--browser`` the fourth participant is a chromium tab driven with the mouse, and the
+report says whether its page showed its own next plan after each submit.
+
 It prints figures and never asserts.
 """
 
@@ -137,7 +140,64 @@ def _participant(study, code, link, corrections, barrier, out, errors) -> None:
         barrier.abort()
 
 
-def run(participants: int = 4, corrections: int = 6, learner: str = "KF-CL") -> dict:
+def _browser_participant(study, code, link, corrections, barrier, out, errors, browser):
+    """The same participant in chromium, with the mouse (this thread: Playwright's sync API
+    stays in the thread that made it); also checks that the page shows this participant's
+    own next plan (its correction count and environment) after each submit."""
+    tab = browser.new_page(viewport=drive.VIEWPORT)
+    try:
+        tab.goto(link)
+        tab.get_by_text("Type the participant code").wait_for(timeout=120_000)
+        drive.fill_text(tab, 0, code)
+        drive.click(tab, "Start")
+        tab.get_by_role("button", name="Continue").wait_for(timeout=60_000)
+        drive.click(tab, "Continue")
+        view = study.participant_views()[code]
+        page = drive.wait_for(lambda: view.page, "the trial's page", timeout=300)
+        spans, shown = [], 0
+        for _ in range(corrections):
+            tab.get_by_text("Submit correction").wait_for(timeout=300_000)
+            drive.wait_for(lambda: page.handle is not None and not page._busy, "the plan", 300)
+            drive.wait_for(lambda: drive.cup_position(tab), "the cup on the page")
+            try:
+                drive.until_landed(
+                    lambda: drive.drag_cup(tab, 50),
+                    lambda: "orange path" in drive.status(tab),
+                    timeout=20.0,
+                )
+            except TimeoutError:
+                drive.click(tab, "Skip this environment")
+                continue
+            submitted = page.submitted
+            barrier.wait(timeout=600)
+            drive.click(tab, "Submit correction")
+            drive.wait_for(lambda s=submitted: page.submitted > s, "the submit", 300)
+            drive.wait_for(lambda: not page._busy, "the next plan", 300)
+            arrived, sent = page.last_submit
+            spans.append(sent - arrived)
+            title = f"Correction {page.session.iteration + 1}: environment {page.proposal.env.name}"
+            try:
+                drive.wait_for(lambda t=title: t in drive.status(tab), "its own plan", 60)
+                shown += 1
+            except TimeoutError:
+                pass
+        out[code] = {
+            "spans": spans,
+            "session": page.session.id,
+            "theta": page.session.belief.theta.copy(),
+            "shown": shown,
+        }
+    except Exception as exc:  # reported, and the others are let go
+        errors.append(f"{code} (chromium): {exc!r}")
+        barrier.abort()
+    finally:
+        tab.close()
+
+
+def run(
+    participants: int = 4, corrections: int = 6, learner: str = "KF-CL", *, chromium: bool = False
+) -> dict:
+    """``chromium``: the last participant is a chromium tab driven with the mouse."""
     folder = Path(tempfile.mkdtemp(prefix="bench-study-"))
     protocol = folder / "protocol.toml"
     protocol.write_text(
@@ -150,15 +210,26 @@ def run(participants: int = 4, corrections: int = 6, learner: str = "KF-CL") -> 
     barrier = threading.Barrier(participants)
     out: dict = {}
     errors: list[str] = []
+    scripted = dict(links)
+    in_browser = scripted.popitem() if chromium else None
     threads = [
         threading.Thread(
             target=_participant, args=(study, code, link, corrections, barrier, out, errors)
         )
-        for code, link in links.items()
+        for code, link in scripted.items()
     ]
     started = time.perf_counter()
     for t in threads:
         t.start()
+    if in_browser is not None:
+        from playwright.sync_api import sync_playwright
+
+        with sync_playwright() as p:
+            browser = drive.launch(p)
+            try:
+                _browser_participant(study, *in_browser, corrections, barrier, out, errors, browser)
+            finally:
+                browser.close()
     for t in threads:
         t.join()
     wall = time.perf_counter() - started
@@ -172,6 +243,7 @@ def run(participants: int = 4, corrections: int = 6, learner: str = "KF-CL") -> 
     spans = [s for r in out.values() for s in r["spans"]]
     return {
         "spans": spans,
+        "shown": {c: (r["shown"], len(r["spans"])) for c, r in out.items() if "shown" in r},
         "per": {c: r["spans"] for c, r in out.items()},
         "wall": wall,
         "errors": errors,
@@ -196,6 +268,8 @@ def report(result: dict) -> list[str]:
         for code, per in result["per"].items():
             lines.append(f"  {code}: median {statistics.median(per):.3f} s over {len(per)}")
     lines.append(f"isolation (own session, own θ̂ logged): {result['isolated']}")
+    for code, (shown, of) in result.get("shown", {}).items():
+        lines.append(f"{code} in chromium: its own next plan on the page after {shown} of {of}")
     lines += [f"error: {e}" for e in result["errors"]]
     return lines
 
