@@ -456,16 +456,10 @@ def _interact_settings(args: argparse.Namespace):
 def _physical_learner(settings, learner: str, args: argparse.Namespace) -> dict | None:
     """A physical session's learner: the study's, with the ``physical`` model of a push where
     it takes a model and none was set (``--set learners.NAME.model=...``)."""
-    from corrections_sim import components
-    from corrections_sim.learning.base import LEARNERS
+    from corrections_sim.interact.session import physical_learner
 
-    if "model" not in components.defaults(LEARNERS[learner]):
-        return None
-    if any(item.startswith(f"learners.{learner}.model") for item in args.set or ()):
-        return None
-    agent = settings.study.learners.get(learner)
-    params = components.params(agent) if agent is not None else {}
-    return params | {"model": "physical"}
+    given = any(item.startswith(f"learners.{learner}.model") for item in args.set or ())
+    return physical_learner(settings, learner, model_set=given)
 
 
 def _db(args: argparse.Namespace) -> Path:
@@ -877,17 +871,6 @@ def _asks_command_help(given: Sequence[str]) -> str | None:
     return None
 
 
-def _check_applies(args: argparse.Namespace) -> None:
-    """Refuse an option the command does not take (``scene --runs 5``, ``fig4 --env X``)."""
-    allowed = applies(args.figure)
-    for name in (a.dest for a in parser()._actions):
-        if name in ("help", "figure") or name in allowed:
-            continue
-        if getattr(args, name) not in (None, False):
-            takes = ", ".join(_label(n) for n in allowed)
-            raise UsageError(f"{_label(name)}: does not apply to {args.figure} (it takes {takes})")
-
-
 def _label(dest: str) -> str:
     """How the command line spells an option (the positional FILE has no dashes)."""
     return "FILE" if dest == "study_file" else "--" + dest.replace("_", "-")
@@ -1218,7 +1201,6 @@ def main(argv: Sequence[str] | None = None) -> int:
                 return 0
             args = _parse(given)
             args.argv = given
-            _check_applies(args)
             figures = _figures()
             if args.figure in figures:
                 written = run_figure(args, figures[args.figure])

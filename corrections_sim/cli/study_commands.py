@@ -181,6 +181,7 @@ def run_power(args: argparse.Namespace) -> list[Path]:
     size; the power and the CIs' coverage at each."""
     from corrections_sim.cli.executors import process_pool
     from corrections_sim.interact.cohort import (
+        load,
         pool_trials,
         power_markdown,
         power_table,
@@ -195,10 +196,10 @@ def run_power(args: argparse.Namespace) -> list[Path]:
     sizes = tuple(args.sizes or POWER_SIZES)
     if any(n < 2 for n in sizes) or max(sizes) > pool:
         raise UsageError(f"--sizes: each in [2, --pool {pool}], got {list(sizes)}")
-    run = _open(args, out / ".pool" / "check.sqlite")  # checks the protocol and its study
-    protocol = run.protocol
-    run.log.close()
-    (out / ".pool" / "check.sqlite").unlink(missing_ok=True)
+    try:
+        protocol, _ = load(protocol_path)  # checked before any worker starts
+    except ValueError as exc:
+        raise UsageError(str(exc).splitlines()[0]) from None
     if protocol.simulation is None:
         raise UsageError(f"{protocol_path}: no [simulation] table (the population)")
     outcome = args.outcome or protocol.primary

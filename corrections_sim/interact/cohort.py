@@ -27,7 +27,11 @@ import numpy as np
 
 from corrections_sim.figures.presets import EXPERIMENTS_DIR
 from corrections_sim.interact.log import StudyLog
-from corrections_sim.interact.participant import StudyRun, simulate_participant
+from corrections_sim.interact.participant import (
+    StudyRun,
+    check_conditions,
+    simulate_participant,
+)
 from corrections_sim.study import schema, user_study
 from corrections_sim.study.protocol import Protocol, load_protocol
 from corrections_sim.study.settings import FigureSettings
@@ -66,6 +70,16 @@ def settings_for(protocol: Protocol, base: Path | None = None) -> dict[str, Figu
         except ValueError as exc:
             raise ValueError(f"{where}.set: {exc}") from None
     return out
+
+
+def load(protocol_path) -> tuple[Protocol, dict[str, FigureSettings]]:
+    """The protocol at ``protocol_path`` and its conditions' study settings, checked as a
+    study run checks them, with nothing written."""
+    protocol_path = Path(protocol_path)
+    protocol = load_protocol(protocol_path)
+    settings = settings_for(protocol, protocol_path.resolve().parent)
+    check_conditions(protocol, settings)
+    return protocol, settings
 
 
 def open_run(protocol_path, db) -> StudyRun:

@@ -36,10 +36,8 @@ from typing import Any
 
 import numpy as np
 
-from corrections_sim import components
 from corrections_sim.interact.log import StudyError, StudyLog, check_participant
-from corrections_sim.interact.session import Session, simulate
-from corrections_sim.learning.base import LEARNERS
+from corrections_sim.interact.session import Session, physical_learner, simulate
 from corrections_sim.people.users import make_user
 from corrections_sim.planning.planner import PlanningError, shared_planner
 from corrections_sim.planning.plans import PlanBook
@@ -60,6 +58,41 @@ def trial_seed(protocol: Protocol, index: int, key: str) -> int:
 def participant_rng(protocol: Protocol, index: int) -> np.random.Generator:
     """The generator of simulated participant ``index`` (θ*, answers)."""
     return np.random.default_rng(np.random.SeedSequence([protocol.seed, 42, index]))
+
+
+def correction_of(protocol: Protocol, name: str) -> str:
+    """The correction model of condition ``name``'s sessions."""
+    return "physical" if protocol.condition(name).mode == "physical" else "waypoint"
+
+
+def learner_params_of(protocol: Protocol, settings_of: Mapping, name: str) -> dict | None:
+    """Condition ``name``'s learner parameters: a physical condition's learner takes the
+    ``physical`` model of a push where it takes a model (as ``interact --mode physical``)."""
+    condition = protocol.condition(name)
+    if condition.mode != "physical":
+        return None
+    given = any(k.startswith(f"learners.{condition.learner}.model") for k, _ in condition.set)
+    return physical_learner(settings_of[name], condition.learner, model_set=given)
+
+
+def check_conditions(protocol: Protocol, settings_of: Mapping[str, FigureSettings]) -> None:
+    """Every condition (and the practice) has study settings and a learner and correction
+    model its sessions can start with (Session.prepare's checks; nothing is written).
+
+    Raises:
+        ValueError: one line naming the condition or the learner.
+    """
+    names = [*protocol.names, *([protocol.practice.name] if protocol.practice else [])]
+    missing = [n for n in names if n not in settings_of]
+    if missing:
+        raise ValueError(f"condition {missing[0]}: no study settings for it")
+    for name in names:
+        Session.prepare(
+            settings_of[name],
+            protocol.condition(name).learner,
+            learner_params_of(protocol, settings_of, name),
+            correction_of(protocol, name),
+        )
 
 
 @dataclass(frozen=True)
@@ -92,18 +125,7 @@ class StudyRun:
         self.protocol = protocol
         self.log = log
         self.settings_of = dict(settings_of)
-        names = [*protocol.names, *([protocol.practice.name] if protocol.practice else [])]
-        missing = [n for n in names if n not in self.settings_of]
-        if missing:
-            raise ValueError(f"condition {missing[0]}: no study settings for it")
-        for name in names:
-            condition = protocol.condition(name)
-            Session.prepare(
-                self.settings_of[name],
-                condition.learner,
-                self.learner_params(name),
-                self.correction(name),
-            )
+        check_conditions(protocol, self.settings_of)
         found = log.meta("protocol_sha256")
         if found is None:
             log.set_meta("protocol", json.dumps(protocol.source, sort_keys=True))
@@ -121,24 +143,10 @@ class StudyRun:
     # --- conditions ------------------------------------------------------------------------
 
     def correction(self, name: str) -> str:
-        return "physical" if self.protocol.condition(name).mode == "physical" else "waypoint"
+        return correction_of(self.protocol, name)
 
     def learner_params(self, name: str) -> dict | None:
-        """A physical condition's learner takes the ``physical`` model of a push where it
-        takes a model (as ``interact --mode physical``)."""
-        condition = self.protocol.condition(name)
-        if condition.mode != "physical":
-            return None
-        cls = LEARNERS[condition.learner]
-        if "model" not in components.defaults(cls):
-            return None
-        agent = self.settings_of[name].study.learners.get(condition.learner)
-        params = components.params(agent) if agent is not None else {}
-        if "model" in dict(condition.set) or any(
-            k.startswith(f"learners.{condition.learner}.model") for k, _ in condition.set
-        ):
-            return params or None
-        return params | {"model": "physical"}
+        return learner_params_of(self.protocol, self.settings_of, name)
 
     # --- participants ----------------------------------------------------------------------
 

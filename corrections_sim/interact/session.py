@@ -142,6 +142,17 @@ def build_learner(settings: FigureSettings, name: str, params: Mapping | None = 
     return agent
 
 
+def physical_learner(settings: FigureSettings, learner: str, *, model_set: bool = False):
+    """A physical session's learner parameters: the study's, with the ``physical`` model of a
+    push where the learner takes a model and none was set (``model_set``); None to take the
+    study's (or the defaults) as they are."""
+    if model_set or "model" not in components.defaults(LEARNERS[learner]):
+        return None
+    agent = settings.study.learners.get(learner)
+    params = components.params(agent) if agent is not None else {}
+    return params | {"model": "physical"}
+
+
 def build_correction(spec: str | Mapping) -> CorrectionModel:
     """A correction model from a name or a table ``{name = ..., params...}``."""
     if isinstance(spec, str):

@@ -40,6 +40,7 @@ import threading
 from collections.abc import Callable
 
 from corrections_sim.interact.log import StudyError
+from corrections_sim.interact.page import plural
 from corrections_sim.interact.participant import Participant, StudyRun
 from corrections_sim.interact.server import configure, make_page
 from corrections_sim.study.protocol import TLX_SCALES, TLX_TEXT, Step
@@ -205,6 +206,8 @@ class ParticipantView:
         self.shown: Step | None = None  # the step on the page (tests wait on it)
         #: the controls of the step on the page by name (a scripted driver addresses them)
         self.controls: dict = {}
+        #: the line where a refused click says why (each step draws its own)
+        self.error = None
 
     def start(self) -> None:
         self.render()
@@ -283,8 +286,6 @@ class ParticipantView:
 
         return on_click
 
-    error = None
-
     def _code_entry(self) -> None:
         gui = self.client.gui
         gui.add_markdown("**Welcome.** Type the participant code the experimenter gave you.")
@@ -312,7 +313,9 @@ class ParticipantView:
         gui.add_markdown(step.text)
         session = self.person.session(step.key)
         limit = self.person.corrections(step)
-        gui.add_markdown(f"This trial ends after {limit} corrections (or when you press Done).")
+        gui.add_markdown(
+            f"This trial ends after {limit} {plural(limit, 'correction')} (or when you press Done)."
+        )
         self.page = make_page(
             self.study.server,
             session,
