@@ -28,6 +28,13 @@ four, so older readers and committed logs are untouched), and the protocol in ``
   experimenter aborted.
 * ``answers`` — one row per answered item (participant, step, item), the value as JSON;
   written with the step's end in one transaction, so a questionnaire is all there or not.
+  Only what the participant gave is an answer: an optional item left unanswered has no row.
+* ``asked`` — beside each answer, what was asked (the item's text, anchors and scale, JSON),
+  so an answer keeps its meaning if the protocol's wording is corrected later (logs made
+  before this table have none: their protocol in ``meta`` says what was asked).
+* ``participant_events`` — what happened to a participant outside a session: ``stopped``
+  (they ended a trial early, with its step and corrections), ``withdrew`` (they left the
+  study from their page, or the experimenter withdrew them: ``by``).
 
 Every write commits before it returns, so a confirmed correction survives the server being
 killed at any moment after. Arrays are stored as JSON lists of floats (``repr`` round trip,
@@ -129,6 +136,20 @@ CREATE TABLE IF NOT EXISTS answers (
     value TEXT NOT NULL,
     at TEXT NOT NULL,
     PRIMARY KEY (code, step, item)
+);
+CREATE TABLE IF NOT EXISTS asked (
+    code TEXT NOT NULL REFERENCES participants(code),
+    step TEXT NOT NULL,
+    item TEXT NOT NULL,
+    question TEXT NOT NULL,
+    PRIMARY KEY (code, step, item)
+);
+CREATE TABLE IF NOT EXISTS participant_events (
+    id INTEGER PRIMARY KEY,
+    code TEXT NOT NULL REFERENCES participants(code),
+    kind TEXT NOT NULL,
+    at TEXT NOT NULL,
+    detail TEXT NOT NULL
 );
 """
 
@@ -375,6 +396,10 @@ class StudyLog:
 
     # --- a study's participants, steps and answers ----------------------------------------------
 
+    def prepare_study(self) -> None:
+        """Create the study tables this log lacks (a study run opens a log with it)."""
+        self._study()
+
     def _study(self) -> None:
         """Create the study tables if this log has none yet (see the module)."""
         with self._lock:
@@ -401,6 +426,12 @@ class StudyLog:
         """A new participant; refused (one line) if the code or the index is taken."""
         check_participant(code)
         self._study()
+        for row in self.participants():
+            if row["code"].casefold() == code.casefold() and row["code"] != code:
+                raise StudyError(
+                    f"participant {code}: {row['code']} is enrolled already (codes are read "
+                    "without regard to case)"
+                )
         try:
             self._write(
                 "INSERT INTO participants (code, idx, token_hash, enrolled, simulated) "
@@ -458,6 +489,7 @@ class StudyLog:
         if not delete:
             self._write("UPDATE participants SET withdrawn = ? WHERE code = ?", (now(), code))
             return
+        self._study()  # an older log may lack a table the deletion empties
         with self._lock:
             db = self._db
             db.execute("BEGIN IMMEDIATE")
@@ -470,7 +502,7 @@ class StudyLog:
                     db.execute("DELETE FROM corrections WHERE session_id = ?", (sid,))
                     db.execute("DELETE FROM events WHERE session_id = ?", (sid,))
                 db.execute("DELETE FROM sessions WHERE participant = ?", (code,))
-                for table in ("answers", "steps"):
+                for table in ("answers", "asked", "participant_events", "steps"):
                     db.execute(f"DELETE FROM {table} WHERE code = ?", (code,))
                 # The row stays, emptied, so the code and the index are not given again.
                 db.execute(
@@ -535,9 +567,15 @@ class StudyLog:
         return int(row[0])
 
     def finish_step(
-        self, code: str, position: int, key: str, answers: Mapping[str, Any] | None = None
+        self,
+        code: str,
+        position: int,
+        key: str,
+        answers: Mapping[str, Any] | None = None,
+        asked: Mapping[str, Mapping] | None = None,
     ) -> None:
-        """End step ``position``, with its answers, in one transaction.
+        """End step ``position``, with its answers and what each item asked (``asked``:
+        item -> the question as shown), in one transaction.
 
         Raises:
             StudyError: the step has ended already (an answer posted twice), or it was never
@@ -563,6 +601,11 @@ class StudyLog:
                         "INSERT INTO answers (code, step, item, value, at) VALUES (?,?,?,?,?)",
                         (code, key, item, _dump(value), at),
                     )
+                for item, question in (asked or {}).items():
+                    db.execute(
+                        "INSERT INTO asked (code, step, item, question) VALUES (?,?,?,?)",
+                        (code, key, item, _dump(dict(question))),
+                    )
                 db.execute(
                     "UPDATE steps SET finished = ? WHERE code = ? AND position = ?",
                     (at, code, position),
@@ -587,6 +630,46 @@ class StudyLog:
             {"code": c, "step": s, "item": i, "value": json.loads(v), "at": at}
             for c, s, i, v, at in rows
         ]
+
+    def _has(self, table: str) -> bool:
+        with self._lock:
+            row = self._db.execute(
+                "SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = ?", (table,)
+            ).fetchone()
+        return row is not None
+
+    def asked(self, code: str | None = None) -> dict[tuple[str, str, str], dict]:
+        """What was asked beside each answer: (code, step, item) -> the question as shown
+        (empty for a log made before answers kept it)."""
+        if not self._has("asked"):
+            return {}
+        sql, args = "SELECT code, step, item, question FROM asked", ()
+        if code is not None:
+            sql, args = sql + " WHERE code = ?", (code,)
+        with self._lock:
+            rows = self._db.execute(sql, args).fetchall()
+        return {(c, s, i): json.loads(q) for c, s, i, q in rows}
+
+    def add_participant_event(self, code: str, kind: str, detail: Mapping) -> None:
+        """Something that happened to ``code`` outside a session (see the module)."""
+        self._study()
+        self._write(
+            "INSERT INTO participant_events (code, kind, at, detail) VALUES (?,?,?,?)",
+            (code, kind, now(), _dump(dict(detail))),
+        )
+
+    def participant_events(self, code: str | None = None, kind: str | None = None) -> list[dict]:
+        """The events of ``code`` (or everyone's), of ``kind`` (or every kind), in order."""
+        if not self._has("participant_events"):
+            return []
+        sql, args = "SELECT code, kind, at, detail FROM participant_events WHERE 1", ()
+        if code is not None:
+            sql, args = sql + " AND code = ?", (*args, code)
+        if kind is not None:
+            sql, args = sql + " AND kind = ?", (*args, kind)
+        with self._lock:
+            rows = self._db.execute(sql + " ORDER BY id", args).fetchall()
+        return [{"code": c, "kind": k, "at": at, "detail": json.loads(d)} for c, k, at, d in rows]
 
     def labels(self, session_id: int) -> dict[int, dict]:
         """The label of each labelled correction by iteration (the last ``label`` event of

@@ -10,9 +10,13 @@ crash, a reload or a closed tab resumes exactly there. A step moves on only thro
 * :meth:`Participant.proceed` — an instructions step read;
 * :meth:`Participant.session` / :meth:`Participant.finish_trial` — a trial's session (a new
   one, or the one logged for this step resumed from its corrections), ended after the
-  protocol's number of corrections (or the page's "Done");
+  protocol's number of corrections (or the page's "Done" once it has ``min_corrections``);
+* :meth:`Participant.stop_trial` — the participant ends a trial early (logged as such; the
+  analysis leaves the trial out of the primary outcome and counts it);
 * :meth:`Participant.answer` — a questionnaire's answers, checked item by item, written with
-  the step's end in one transaction (a second post is refused, the first kept).
+  the step's end and what each item asked in one transaction (a second post is refused, the
+  first kept);
+* :meth:`Participant.leave` — the participant withdraws from their own page.
 
 Nothing here draws or plans by itself: a trial is a :class:`~corrections_sim.interact.session.
 Session` like any other, so a study's trials replay and resume like single sessions.
@@ -36,12 +40,18 @@ from typing import Any
 
 import numpy as np
 
-from corrections_sim.interact.log import StudyError, StudyLog, check_participant
+from corrections_sim.interact.log import StudyError, StudyLog, check_participant, now
 from corrections_sim.interact.session import Session, physical_learner, simulate
 from corrections_sim.people.users import make_user
 from corrections_sim.planning.planner import PlanningError, shared_planner
 from corrections_sim.planning.plans import PlanBook
-from corrections_sim.study.protocol import Protocol, Step, likert_value, tlx_value
+from corrections_sim.study.protocol import (
+    Protocol,
+    Step,
+    design_fingerprint,
+    likert_value,
+    tlx_value,
+)
 from corrections_sim.study.settings import FigureSettings
 
 
@@ -95,6 +105,36 @@ def check_conditions(protocol: Protocol, settings_of: Mapping[str, FigureSetting
         )
 
 
+def adopt_protocol(log: StudyLog, protocol: Protocol) -> None:
+    """Tie ``log`` to ``protocol`` (a new log) or check that it is tied to the same design
+    (:func:`~corrections_sim.study.protocol.design_fingerprint`): a protocol whose prose was
+    corrected is adopted, the earlier wording kept in ``meta`` (``protocol_versions``).
+
+    Raises:
+        ValueError: the log belongs to another design (one line).
+    """
+    stored = log.meta("protocol")
+    if stored is None:
+        log.set_meta("protocol", json.dumps(protocol.source, sort_keys=True))
+        log.set_meta("protocol_sha256", protocol.fingerprint())
+        return
+    source = json.loads(stored)
+    found = design_fingerprint(source)
+    if found != protocol.design_fingerprint():
+        raise ValueError(
+            f"{log.path}: this log belongs to another protocol (its design's SHA-256 "
+            f"{found[:12]}…, this one's {protocol.design_fingerprint()[:12]}…; only the "
+            "wording of instructions and questions may change within a study); use a new --db"
+        )
+    if log.meta("protocol_sha256") == protocol.fingerprint():
+        return
+    versions = json.loads(log.meta("protocol_versions") or "[]")
+    versions.append({"until": now(), "sha256": log.meta("protocol_sha256"), "source": source})
+    log.set_meta("protocol_versions", json.dumps(versions, sort_keys=True))
+    log.set_meta("protocol", json.dumps(protocol.source, sort_keys=True))
+    log.set_meta("protocol_sha256", protocol.fingerprint())
+
+
 @dataclass(frozen=True)
 class Where:
     """Where a participant is: the step, its position among ``total``, whether withdrawn."""
@@ -126,15 +166,8 @@ class StudyRun:
         self.log = log
         self.settings_of = dict(settings_of)
         check_conditions(protocol, self.settings_of)
-        found = log.meta("protocol_sha256")
-        if found is None:
-            log.set_meta("protocol", json.dumps(protocol.source, sort_keys=True))
-            log.set_meta("protocol_sha256", protocol.fingerprint())
-        elif found != protocol.fingerprint():
-            raise ValueError(
-                f"{log.path}: this log belongs to another protocol (SHA-256 {found[:12]}…, "
-                f"this one {protocol.fingerprint()[:12]}…); use a new --db for it"
-            )
+        adopt_protocol(log, protocol)
+        log.prepare_study()
         self._lock = threading.RLock()
         #: Every session of this run plans under it (see Session's ``lock``).
         self.planning = threading.RLock()
@@ -191,10 +224,18 @@ class StudyRun:
         """Where every participant is, by index."""
         return [self.participant(row["code"]).where() for row in self.log.participants()]
 
-    def withdraw(self, code: str, *, delete: bool = False) -> None:
+    def withdraw(self, code: str, *, delete: bool = False, by: str = "experimenter") -> None:
+        """Withdraw ``code`` (``by``: who asked, the experimenter or the participant): their
+        rows leave every analysis; with ``delete`` they are deleted."""
         with self._lock:
             for key in [k for k in self._sessions if k[0] == code]:
-                self._sessions.pop(key)
+                held = self._sessions.pop(key)
+                if not held.ended:
+                    held.log.add_event(held.id, held.iteration, "withdrawn", {"by": by})
+                    held.log.end_session(held.id)
+                    held.ended = True
+            if not delete:
+                self.log.add_participant_event(code, "withdrew", {"by": by})
             self.log.withdraw(code, delete=delete)
 
 
@@ -271,6 +312,17 @@ class Participant:
         p = self.run.protocol
         return p.practice_corrections if step.trial == 0 else p.corrections
 
+    def minimum(self, step: Step) -> int:
+        """Corrections the trial ``step`` needs before it may end (the practice: all)."""
+        p = self.run.protocol
+        return p.practice_corrections if step.trial == 0 else p.minimum
+
+    @property
+    def needs_stated(self) -> bool:
+        """The protocol's primary outcome is measured against the stated preference, so a
+        trial's page asks for it before the first correction."""
+        return self.run.protocol.primary in ("final_error", "mean_regret")
+
     def session(self, key: str | None = None, *, corrector: Any = "person") -> Session:
         """The session of the current trial step: the one this server holds, the one the log
         has for it (resumed from its corrections), or a new one."""
@@ -313,32 +365,50 @@ class Participant:
             run._sessions[(self.code, position)] = session
             return session
 
-    def trial_over(self, session: Session) -> bool:
-        """The trial has its corrections (or its session ended)."""
-        step = self.steps[self.position()]
-        return session.ended or session.iteration >= self.corrections(step)
-
     def finish_trial(self, key: str | None = None) -> Step:
         """End the current trial (its session is finished first if it is not); the next step.
 
         Raises:
-            StudyError: not at a trial, or the trial lacks corrections and its session is
-                still open.
+            StudyError: not at a trial, or the trial has fewer corrections than it needs
+                (:meth:`minimum`; a participant who wants to stop uses :meth:`stop_trial`).
         """
         run = self.run
         with run._lock:
             position, step = self._expect("trial", key)
             session = self.session(step.key)
+            stopped = bool(self.log.events(session.id, "stopped"))
+            if session.iteration < self.minimum(step) and not stopped:
+                raise StudyError(
+                    f"participant {self.code}: trial {step.key} has {session.iteration} of "
+                    f"the {self.minimum(step)} corrections it needs"
+                )
             if not session.ended:
-                if session.iteration < self.corrections(step):
-                    raise StudyError(
-                        f"participant {self.code}: trial {step.key} has {session.iteration} "
-                        f"of {self.corrections(step)} corrections"
-                    )
                 session.finish()
             self.log.finish_step(self.code, position, step.key)
             run._sessions.pop((self.code, position), None)
         return self.current()
+
+    def stop_trial(self, key: str | None = None) -> Step:
+        """The participant ends the current trial early: its session ends, marked
+        ``stopped`` (with its corrections) in the session and the participant's events; the
+        trial counts as ended early and leaves the primary analysis. The next step."""
+        run = self.run
+        with run._lock:
+            position, step = self._expect("trial", key)
+            session = self.session(step.key)
+            detail = {"step": step.key, "corrections": session.iteration, "by": "participant"}
+            self.log.add_event(session.id, session.iteration, "stopped", detail)
+            self.log.add_participant_event(self.code, "stopped", detail)
+            if not session.ended:
+                session.finish()
+            self.log.finish_step(self.code, position, step.key)
+            run._sessions.pop((self.code, position), None)
+        return self.current()
+
+    def leave(self) -> None:
+        """The participant withdraws from their own page (rows kept, marked, out of every
+        analysis; the experimenter may still delete them)."""
+        self.run.withdraw(self.code, by="participant")
 
     def abort_trial(self) -> int | None:
         """The experimenter aborts the current trial: its session ends (kept, marked aborted
@@ -401,20 +471,35 @@ class Participant:
             ValueError: an unknown item, a missing required one, or a value off its scale.
         """
         position, step = self._expect("questions", key)
-        by_item = {item: q for q in step.questions for item in q.items()}
-        unknown = [item for item in answers if item not in by_item]
-        if unknown:
-            raise ValueError(f"{unknown[0]}: not an item of {step.key}")
-        checked = {}
-        for item, question in by_item.items():
-            value = answers.get(item)
-            if value is None or value == "":
-                if question.required:
-                    raise ValueError(f"{item}: not answered (required)")
-                continue
-            checked[item] = question.check_answer(item, value)
-        self.log.finish_step(self.code, position, step.key, checked)
+        checked = check_answers(step, answers)
+        asked = {
+            item: q.asked(item) for q in step.questions for item in q.items() if item in checked
+        }
+        self.log.finish_step(self.code, position, step.key, checked, asked)
         return self.current()
+
+
+def check_answers(step: Step, answers: Mapping[str, Any]) -> dict:
+    """``answers`` (item -> value) of the questionnaire ``step`` as logged: each value on its
+    item's scale, a missing required item refused, a missing optional one left out (never
+    stored as a value the participant did not give).
+
+    Raises:
+        ValueError: an unknown item, a missing required one, or a value off its scale.
+    """
+    by_item = {item: q for q in step.questions for item in q.items()}
+    unknown = [item for item in answers if item not in by_item]
+    if unknown:
+        raise ValueError(f"{unknown[0]}: not an item of {step.key}")
+    checked = {}
+    for item, question in by_item.items():
+        value = answers.get(item)
+        if value is None or value == "":
+            if question.required:
+                raise ValueError(f"{item}: not answered (required)")
+            continue
+        checked[item] = question.check_answer(item, value)
+    return checked
 
 
 # --- a simulated participant -------------------------------------------------------------
@@ -462,13 +547,20 @@ def experienced(settings: FigureSettings, rows: list[dict], theta_star: np.ndarr
     return {"regret": float(np.mean(regrets)) if regrets else float("nan"), "error": error}
 
 
-def simulated_answers(protocol: Protocol, step: Step, felt: dict, rng) -> dict:
+def simulated_answers(
+    protocol: Protocol, step: Step, felt: dict, rng, by_order: tuple[dict, ...] = ()
+) -> dict:
     """A simulated questionnaire from the protocol's response model (see
-    :class:`~corrections_sim.study.protocol.Response`); text items say they are simulated."""
+    :class:`~corrections_sim.study.protocol.Response`); text items say they are simulated.
+    An item that compares the robots answers from ``by_order`` (what the participant
+    experienced with each condition, in the order they met them): the measure is the second
+    one's minus the first one's."""
     answers: dict[str, Any] = {}
     for q in step.questions:
         response = protocol.simulation.response(q.id)
         measure = felt.get(response.measure, 0.0)
+        if q.compare and len(by_order) == 2:
+            measure = by_order[1][response.measure] - by_order[0][response.measure]
         if not np.isfinite(measure):
             measure = 0.0
         if q.kind == "likert":
@@ -522,4 +614,8 @@ def simulate_participant(run: StudyRun, code: str, index: int | None = None) -> 
             # What they experienced in the condition's trials (all conditions at the end),
             # read back from the log: a participant resumed after a crash answers the same.
             felt = person.experienced(theta, step.condition)
-            person.answer(simulated_answers(protocol, step, felt, rng), step.key)
+            by_order = ()
+            if any(q.compare for q in step.questions):
+                order = protocol.order_of(person.index)
+                by_order = tuple(person.experienced(theta, name) for name in order)
+            person.answer(simulated_answers(protocol, step, felt, rng, by_order), step.key)

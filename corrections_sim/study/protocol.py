@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
 import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -41,10 +42,23 @@ TLX_TEXT = {
     "mental": "How mentally demanding was the task?",
     "physical": "How physically demanding was the task?",
     "temporal": "How hurried or rushed was the pace of the task?",
-    "performance": "How successful were you in accomplishing what you were asked to do? "
-    "(0 perfect … 100 failure)",
+    "performance": "How successful were you in accomplishing what you were asked to do?",
     "effort": "How hard did you have to work to accomplish your level of performance?",
     "frustration": "How insecure, discouraged, irritated, stressed and annoyed were you?",
+}
+#: Each TLX scale's own anchors (low, high): performance runs from perfect to failure.
+TLX_ANCHORS = {
+    scale: ("Perfect", "Failure") if scale == "performance" else ("Very low", "Very high")
+    for scale in TLX_SCALES
+}
+#: The TLX scales' names as a participant reads them.
+TLX_TITLES = {
+    "mental": "Mental demand",
+    "physical": "Physical demand",
+    "temporal": "Temporal demand",
+    "performance": "Performance",
+    "effort": "Effort",
+    "frustration": "Frustration",
 }
 #: Likert scales may have 2 to 11 points.
 LIKERT_POINTS = (2, 11)
@@ -62,8 +76,10 @@ PROTOCOL_KEYS = (
     "seed",
     "order",
     "corrections",
+    "min_corrections",
     "trials",
     "primary",
+    "min_participants",
     "welcome",
     "end",
     "practice",
@@ -84,12 +100,39 @@ class Question:
     points: int = 7
     anchors: tuple[str, str] = ("Strongly disagree", "Strongly agree")
     required: bool = True
+    #: An end item that compares the two conditions by the participant's order: its low
+    #: anchor is the robot they met first, its high anchor the one they met second (the
+    #: analysis maps each answer to the conditions).
+    compare: bool = False
 
     def items(self) -> tuple[str, ...]:
         """The answer keys this question takes (a TLX question takes six)."""
         if self.kind == "tlx":
             return tuple(f"{self.id}.{s}" for s in TLX_SCALES)
         return (self.id,)
+
+    def asked(self, item: str) -> dict:
+        """What the participant was asked for ``item``, as the log keeps it beside the answer
+        (the text and the anchors give an answer its meaning; a protocol's wording may be
+        corrected between participants)."""
+        if self.kind == "tlx":
+            scale = item.split(".", 1)[1]
+            return {
+                "kind": "tlx",
+                "text": TLX_TEXT[scale],
+                "title": TLX_TITLES[scale],
+                "anchors": list(TLX_ANCHORS[scale]),
+                "scale": [0, 100],
+            }
+        if self.kind == "likert":
+            return {
+                "kind": "likert",
+                "text": self.text,
+                "anchors": list(self.anchors),
+                "scale": [1, self.points],
+                "compare": self.compare,
+            }
+        return {"kind": "text", "text": self.text}
 
     def check_answer(self, item: str, value: Any) -> Any:
         """``value`` as logged for ``item``; a one-line ValueError if it is not an answer."""
@@ -122,6 +165,17 @@ class Condition:
 
     def overrides(self) -> dict[str, Any]:
         return dict(self.set)
+
+
+def templated(text: str, robot: int, robots: int) -> str:
+    """A condition's text for a participant who meets it as robot ``robot`` of ``robots``
+    (``{robot}`` and ``{robots}`` replaced; nothing else in the text is touched)."""
+    return text.replace("{robot}", str(robot)).replace("{robots}", str(robots))
+
+
+#: A robot named by its number in a condition's text ("Robot 2"): the number is each
+#: participant's own (their order), so a protocol writes {robot} instead.
+_ROBOT_NUMBER = re.compile(r"\brobots?\s*(?:no\.?\s*|number\s*|#\s*)?\d+", re.IGNORECASE)
 
 
 @dataclass(frozen=True)
@@ -185,7 +239,11 @@ class Protocol:
     seed: int = 0
     order: str = "williams"
     corrections: int = 5
+    #: corrections a participant gives before a trial may end ("Done"); default all of them
+    min_corrections: int | None = None
     trials: int = 1
+    #: below this many participants the report is descriptive only
+    min_participants: int = 6
     description: str = ""
     welcome: str = ""
     end: str = ""
@@ -209,10 +267,20 @@ class Protocol:
                 return c
         raise KeyError(name)
 
+    @property
+    def minimum(self) -> int:
+        """Corrections a trial needs before it may end (``min_corrections``, default all)."""
+        return self.corrections if self.min_corrections is None else self.min_corrections
+
     def fingerprint(self) -> str:
-        """SHA-256 of the protocol's values (a log keeps it; a server refuses another)."""
+        """SHA-256 of the protocol's values, prose and all (see :func:`design_fingerprint`
+        for what a log is tied to)."""
         text = json.dumps(self.source, sort_keys=True, default=str)
         return hashlib.sha256(text.encode()).hexdigest()
+
+    def design_fingerprint(self) -> str:
+        """SHA-256 of the protocol's design (see :func:`design_fingerprint`)."""
+        return design_fingerprint(self.source)
 
     def square(self) -> list[list[int]]:
         """The rows of condition indices participants take in turn (see the module)."""
@@ -242,7 +310,8 @@ class Protocol:
         for k, name in enumerate(order, 1):
             c = self.condition(name)
             if c.instructions:
-                out.append(Step(f"{name}.instructions", "instructions", name, 0, c.instructions))
+                text = templated(c.instructions, k, len(order))
+                out.append(Step(f"{name}.instructions", "instructions", name, 0, text))
             for t in range(1, self.trials + 1):
                 text = f"**Robot {k} of {len(order)}**, trial {t} of {self.trials}."
                 out.append(Step(f"{name}.trial{t}", "trial", name, t, text))
@@ -279,6 +348,37 @@ def latin_square(n: int) -> list[list[int]]:
     return rows
 
 
+#: The prose of a protocol: what the page says, which may be corrected while a study runs
+#: (item texts and anchors are kept with each answer). Everything else is its design.
+PROSE = ("description", "welcome", "end")
+
+
+def design_of(source: Mapping[str, Any]) -> dict:
+    """A protocol's values without its prose (:data:`PROSE`, every condition's and the
+    practice's ``instructions``, every question's ``text`` and ``anchors``)."""
+    out = json.loads(json.dumps(dict(source), default=str))
+    for key in PROSE:
+        out.pop(key, None)
+    for table in (*out.get("conditions", []), out.get("practice", {})):
+        if isinstance(table, dict):
+            table.pop("instructions", None)
+    questionnaires = out.get("questionnaires", {})
+    if isinstance(questionnaires, dict):
+        for questions in questionnaires.values():
+            for q in questions if isinstance(questions, list) else []:
+                if isinstance(q, dict):
+                    q.pop("text", None)
+                    q.pop("anchors", None)
+    return out
+
+
+def design_fingerprint(source: Mapping[str, Any]) -> str:
+    """SHA-256 of a protocol's design (:func:`design_of`): a study log is tied to it, so its
+    prose can be corrected without locking the experimenter out of the log."""
+    text = json.dumps(design_of(source), sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
 # --- reading a protocol file ----------------------------------------------------------------
 
 
@@ -303,7 +403,7 @@ def _identifier(name: str, value) -> str:
     return text
 
 
-def _condition(name: str, value, default_mode: str) -> Condition:
+def _condition(name: str, value, default_mode: str, strict: bool = True) -> Condition:
     values = _table(name, value)
     label = _identifier(f"{name}.name", values.pop("name", None))
     learner = values.pop("learner", None)
@@ -316,6 +416,13 @@ def _condition(name: str, value, default_mode: str) -> Condition:
         raise ValueError(f"{name}.mode = {mode!r}: expected one of {', '.join(MODES)}")
     sets = _table(f"{name}.set", values.pop("set", {}))
     instructions = _text(f"{name}.instructions", values.pop("instructions", None))
+    found = _ROBOT_NUMBER.search(instructions)
+    if found and strict and name != "practice":
+        raise ValueError(
+            f"{name}.instructions: names a robot by number ({found.group(0)!r}), but each "
+            "participant meets the robots in their own order: write {robot} (their number) "
+            "instead"
+        )
     reject_unknown(values, name)
     return Condition(label, learner, mode, tuple(sorted(sets.items())), instructions)
 
@@ -350,8 +457,13 @@ def _question(name: str, value) -> Question:
     required = values.pop("required", kind != "text")
     if not isinstance(required, bool):
         raise ValueError(f"{name}.required = {required!r}: expected true or false")
+    compare = values.pop("compare", False)
+    if not isinstance(compare, bool):
+        raise ValueError(f"{name}.compare = {compare!r}: expected true or false")
+    if compare and kind != "likert":
+        raise ValueError(f"{name}.compare: only a Likert item compares the robots")
     reject_unknown(values, name)
-    return Question(qid, kind, text, points, anchors, required)
+    return Question(qid, kind, text, points, anchors, required, compare)
 
 
 def _questions(name: str, value) -> tuple[Question, ...]:
@@ -410,9 +522,12 @@ def _simulation(value, k: int | None) -> Simulation:
     )
 
 
-def parse_protocol(values: Mapping[str, Any], *, k: int | None = None) -> Protocol:
+def parse_protocol(
+    values: Mapping[str, Any], *, k: int | None = None, strict: bool = True
+) -> Protocol:
     """A checked protocol from a protocol file's values (``k``: the study's number of
-    features, to check the simulated population's θ* against).
+    features, to check the simulated population's θ* against; ``strict``: False for a
+    protocol read back from a study log, whose prose was checked by the rules of its day).
 
     Raises:
         ValueError: one line, starting with the key path of what is wrong.
@@ -428,14 +543,22 @@ def parse_protocol(values: Mapping[str, Any], *, k: int | None = None) -> Protoc
     if order not in ORDERS:
         raise ValueError(f"order = {order!r}: expected one of {', '.join(ORDERS)}")
     corrections = integer("corrections", values.get("corrections", 5), low=1, high=1000)
+    minimum = values.get("min_corrections")
+    if minimum is not None:
+        minimum = integer("min_corrections", minimum, low=1, high=corrections)
     trials = integer("trials", values.get("trials", 1), low=1, high=100)
+    min_participants = integer(
+        "min_participants", values.get("min_participants", 6), low=2, high=100000
+    )
     primary = values.get("primary", "final_error")
     if primary not in OUTCOMES:
         raise ValueError(f"primary = {primary!r}: expected one of {', '.join(OUTCOMES)}")
     raw = values.get("conditions")
     if not isinstance(raw, list) or not raw:
         raise ValueError("conditions: expected at least one [[conditions]] table")
-    conditions = tuple(_condition(f"conditions[{i}]", c, "drag") for i, c in enumerate(raw))
+    conditions = tuple(
+        _condition(f"conditions[{i}]", c, "drag", strict) for i, c in enumerate(raw)
+    )
     names = [c.name for c in conditions]
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:
@@ -456,6 +579,18 @@ def parse_protocol(values: Mapping[str, Any], *, k: int | None = None) -> Protoc
     questionnaires = _table("questionnaires", values.get("questionnaires", {}))
     after = _questions("questionnaires.condition", questionnaires.pop("condition", []))
     at_end = _questions("questionnaires.end", questionnaires.pop("end", []))
+    for i, q in enumerate(after):
+        if q.compare:
+            raise ValueError(
+                f"questionnaires.condition[{i}].compare: an item after one condition cannot "
+                "compare the robots (ask it in questionnaires.end)"
+            )
+    for i, q in enumerate(at_end):
+        if q.compare and len(conditions) != 2:
+            raise ValueError(
+                f"questionnaires.end[{i}].compare: compares two robots, the protocol has "
+                f"{len(conditions)} conditions"
+            )
     reject_unknown(questionnaires, "questionnaires")
     simulation = None
     if "simulation" in values:
@@ -466,8 +601,10 @@ def parse_protocol(values: Mapping[str, Any], *, k: int | None = None) -> Protoc
         seed=seed,
         order=order,
         corrections=corrections,
+        min_corrections=minimum,
         trials=trials,
         primary=primary,
+        min_participants=min_participants,
         description=_text("description", values.get("description")),
         welcome=_text("welcome", values.get("welcome")),
         end=_text("end", values.get("end")),
