@@ -12,9 +12,19 @@ into one folder:
   (condition means with 95% CIs), ``questionnaires.png`` (the answers' distributions);
 * ``report.md`` tying them together.
 
-Withdrawn participants, aborted trials and the practice are left out (and counted). A log
-with simulated participants says so at the top of the report and in ``summary.json``:
+Withdrawn participants, aborted trials and the practice are left out (and counted); so are
+trials that ended early (a participant who stopped, or fewer than ``min_corrections``) from
+every trial outcome, and a trial without a stated preference has no error or regret (counted).
+A log with simulated participants says so at the top of the report and in ``summary.json``:
 their answers come from a stated response model, not from people.
+
+**What the report refuses to say** (:mod:`corrections_sim.study.user_study`): below the
+protocol's ``min_participants`` it is descriptive only (means, spreads, each person's values;
+no interval, test or model); a saturated or singular mixed model is not reported (the report
+says why and shows the paired comparison); intervals of bounded scales stay on their scale;
+an end item that compares the robots is mapped to the conditions by each participant's order;
+``summary.json`` is strict JSON (a number that does not exist is ``null``); free text is
+escaped.
 """
 
 from __future__ import annotations
@@ -22,6 +32,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -42,7 +53,20 @@ def protocol_of(log: StudyLog) -> Protocol:
     text = log.meta("protocol")
     if text is None:
         raise ValueError(f"{log.path}: not a protocol's study log (no protocol in it)")
-    return parse_protocol(json.loads(text))
+    return parse_protocol(json.loads(text), strict=False)
+
+
+def outcome_bounds(name: str, protocol: Protocol) -> user_study.Bounds:
+    """The scale of an outcome: errors and seconds are >= 0, a Likert item 1…points, the raw
+    TLX 0…100; the regret of a plan is unbounded (a local optimum can make it negative)."""
+    if name in ("final_error", "seconds"):
+        return (0.0, None)
+    if name.endswith("_raw"):
+        return (0.0, 100.0)
+    for q in (*protocol.after_condition, *protocol.at_end):
+        if q.id == name and q.kind == "likert":
+            return (1.0, float(q.points))
+    return user_study.UNBOUNDED
 
 
 def _error(theta, reference) -> float:
@@ -61,13 +85,25 @@ def tidy(log: StudyLog, *, regret: bool = True) -> dict:
     stated θ for the regret of the plans shown (seconds of planning per trial)."""
     protocol = protocol_of(log)
     corrections, trials, answers = [], [], []
-    excluded = {"withdrawn": [], "aborted_trials": 0, "unfinished_trials": 0}
+    excluded = {
+        "withdrawn": [],
+        "withdrew_themselves": [],
+        "aborted_trials": 0,
+        "unfinished_trials": 0,
+        "ended_early_trials": 0,
+        "trials_without_stated_preference": 0,
+    }
     simulated = False
     people = []
+    comparisons = []
+    asked = log.asked()
     for person in log.participants():
         code, index = person["code"], int(person["index"])
         if person["withdrawn"] is not None:
             excluded["withdrawn"].append(code)
+            left = log.participant_events(code, "withdrew")
+            if left and left[-1]["detail"].get("by") == "participant":
+                excluded["withdrew_themselves"].append(code)
             continue
         simulated |= person["simulated"] is not None
         people.append(code)
@@ -112,9 +148,16 @@ def tidy(log: StudyLog, *, regret: bool = True) -> dict:
                     }
                 )
             final = logged[-1]["theta_after"] if logged else None
+            stopped = bool(log.events(sid, "stopped"))
+            early = stopped or len(logged) < protocol.minimum
+            excluded["ended_early_trials"] += early
+            excluded["trials_without_stated_preference"] += reference is None
             trial = {
                 **base,
                 "corrections": len(logged),
+                "ended_early": early,
+                "stopped_by_participant": stopped,
+                "stated": reference is not None,
                 "final_error": math.nan if final is None else _error(final, reference),
                 "mean_regret": math.nan,
                 "seconds": float(np.mean([c["seconds"] for c in logged])) if logged else math.nan,
@@ -133,6 +176,8 @@ def tidy(log: StudyLog, *, regret: bool = True) -> dict:
             item = a["item"]
             qid = item.split(".")[0]
             question = next(q for q in step.questions if q.id == qid)
+            # What was asked: kept beside the answer (logs made before: the protocol's).
+            shown = asked.get((code, a["step"], item)) or question.asked(item)
             answers.append(
                 {
                     "participant": code,
@@ -145,16 +190,45 @@ def tidy(log: StudyLog, *, regret: bool = True) -> dict:
                     "kind": question.kind,
                     "points": question.points if question.kind == "likert" else "",
                     "value": a["value"],
+                    "question": shown.get("text", ""),
+                    "anchors": " … ".join(shown.get("anchors", [])),
                 }
             )
+            if question.compare and len(order) == 2:
+                comparisons.append(compared(code, item, int(a["value"]), question.points, order))
     return {
         "protocol": protocol,
         "participants": people,
         "corrections": corrections,
         "trials": trials,
         "answers": answers,
+        "comparisons": comparisons,
         "excluded": excluded,
         "simulated": simulated,
+    }
+
+
+def compared(code: str, item: str, value: int, points: int, order: tuple[str, ...]) -> dict:
+    """An answer to an item that compares the robots, mapped to the conditions: the low
+    anchor is the robot the participant met first (``order[0]``), the high one the second.
+    ``preferred``: the condition they leant to ("" at the middle); ``score``: how far toward
+    the protocol's second condition (sorted by the conditions' names), −(points−1)/2 …
+    +(points−1)/2."""
+    mid = (points + 1) / 2
+    toward_second_met = value - mid
+    first, second = order
+    preferred = "" if value == mid else (second if value > mid else first)
+    names = sorted(order)
+    score = toward_second_met if second == names[1] else -toward_second_met
+    return {
+        "participant": code,
+        "item": item,
+        "value": value,
+        "first": first,
+        "second": second,
+        "preferred": preferred,
+        "toward": names[1],
+        "score": score,
     }
 
 
@@ -188,32 +262,119 @@ def answer_outcomes(tables: dict) -> tuple[list[dict], list[str]]:
 
 
 def analyse(tables: dict) -> dict:
-    """Summaries, mixed models and paired comparisons of every outcome (see the module)."""
+    """Summaries, mixed models and paired comparisons of every outcome (see the module);
+    below the protocol's ``min_participants`` the summaries alone, marked descriptive."""
     protocol = tables["protocol"]
     conditions = list(protocol.names)
     outcomes = [o for o in OUTCOMES if not (o == "seconds" and tables["simulated"])]
     answer_rows, answer_names = answer_outcomes(tables)
+    complete = [t for t in tables["trials"] if not t.get("ended_early")]
+    n = len(tables["participants"])
+    descriptive = n < protocol.min_participants
     out: dict = {
         "simulated": tables["simulated"],
-        "participants": len(tables["participants"]),
+        "participants": n,
+        "min_participants": protocol.min_participants,
+        "descriptive_only": descriptive,
+        "primary": protocol.primary,
         "excluded": tables["excluded"],
         "conditions": conditions,
         "outcomes": {},
     }
     for name, rows in [
-        *((o, tables["trials"]) for o in outcomes),
+        *((o, complete) for o in outcomes),
         *((o, answer_rows) for o in answer_names),
     ]:
-        entry = {
-            "summary": user_study.condition_summary(rows, name, conditions),
-            "paired": user_study.paired(rows, name, conditions),
-        }
-        try:
-            entry["mixed"] = user_study.mixed_model(rows, name, conditions)
-        except ValueError as exc:
-            entry["mixed"] = {"error": str(exc)}
+        bounds = outcome_bounds(name, protocol)
+        summary = user_study.condition_summary(rows, name, conditions, bounds)
+        pairs = user_study.paired(rows, name, conditions, bounds)
+        entry: dict = {"bounds": list(bounds), "summary": summary, "paired": pairs}
+        if descriptive:
+            for row in (*summary, *pairs):
+                for key in ("lo", "hi", "d_z", "p"):
+                    row.pop(key, None)
+            entry["mixed"] = {"reported": False, "why": "descriptive only (too few participants)"}
+        else:
+            try:
+                entry["mixed"] = user_study.mixed_model(rows, name, conditions)
+            except ValueError as exc:
+                entry["mixed"] = {"reported": False, "why": str(exc)}
+            _flag_beyond_scale(entry["mixed"], bounds)
         out["outcomes"][name] = entry
+    out["comparisons"] = compare_summary(tables["comparisons"], protocol, descriptive)
     return out
+
+
+def _flag_beyond_scale(mixed: dict, bounds: user_study.Bounds) -> None:
+    """A reported effect whose interval runs past the largest difference the scale allows
+    says nothing the scale can hold: not reported."""
+    low, high = user_study.difference_bounds(bounds)
+    if not mixed.get("reported") or low is None:
+        return
+    for e in mixed["effects"]:
+        if e["lo"] < low or e["hi"] > high:
+            mixed["reported"] = False
+            mixed["why"] = (
+                f"its interval [{e['lo']:.2f}, {e['hi']:.2f}] runs past the scale's largest "
+                f"difference (±{high:g}): too few data for the model"
+            )
+            return
+
+
+def compare_summary(rows: list[dict], protocol: Protocol, descriptive: bool) -> dict:
+    """Per item that compares the robots: how many preferred each condition (and neither),
+    the mean score toward the second condition by name, with a t interval on its scale and
+    a sign test (not below ``min_participants``)."""
+    out = {}
+    for item in dict.fromkeys(r["item"] for r in rows):
+        mine = [r for r in rows if r["item"] == item]
+        question = next(q for q in protocol.at_end if q.id == item)
+        reach = (question.points - 1) / 2
+        toward = mine[0]["toward"]
+        names = sorted({mine[0]["first"], mine[0]["second"]})
+        counts = {name: sum(r["preferred"] == name for r in mine) for name in names}
+        entry = {
+            "toward": toward,
+            "preferred": counts,
+            "neither": sum(r["preferred"] == "" for r in mine),
+            **user_study.mean_ci([r["score"] for r in mine], bounds=(-reach, reach)),
+            "sign_test_p": user_study.sign_test(counts[names[1]], counts[names[0]]),
+        }
+        if descriptive:
+            for key in ("lo", "hi", "sign_test_p"):
+                entry.pop(key)
+        out[item] = entry
+    return out
+
+
+def strict_json(value):
+    """``value`` with every float that is not a number (NaN, ±inf) as None: JSON as the
+    standard has it (Python's json writes NaN, which other readers refuse)."""
+    if isinstance(value, dict):
+        return {k: strict_json(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [strict_json(v) for v in value]
+    if isinstance(value, float | np.floating):
+        return float(value) if math.isfinite(value) else None
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, np.bool_):
+        return bool(value)
+    return value
+
+
+#: Characters Markdown (and the HTML it may hold) gives a meaning to.
+_MARKDOWN = re.compile(r"([\\`*_{}\[\]()#+\-.!|~>])")
+
+
+def escape_text(text: str, limit: int = 500) -> str:
+    """Free text as plain words in Markdown: HTML's &, < and > as entities, Markdown's
+    marks escaped, every run of white space (a newline too) one space, at most ``limit``
+    characters (the rest marked cut)."""
+    flat = " ".join(str(text).split())
+    cut = flat[:limit] + (" [cut]" if len(flat) > limit else "")
+    cut = cut.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
+    return _MARKDOWN.sub(r"\\\1", cut)
 
 
 def _write_csv(path: Path, rows: list[dict]) -> None:
@@ -235,7 +396,11 @@ def plot(tables: dict, result: dict, out: Path) -> list[Path]:
 
     conditions = result["conditions"]
     names = list(result["outcomes"])
+    from matplotlib.ticker import MaxNLocator
+
     answer_rows, _ = answer_outcomes(tables)
+    complete = [t for t in tables["trials"] if not t.get("ended_early")]
+    descriptive = result["descriptive_only"]
     simulated = " (simulated participants)" if result["simulated"] else ""
     paths = []
     cols = min(3, len(names))
@@ -243,7 +408,7 @@ def plot(tables: dict, result: dict, out: Path) -> list[Path]:
     for kind in ("participants", "conditions"):
         fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.2 * rows), squeeze=False)
         for ax, name in zip(axes.flat, names, strict=False):
-            source = tables["trials"] if name in OUTCOMES else answer_rows
+            source = complete if name in OUTCOMES else answer_rows
             x = np.arange(len(conditions))
             if kind == "participants":
                 per: dict[str, dict[str, list[float]]] = {}
@@ -256,29 +421,39 @@ def plot(tables: dict, result: dict, out: Path) -> list[Path]:
                     y = [np.mean(values[c]) if c in values else np.nan for c in conditions]
                     ax.plot(x, y, "-o", color="0.45", alpha=0.55, lw=1, ms=3)
             summary = result["outcomes"][name]["summary"]
-            means = np.array([s["mean"] for s in summary])
-            lo = np.array([s["lo"] for s in summary])
-            hi = np.array([s["hi"] for s in summary])
-            ax.errorbar(
-                x,
-                means,
-                yerr=[means - lo, hi - means],
-                fmt="s",
-                color="C3",
-                capsize=5,
-                lw=2,
-                ms=7,
-                zorder=3,
-                label="mean, 95% CI",
-            )
+            means = np.array([row["mean"] for row in summary])
+            if descriptive:  # no interval to draw: the mean alone
+                ax.plot(x, means, "s", color="C3", ms=7, zorder=3, label="mean")
+            else:
+                lo = np.array([row["lo"] for row in summary])
+                hi = np.array([row["hi"] for row in summary])
+                ax.errorbar(
+                    x,
+                    means,
+                    yerr=[means - lo, hi - means],
+                    fmt="s",
+                    color="C3",
+                    capsize=5,
+                    lw=2,
+                    ms=7,
+                    zorder=3,
+                    label="mean, 95% CI",
+                )
+            low, high = result["outcomes"][name]["bounds"]
+            if low is not None and high is not None:
+                pad = 0.05 * (high - low)
+                ax.set_ylim(low - pad, high + pad)
             ax.set_xticks(x, conditions)
             ax.set_xlim(-0.5, len(conditions) - 0.5)
             ax.set_title(name.replace("_", " "))
             ax.grid(alpha=0.3)
         for ax in list(axes.flat)[len(names) :]:
             ax.axis("off")
-        what = "each participant (grey) and" if kind == "participants" else ""
-        fig.suptitle(f"By condition: {what} the mean with its 95% CI{simulated}")
+        what = "each participant (grey) and " if kind == "participants" else ""
+        shown = "the mean with its 95% CI"
+        if descriptive:
+            shown = "the mean (descriptive only: too few participants)"
+        fig.suptitle(f"By condition: {what}{shown}{simulated}")
         fig.tight_layout()
         path = out / f"{kind}.png"
         fig.savefig(path, dpi=110)
@@ -288,9 +463,14 @@ def plot(tables: dict, result: dict, out: Path) -> list[Path]:
     items = list(dict.fromkeys(a["item"] for a in likert))
     if items:
         fig, axes = plt.subplots(1, len(items), figsize=(3.6 * len(items), 3.2), squeeze=False)
+        compared_items = {c["item"] for c in tables["comparisons"]}
         for ax, item in zip(axes.flat, items, strict=True):
             mine = [a for a in likert if a["item"] == item]
             points = int(mine[0]["points"])
+            if item in compared_items:  # mapped to the conditions, not the raw positions
+                rows = [c for c in tables["comparisons"] if c["item"] == item]
+                _plot_comparison(ax, rows, points)
+                continue
             present = {a["condition"] or "end" for a in mine}
             groups = [g for g in (*conditions, "end") if g in present]
             width = 0.8 / len(groups)
@@ -308,6 +488,8 @@ def plot(tables: dict, result: dict, out: Path) -> list[Path]:
             ax.set_xlabel("answer")
             ax.legend(fontsize=8)
         axes.flat[0].set_ylabel("participants")
+        for ax in axes.flat:
+            ax.yaxis.set_major_locator(MaxNLocator(integer=True))
         fig.suptitle(f"Questionnaire answers{simulated}")
         fig.tight_layout()
         path = out / "questionnaires.png"
@@ -317,14 +499,33 @@ def plot(tables: dict, result: dict, out: Path) -> list[Path]:
     return paths
 
 
+def _plot_comparison(ax, rows: list[dict], points: int) -> None:
+    """An item that compares the robots: how many leant how far toward each condition."""
+    reach = (points - 1) / 2
+    scores = np.arange(-reach, reach + 1)
+    counts = [sum(r["score"] == s for r in rows) for s in scores]
+    names = sorted({rows[0]["first"], rows[0]["second"]})
+    ax.bar(scores, counts, 0.7, color="C2")
+    ax.set_xticks(scores)
+    ax.set_title(f"{rows[0]['item']} (mapped to the conditions)")
+    ax.set_xlabel(f"← {names[0]}     neither     {names[1]} →")
+
+
 def _number(x, digits: int = 3) -> str:
     return "—" if x is None or not np.isfinite(x) else f"{x:.{digits}f}"
+
+
+def _interval(row: dict) -> str:
+    if "lo" not in row:
+        return ""
+    return f" [{_number(row['lo'])}, {_number(row['hi'])}]"
 
 
 def report(tables: dict, result: dict, log_path: Path) -> str:
     """The Markdown report (see the module)."""
     protocol = tables["protocol"]
-    lines = [f"# Study report: {protocol.description or log_path.name}", ""]
+    descriptive = result["descriptive_only"]
+    lines = [f"# Study report: {escape_text(protocol.description or log_path.name)}", ""]
     if result["simulated"]:
         lines += [
             "> **Simulated participants.** Every participant in this log was simulated "
@@ -333,65 +534,122 @@ def report(tables: dict, result: dict, log_path: Path) -> str:
             "people.",
             "",
         ]
+    n, least = result["participants"], result["min_participants"]
+    if descriptive:
+        lines += [
+            f"> **Descriptive only.** {n} {'participant' if n == 1 else 'participants'}, fewer "
+            f"than the protocol's min_participants ({least}): no interval, test or model is "
+            "reported. The numbers describe these participants and say nothing about "
+            "anyone else.",
+            "",
+        ]
     ex = result["excluded"]
+    themselves = len(ex.get("withdrew_themselves", []))
     lines += [
-        f"Log `{log_path.name}`; {result['participants']} participants analysed; "
-        f"withdrawn and left out: {len(ex['withdrawn'])}; aborted trials left out: "
-        f"{ex['aborted_trials']}; unfinished trials: {ex['unfinished_trials']}. Conditions: "
+        f"Log `{log_path.name}`; **{n} participants analysed**. Left out: withdrawn "
+        f"{len(ex['withdrawn'])} ({themselves} by their own choice); aborted trials "
+        f"{ex['aborted_trials']}; trials never finished {ex['unfinished_trials']}; trials "
+        f"ended early {ex.get('ended_early_trials', 0)} (fewer than {protocol.minimum} "
+        "corrections, or stopped by the participant: out of every trial outcome); trials "
+        f"without a stated preference {ex.get('trials_without_stated_preference', 0)} (no "
+        "error or regret). Conditions: "
         + ", ".join(f"{c.name} ({c.learner}, {c.mode})" for c in protocol.conditions)
         + f"; order by {protocol.order} square; {protocol.trials} trial(s) of "
-        f"{protocol.corrections} corrections per condition.",
+        f"{protocol.corrections} corrections per condition. Primary outcome: "
+        f"**{protocol.primary}**.",
         "",
-        "Tables: `trials.csv`, `corrections.csv`, `answers.csv`; numbers: `summary.json`.",
+        "Tables: `trials.csv`, `corrections.csv`, `answers.csv`, `comparisons.csv`; numbers: "
+        "`summary.json`.",
         "",
-        "## Outcomes by condition (mean over participants, 95% t CI)",
+        "## Outcomes by condition",
+        "",
+        (
+            "Mean over participants (sd; range of the participants' means)."
+            if descriptive
+            else "Mean over participants with its 95% t interval, computed on the outcome's "
+            "scale (a Likert item 1…points, the TLX 0…100, errors and seconds ≥ 0)."
+        ),
         "",
         "| outcome | " + " | ".join(result["conditions"]) + " |",
         "|---|" + "---|" * len(result["conditions"]),
     ]
     for name, entry in result["outcomes"].items():
-        cells = [
-            f"{_number(s['mean'])} [{_number(s['lo'])}, {_number(s['hi'])}]"
-            for s in entry["summary"]
-        ]
+        cells = []
+        for row in entry["summary"]:
+            if descriptive:
+                cells.append(
+                    f"{_number(row['mean'])} (sd {_number(row['sd'])}; {_number(row['min'])}…"
+                    f"{_number(row['max'])}), n {row['n']}"
+                )
+            else:
+                cells.append(f"{_number(row['mean'])}{_interval(row)}, n {row['n']}")
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
-    lines += [
-        "",
-        "## Mixed model: condition (fixed), participant (random)",
-        "",
-        "`outcome ~ condition + period + (1 | participant)`, REML; the interval is t with the "
-        "between-within degrees of freedom.",
-        "",
-        "| outcome | effect | estimate | 95% CI | df | p | participant var | residual var |",
-        "|---|---|---|---|---|---|---|---|",
-    ]
-    for name, entry in result["outcomes"].items():
-        mixed = entry["mixed"]
-        if "error" in mixed:
-            lines.append(f"| {name} | — | {mixed['error']} | | | | | |")
-            continue
-        for e in mixed["effects"]:
-            flag = "" if mixed["converged"] else " (did not converge)"
-            lines.append(
-                f"| {name} | {e['condition']} − {e['against']}{flag} | {_number(e['estimate'])} "
-                f"| [{_number(e['lo'])}, {_number(e['hi'])}] | {e['df']} | {_number(e['p'])} "
-                f"| {_number(mixed['participant_variance'])} "
-                f"| {_number(mixed['residual_variance'])} |"
-            )
+    if not descriptive:
+        lines += [
+            "",
+            "## Mixed model: condition (fixed), participant (random)",
+            "",
+            "`outcome ~ condition + period + (1 | participant)`, REML; the interval is t with "
+            "the between-within degrees of freedom. A saturated or singular model is not a "
+            "result: its row says why, and the paired comparison below stands instead.",
+            "",
+            "| outcome | effect | estimate | 95% CI | df | p | participant var | residual var |",
+            "|---|---|---|---|---|---|---|---|",
+        ]
+        for name, entry in result["outcomes"].items():
+            mixed = entry["mixed"]
+            if not mixed.get("reported"):
+                lines.append(f"| {name} | not reported: {mixed['why']} | | | | | | |")
+                continue
+            for e in mixed["effects"]:
+                lines.append(
+                    f"| {name} | {e['condition']} − {e['against']} | {_number(e['estimate'])} "
+                    f"| [{_number(e['lo'])}, {_number(e['hi'])}] | {e['df']} | {_number(e['p'])} "
+                    f"| {_number(mixed['participant_variance'])} "
+                    f"| {_number(mixed['residual_variance'])} |"
+                )
     lines += [
         "",
         "## Paired comparisons (each participant's difference)",
         "",
-        "| outcome | difference | n | mean | 95% CI | d_z | p |",
-        "|---|---|---|---|---|---|---|",
+        "| outcome | difference | n | mean | sd"
+        + ("" if descriptive else " | 95% CI | d_z | p")
+        + " |",
+        "|---|---|---|---|---|" + ("" if descriptive else "---|---|---|"),
     ]
     for name, entry in result["outcomes"].items():
         for p in entry["paired"]:
-            lines.append(
+            row = (
                 f"| {name} | {p['b']} − {p['a']} | {p['n']} | {_number(p['mean'])} | "
-                f"[{_number(p['lo'])}, {_number(p['hi'])}] | {_number(p['d_z'], 2)} | "
-                f"{_number(p['p'])} |"
+                f"{_number(p['sd'])} |"
             )
+            if not descriptive:
+                row += (
+                    f" [{_number(p['lo'])}, {_number(p['hi'])}] | {_number(p['d_z'], 2)} | "
+                    f"{_number(p['p'])} |"
+                )
+            lines.append(row)
+    if result["comparisons"]:
+        lines += [
+            "",
+            "## Which robot they would rather work with",
+            "",
+            "Each answer mapped to the conditions by the participant's own order (the low "
+            "anchor is the robot they met first). Score: toward the condition named, "
+            "−(points−1)/2 … +(points−1)/2.",
+            "",
+            "| item | preferred | neither | score toward | mean score"
+            + ("" if descriptive else " | 95% CI | sign test p")
+            + " |",
+            "|---|---|---|---|---|" + ("" if descriptive else "---|---|"),
+        ]
+        for item, c in result["comparisons"].items():
+            preferred = ", ".join(f"{k} {v}" for k, v in c["preferred"].items())
+            mean = _number(c["mean"])
+            row = f"| {item} | {preferred} | {c['neither']} | {c['toward']} | {mean} |"
+            if not descriptive:
+                row += f"{_interval(c)} | {_number(c['sign_test_p'])} |"
+            lines.append(row)
     lines += [
         "",
         "## Figures",
@@ -405,31 +663,36 @@ def report(tables: dict, result: dict, log_path: Path) -> str:
         lines += ["![questionnaire answers](questionnaires.png)", ""]
     texts = [a for a in tables["answers"] if a["kind"] == "text" and a["value"]]
     if texts:
-        lines += ["## Free text", ""]
-        lines += [f"- {a['participant']} ({a['item']}): {a['value']}" for a in texts[:50]]
+        lines += ["## Free text (as written, escaped)", ""]
+        lines += [
+            f"- {escape_text(a['participant'])} ({escape_text(a['item'])}): "
+            f"{escape_text(a['value'])}"
+            for a in texts[:50]
+        ]
         lines.append("")
     return "\n".join(lines)
 
 
 def analyze(log_path, out, *, regret: bool = True) -> list[Path]:
-    """Everything of the module for the log at ``log_path``, into the folder ``out``."""
+    """Everything of the module for the log at ``log_path``, into the folder ``out`` (made
+    only once the log has been read and has a finished trial)."""
     log_path = Path(log_path)
     if not log_path.is_file():
         raise ValueError(f"{log_path}: no such study log")
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     with StudyLog(log_path) as log:
         tables = tidy(log, regret=regret)
     if not tables["trials"]:
         raise ValueError(f"{log_path}: no finished trial to analyse")
     result = analyse(tables)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
     paths = []
-    for name in ("corrections", "trials", "answers"):
+    for name in ("corrections", "trials", "answers", "comparisons"):
         path = out / f"{name}.csv"
         _write_csv(path, tables[name])
         paths.append(path)
     path = out / "summary.json"
-    path.write_text(json.dumps(result, indent=1, default=float) + "\n")
+    path.write_text(json.dumps(strict_json(result), indent=1, allow_nan=False) + "\n")
     paths.append(path)
     paths += plot(tables, result, out)
     path = out / "report.md"

@@ -13,6 +13,15 @@ interval held the population's difference in 91.0% of them, this one in 93.5%
 
 **Paired comparisons.** For each pair of conditions, each participant's mean difference over
 their trials; the mean, a t interval and Cohen's d_z (mean / sd of the differences).
+
+**What it refuses to say.** A model that is saturated (no residual degrees of freedom: as
+many parameters as observations, as with two participants in two conditions) or singular (the
+fit failed, a standard error is not finite, it did not converge, or the participant variance
+sits on its boundary at 0, lme4's "singular fit") is marked ``reported: False`` with the reason;
+a report then shows the paired comparison instead. An outcome on a bounded scale (a Likert
+item 1…points, the TLX 0…100, seconds and errors ≥ 0) gets intervals computed on that scale:
+the t interval on the logit of the mean's place within the bounds (or on its log, for a scale
+bounded on one side), mapped back, so it never runs off the scale and needs no clipping.
 """
 
 from __future__ import annotations
@@ -27,10 +36,20 @@ from scipy import stats
 
 #: A confidence level for every interval of the analysis.
 LEVEL = 0.95
+#: A participant standard deviation below this share of the residual one is on its boundary
+#: (a singular fit, as lme4's ``isSingular`` judges one with its default tolerance).
+SINGULAR = 1e-4
 
 
-def mean_ci(values: Sequence[float], level: float = LEVEL) -> dict:
-    """{n, mean, sd, lo, hi} of ``values`` (NaN dropped) by Student's t."""
+#: The bounds of a scale: (low, high), either may be None (unbounded on that side).
+Bounds = tuple[float | None, float | None]
+UNBOUNDED: Bounds = (None, None)
+
+
+def mean_ci(values: Sequence[float], level: float = LEVEL, bounds: Bounds = UNBOUNDED) -> dict:
+    """{n, mean, sd, lo, hi} of ``values`` (NaN dropped) by Student's t; on a bounded scale
+    (``bounds``) the interval is computed on that scale (see the module), so it lies within
+    it."""
     x = np.asarray([v for v in values if v is not None and np.isfinite(v)], float)
     n = len(x)
     if n == 0:
@@ -39,29 +58,72 @@ def mean_ci(values: Sequence[float], level: float = LEVEL) -> dict:
     if n < 2:
         return {"n": 1, "mean": mean, "sd": math.nan, "lo": math.nan, "hi": math.nan}
     sd = float(x.std(ddof=1))
-    half = float(stats.t.ppf(0.5 + level / 2, n - 1)) * sd / math.sqrt(n)
-    return {"n": n, "mean": mean, "sd": sd, "lo": mean - half, "hi": mean + half}
+    t = float(stats.t.ppf(0.5 + level / 2, n - 1))
+    se = sd / math.sqrt(n)
+    lo, hi = _bounded_interval(mean, se, t, bounds)
+    return {"n": n, "mean": mean, "sd": sd, "lo": lo, "hi": hi}
+
+
+def _bounded_interval(mean: float, se: float, t: float, bounds: Bounds) -> tuple[float, float]:
+    """mean ± t·se on the scale ``bounds``: on the logit of the mean's place between two
+    bounds, on the log of its distance from one, by the delta method; mapped back."""
+    low, high = bounds
+    if se == 0.0:
+        return mean, mean
+    if low is not None and high is not None:
+        width = high - low
+        p = (mean - low) / width
+        if p <= 0.0 or p >= 1.0:  # every value at one end (se would be 0): no spread to say
+            return mean, mean
+        centre = math.log(p / (1 - p))
+        half = t * (se / width) / (p * (1 - p))
+        return tuple(low + width / (1 + math.exp(-(centre + s * half))) for s in (-1, 1))
+    if low is not None or high is not None:
+        edge, sign = (low, 1.0) if low is not None else (high, -1.0)
+        distance = sign * (mean - edge)
+        if distance <= 0.0:
+            return mean, mean
+        half = t * se / distance
+        ends = [edge + sign * distance * math.exp(s * half) for s in (-1, 1)]
+        return min(ends), max(ends)
+    return mean - t * se, mean + t * se
+
+
+def difference_bounds(bounds: Bounds) -> Bounds:
+    """The bounds of a difference of two values on the scale ``bounds`` (± its range)."""
+    low, high = bounds
+    if low is None or high is None:
+        return UNBOUNDED
+    return (low - high, high - low)
 
 
 def _complete(trials: list[dict], outcome: str) -> list[dict]:
     return [t for t in trials if t.get(outcome) is not None and np.isfinite(float(t[outcome]))]
 
 
-def condition_summary(trials: list[dict], outcome: str, conditions: Sequence[str]) -> list[dict]:
-    """Per condition: the mean over participants of their mean ``outcome``, with a t CI."""
+def condition_summary(
+    trials: list[dict], outcome: str, conditions: Sequence[str], bounds: Bounds = UNBOUNDED
+) -> list[dict]:
+    """Per condition: the mean over participants of their mean ``outcome``, with a t CI on
+    the scale ``bounds``, and the range of the participants' means."""
     out = []
     for c in conditions:
         per = {}
         for t in _complete(trials, outcome):
             if t["condition"] == c:
                 per.setdefault(t["participant"], []).append(float(t[outcome]))
-        out.append({"condition": c, **mean_ci([float(np.mean(v)) for v in per.values()])})
+        means = [float(np.mean(v)) for v in per.values()]
+        spread = {"min": min(means, default=math.nan), "max": max(means, default=math.nan)}
+        out.append({"condition": c, **mean_ci(means, bounds=bounds), **spread})
     return out
 
 
-def paired(trials: list[dict], outcome: str, conditions: Sequence[str]) -> list[dict]:
-    """Per pair (a, b) of conditions: each participant's mean(b) − mean(a), with a t CI and
-    Cohen's d_z; participants missing either condition are left out."""
+def paired(
+    trials: list[dict], outcome: str, conditions: Sequence[str], bounds: Bounds = UNBOUNDED
+) -> list[dict]:
+    """Per pair (a, b) of conditions: each participant's mean(b) − mean(a), with a t CI (on
+    the scale of a difference of values within ``bounds``) and Cohen's d_z; participants
+    missing either condition are left out."""
     means: dict[str, dict[str, float]] = {}
     for c in conditions:
         per: dict[str, list[float]] = {}
@@ -73,7 +135,7 @@ def paired(trials: list[dict], outcome: str, conditions: Sequence[str]) -> list[
     for a, b in combinations(conditions, 2):
         both = sorted(set(means[a]) & set(means[b]))
         diffs = [means[b][p] - means[a][p] for p in both]
-        summary = mean_ci(diffs)
+        summary = mean_ci(diffs, bounds=difference_bounds(bounds))
         dz = summary["mean"] / summary["sd"] if summary["n"] > 1 and summary["sd"] > 0 else math.nan
         t_stat = dz * math.sqrt(summary["n"]) if np.isfinite(dz) else math.nan
         p = math.nan
@@ -87,6 +149,9 @@ def mixed_model(trials: list[dict], outcome: str, conditions: Sequence[str]) -> 
     """``outcome ~ condition + period + (1 | participant)`` (see the module): the effect of
     each condition against the first, with its SE, t interval and p-value, the variance
     components, and whether the fit converged.
+
+    ``reported`` is False, with ``why``, for a saturated or singular model (see the module):
+    its numbers (if any) are kept for the record, and are not a result.
 
     Raises:
         ValueError: fewer than two participants, or a condition with no observation.
@@ -117,14 +182,33 @@ def mixed_model(trials: list[dict], outcome: str, conditions: Sequence[str]) -> 
     formula = "y ~ C(condition)"
     if len(periods) > 1:
         formula += " + C(period)"
+    within = (len(conditions) - 1) + (len(periods) - 1)
+    residual_df = len(frame) - len(people) - within
+    base = {
+        "outcome": outcome,
+        "formula": formula + " + (1 | participant)",
+        "observations": len(frame),
+        "participants": len(people),
+    }
+    if residual_df < 1:
+        # As many parameters as the data can carry: the fit would reproduce the data and
+        # print intervals of width 0 and p-values of 0.
+        return {
+            **base,
+            "reported": False,
+            "why": f"saturated: {len(frame)} observations of {len(people)} participants leave "
+            f"no residual degrees of freedom after {within} within-participant effects",
+        }
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        model = smf.mixedlm(formula, frame, groups=frame["participant"])
-        fit = model.fit(reml=True)
+        try:
+            model = smf.mixedlm(formula, frame, groups=frame["participant"])
+            fit = model.fit(reml=True)
+        except (np.linalg.LinAlgError, ValueError) as exc:
+            return {**base, "reported": False, "why": f"the fit failed ({exc})"}
     converged = bool(getattr(fit, "converged", True))
     notes = sorted({str(w.message).splitlines()[0] for w in caught})
-    within = (len(conditions) - 1) + (len(periods) - 1)
-    df = max(len(frame) - len(people) - within, 1)
+    df = max(residual_df, 1)
     quantile = float(stats.t.ppf(0.5 + LEVEL / 2, df))
     effects = []
     for c in conditions[1:]:
@@ -147,17 +231,35 @@ def mixed_model(trials: list[dict], outcome: str, conditions: Sequence[str]) -> 
             }
         )
     group_var = float(fit.cov_re.iloc[0, 0])
+    residual_var = float(fit.scale)
+    why = ""
+    if not converged:
+        why = "singular: the fit did not converge"
+    elif not all(np.isfinite(e["se"]) and e["se"] > 0 for e in effects):
+        why = "singular: a standard error is not finite"
+    elif math.sqrt(max(group_var, 0.0)) < SINGULAR * math.sqrt(max(residual_var, 1e-300)):
+        why = (
+            "singular: the participant variance is at its boundary (0), so the model is a "
+            "pooled regression whose interval ignores who gave which answer"
+        )
     return {
-        "outcome": outcome,
-        "formula": formula + " + (1 | participant)",
-        "observations": len(frame),
-        "participants": len(people),
+        **base,
+        "reported": not why,
+        **({"why": why} if why else {}),
         "effects": effects,
         "participant_variance": group_var,
-        "residual_variance": float(fit.scale),
+        "residual_variance": residual_var,
         "converged": converged,
         "warnings": notes,
     }
+
+
+def sign_test(wins: int, losses: int) -> float:
+    """The two-sided exact binomial p of ``wins`` against ``losses`` (ties left out)."""
+    n = wins + losses
+    if n == 0:
+        return math.nan
+    return float(stats.binomtest(wins, n, 0.5).pvalue)
 
 
 def power_summary(significant: Sequence[bool], level: float = LEVEL) -> dict:
