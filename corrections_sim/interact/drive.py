@@ -14,7 +14,7 @@ import re
 import shutil
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -138,8 +138,12 @@ def handle_arrow(position) -> np.ndarray:
 
 
 def cup_position(tab) -> tuple[int, np.ndarray] | None:
-    """(waypoint, cup centre (3,)) as the page states them, or None before it does."""
-    match = _CUP.search(tab.locator("body").inner_text())
+    """(waypoint, cup centre (3,)) as the page states them (a participant's page in an
+    element it does not show), or None before it does."""
+    text = tab.locator("body").inner_text()
+    if _CUP.search(text) is None:
+        text = " ".join(e.get_attribute("data-cup") or "" for e in tab.locator("[data-cup]").all())
+    match = _CUP.search(text)
     if match is None:
         return None
     return int(match.group(1)), np.array([float(match.group(i)) for i in (2, 3, 4)])
@@ -288,3 +292,143 @@ class SocketTab:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+# --- a participant's answers, as fast as the page takes them --------------------------------
+
+#: A value as a participant's page echoes it: "Received: **70 (0: very low, …)**" or the
+#: line of an item not answered yet.
+_ECHO = re.compile(r"Received: ([^\s:]+)|Not answered yet|Nothing written yet")
+
+
+def number_boxes(tab):
+    """The number boxes beside the page's sliders, in order."""
+    return tab.locator("input.mantine-NumberInput-input")
+
+
+def fast_numbers(tab, values: Sequence[float], then_click: str | None = None) -> float:
+    """Type ``values`` into the first number boxes and (``then_click``) press that button,
+    all from one script in the page, as fast as it takes input; the milliseconds from the
+    first value to the click, as the page timed them."""
+    script = """([values, label]) => {
+        const setter = Object.getOwnPropertyDescriptor(HTMLInputElement.prototype, 'value').set;
+        const boxes = Array.from(document.querySelectorAll('input.mantine-NumberInput-input'));
+        const start = performance.now();
+        values.forEach((v, i) => {
+            const box = boxes[i];
+            setter.call(box, String(v));
+            box.dispatchEvent(new Event('input', {bubbles: true}));
+        });
+        if (label) {
+            const button = Array.from(document.querySelectorAll('button'))
+                .find(b => b.textContent.trim() === label);
+            button.click();
+        }
+        return performance.now() - start;
+    }"""
+    return float(tab.evaluate(script, [list(values), then_click]))
+
+
+def echoes(tab) -> list[str | None]:
+    """What the server has received of each item of the questionnaire on the page, in order
+    (None: nothing yet)."""
+    return [m.group(1) for m in _ECHO.finditer(status(tab))]
+
+
+def _settle(tab, index: int, value: float, shown: str | None) -> None:
+    """Make the server hold ``value`` for number box ``index`` of a questionnaire (its echo
+    ``shown`` now): typed again, and where the box already shows it (a change the page never
+    sent), a step away first; each waited for on the page."""
+    box = number_boxes(tab).nth(index)
+    if float(box.input_value() or "nan") == value:
+        away = value + 5 if value <= 95 else value - 5
+        set_number(tab, index, away)
+        wait_for(lambda: _echo_at(tab, index) == _plain(away), "the step away reaching the server")
+    set_number(tab, index, value)
+    wait_for(lambda: _echo_at(tab, index) == _plain(value), "the value reaching the server")
+
+
+def _plain(value: float) -> str:
+    return f"{value:g}"
+
+
+def _echo_at(tab, index: int) -> str | None:
+    got = echoes(tab)
+    return got[index] if index < len(got) else None
+
+
+def answer_sliders(tab, values: Sequence[float], *, rounds: int = 6) -> dict:
+    """A participant who sets a questionnaire's sliders (its first number boxes) to
+    ``values`` as fast as the page takes input and presses Submit in the same moment, then
+    reads what the page says it received and mends it until the page's confirmation shows
+    exactly ``values``, and confirms. Returns {window_ms, lost (values the first submit did
+    not carry), rounds}."""
+    old = _button(tab, "Submit answers")
+    window = fast_numbers(tab, values, "Submit answers")
+    lost = None
+    for round_ in range(1, rounds + 1):
+        _redrawn(tab, old)
+        wait_for(
+            lambda: "Please check your answers" in status(tab) or "Not taken" in status(tab),
+            "the page's answer to Submit",
+        )
+        if "Please check your answers" in status(tab):
+            shown = confirmed_values(tab)
+            if lost is None:
+                lost = sum(a != _plain(v) for a, v in zip(shown, values, strict=False))
+            if shown[: len(values)] == [_plain(v) for v in values]:
+                click(tab, "Yes, submit these answers")
+                return {"window_ms": window, "lost": lost, "rounds": round_}
+            old = _button(tab, "Change an answer")
+            old.click()
+            _redrawn(tab, old)
+            wait_for(lambda: "Submit answers" in status(tab), "the questionnaire again")
+        got = echoes(tab)
+        if lost is None:
+            lost = sum(a != _plain(v) for a, v in zip(got, values, strict=False))
+        for i, v in enumerate(values):
+            if got[i] != _plain(v):
+                _settle(tab, i, v, got[i])
+        old = _button(tab, "Submit answers")
+        old.click()
+    raise TimeoutError(f"the answers did not go through in {rounds} rounds")
+
+
+def _button(tab, label: str):
+    """The button ``label`` on the page now (an element: a redrawn page has a new one)."""
+    return tab.get_by_role("button", name=label).element_handle()
+
+
+def _redrawn(tab, element) -> None:
+    """Wait until ``element`` has left the page (the server drew the step again)."""
+    tab.wait_for_function("e => !e.isConnected", arg=element, timeout=60_000)
+
+
+def confirmed_values(tab) -> list[str]:
+    """The values of the page's confirmation table, in order (its first word each)."""
+    rows = tab.locator("table").last.locator("tbody tr").all()
+    return [row.locator("td").nth(1).inner_text().split()[0].rstrip(":") for row in rows]
+
+
+def state_preference(tab, values: Sequence[float]) -> None:
+    """State the preference ``values`` (one per feature, the trial page's first sliders):
+    each typed and waited for until the page's "We have" line shows it (a value the box
+    already shows is stepped away from first, since the page counts only a moved slider),
+    then "State my preference" and the page's record of it."""
+    tab.get_by_role("button", name="State my preference").wait_for(timeout=120_000)
+
+    def have(i: int) -> str | None:
+        found = re.search(r"We have: (.*)", status(tab))
+        parts = found.group(1).split(", ") if found else []
+        return parts[i].split(" ")[-1] if i < len(parts) else None
+
+    for i, value in enumerate(values):
+        box = number_boxes(tab).nth(i)
+        if float(box.input_value() or "nan") == value:
+            away = value + 0.5 if value <= 1.5 else value - 0.5
+            set_number(tab, i, away)
+            wait_for(lambda i=i, a=away: have(i) == f"{a:+.1f}", "the step away")
+        set_number(tab, i, value)
+        wait_for(lambda i=i, v=value: have(i) == f"{v:+.1f}", "the preference reaching the server")
+    click(tab, "State my preference")
+    wait_for(lambda: "recorded as" in status(tab), "the stated preference recorded")

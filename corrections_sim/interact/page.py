@@ -65,6 +65,12 @@ MAP_HEIGHT = 0.25
 TRACE_STATES = 20
 #: pyplot is not safe from two threads at once (several participants' pages on one server).
 _DRAWING = threading.Lock()
+#: The line a participant's page shows above the first correction until they have stated
+#: their preference.
+FIRST_LINE = "**First state your preference (below).**\n"
+#: The skip button's label, and on a participant's page.
+SKIP = "Skip this environment"
+SKIP_BLIND = "Skip: show me another scene"
 #: How far (m) the cup must move for a recorded handle position to count.
 TRACE_STEP = 0.005
 
@@ -230,13 +236,23 @@ class Page:
         limit: int | None = None,
         on_end: Callable[[], None] | None = None,
         blind: bool = False,
+        minimum: int | None = None,
+        require_stated: bool = False,
     ):
         """``attach``: the page takes the server's connections (a study's server hands each
         participant's tab to their page itself, :meth:`connect`); ``limit``: the session ends
         (as "Done") after this many corrections, a study's trial; ``on_end``: called once the
-        end is on the page; ``blind``: the page does not name the learner (a study's
-        participant is blind to the condition)."""
+        end is on the page; ``blind``: the page speaks to a participant (no learner, no
+        environment names, no symbols, no estimate; a study's participant is blind to the
+        condition); ``minimum``: corrections before "Done" is offered (default: any, or with
+        ``limit`` none: the trial ends at its limit); ``require_stated``: the person states
+        their preference before the first correction (a study whose outcome is measured
+        against it)."""
         self.blind = blind
+        if minimum is None:
+            minimum = limit if limit is not None else 0
+        self.minimum = int(minimum)
+        self.require_stated = bool(require_stated)
         self.server = server
         self.session = session
         self.limit = limit
@@ -341,25 +357,24 @@ class Page:
         scene, gui = client.scene, client.gui
         self._add_meshes(scene)
         self._add_texts(gui)
-        features = s.settings.features  # the stated preference is over the study's
-        with gui.add_folder("Your preference (before the first correction)"):
-            gui.add_markdown("How much do you want the cup near each thing? −2 far … +2 near.")
-            self.sliders = [
-                gui.add_slider(name, min=-2.0, max=2.0, step=0.1, initial_value=0.0)
-                for name in features
-            ]
-            self.state_button = gui.add_button("State my preference", disabled=True)
+        self._add_preference(gui)
         n = s.n_waypoints
         self.waypoint = gui.add_slider(
-            "Waypoint to move", min=1, max=n - 2, step=1, initial_value=(n - 1) // 2
+            "Point to move" if self.blind else "Waypoint to move",
+            min=1,
+            max=n - 2,
+            step=1,
+            initial_value=(n - 1) // 2,
         )
         # Disabled until the first plan is on the page (its solve may take seconds).
         self.play = gui.add_button("Play the plan", disabled=True)
         self.submit_button = gui.add_button("Submit correction", disabled=True)
         self.reset_button = gui.add_button("Reset the drag", disabled=True)
-        self.skip_button = gui.add_button("Skip this environment", disabled=True)
-        self.done_button = gui.add_button("Done: deploy", disabled=True)
-        with gui.add_folder("Teach the robot (when it asks)"):
+        self.skip_button = gui.add_button(SKIP_BLIND if self.blind else SKIP, disabled=True)
+        self.done_button = self._add_done(gui)
+        # The teaching controls only where the learner may ask for traces.
+        self.teach_folder = gui.add_folder("Teach the robot (when it asks)", visible=s.teaches)
+        with self.teach_folder:
             self.start_trace = gui.add_button("Start a trace here", disabled=True)
             self.end_trace = gui.add_button("End the trace", disabled=True)
             self.decline = gui.add_button("I cannot show it", disabled=True)
@@ -368,7 +383,6 @@ class Page:
         self.end_trace.on_click(self._act(self.end_trace, self._end_trace, "learning"))
         self.decline.on_click(self._act(self.decline, self._decline, "planning"))
 
-        self.state_button.on_click(self._act(self.state_button, self._state))
         self.waypoint.on_update(lambda _: self._show_waypoint())
         self.play.on_click(lambda _: self._play())
         self.submit_button.on_click(self._act(self.submit_button, self._submit, "learning"))
@@ -377,11 +391,89 @@ class Page:
         self.done_button.on_click(self._act(self.done_button, self._done, "deploying"))
         self._first_view()
 
+    def _add_preference(self, gui) -> None:
+        """The stated preference: a slider per feature of the study, and its button. A slider
+        counts only once the person has moved it (its start, 0, is no answer); a session that
+        has one (a resumed one) shows it."""
+        s = self.session
+        features = s.settings.features  # the stated preference is over the study's
+        logged = s.log.session(s.id).stated_theta
+        if logged is not None:
+            self.stated = np.asarray(logged, float)
+        if self.blind:
+            title = "Your preference (before your first correction)"
+            text = (
+                "How much do you want the cup near each thing? **−2**: far from it, **0**: "
+                "you do not mind, **+2**: near it. Move every slider to your answer (even to "
+                "leave one at 0), then press **State my preference**."
+            )
+        else:
+            title = "Your preference (before the first correction)"
+            text = "How much do you want the cup near each thing? −2 far … +2 near."
+        with gui.add_folder(title):
+            gui.add_markdown(text)
+            self.sliders = [
+                gui.add_slider(
+                    name,
+                    min=-2.0,
+                    max=2.0,
+                    step=0.1,
+                    initial_value=0.0 if self.stated is None else float(self.stated[i]),
+                )
+                for i, name in enumerate(features)
+            ]
+            self.state_button = gui.add_button("State my preference", disabled=True)
+            # What the server has received of the sliders (a participant's page).
+            self.pref_echo = gui.add_markdown("", visible=self.blind)
+        # A slider the person moved has a newer update time than it was made with (viser sets
+        # it on its event loop before any callback runs, so a click cannot overtake it).
+        self._made = [slider.update_timestamp for slider in self.sliders]
+        self.state_button.on_click(self._act(self.state_button, self._state))
+        for slider in self.sliders:
+            slider.on_update(lambda _: self._echo_preference())
+        self._echo_preference()
+
+    def _echo_preference(self) -> None:
+        """The line under the preference sliders: each value as the server has it."""
+        if not self.blind or self.client is None or self.closed:
+            return
+        names = self.session.settings.features
+        parts = [
+            f"{name} {slider.value:+.1f}"
+            if slider.update_timestamp != made or self.stated is not None
+            else f"{name} (not moved yet)"
+            for name, slider, made in zip(names, self.sliders, self._made, strict=True)
+        ]
+        self.pref_echo.content = "We have: " + ", ".join(parts)
+
+    def _show_values(self, theta: np.ndarray) -> None:
+        """The preference sliders show ``theta``, the values the server holds (a change the
+        page showed but never sent is undone on the page); they stay as they were: moved or
+        not."""
+        for i, slider in enumerate(self.sliders):
+            touched = slider.update_timestamp != self._made[i]
+            # viser sends a value only when it changes on the server: a step away and back
+            # makes the page redraw the slider at the server's value.
+            slider.value = float(theta[i]) + (0.1 if theta[i] < 2.0 else -0.1)
+            slider.value = float(theta[i])
+            if not touched:
+                self._made[i] = slider.update_timestamp
+        self._echo_preference()
+
+    def _add_done(self, gui):
+        """The button that ends the session: "Done: deploy", or on a participant's page
+        "Done with this robot" once the trial has its minimum (hidden where the trial simply
+        ends at its limit)."""
+        label = "Done with this robot" if self.blind else "Done: deploy"
+        shown = self.limit is None or self.minimum < self.limit
+        return gui.add_button(label, disabled=True, visible=shown)
+
     def _add_texts(self, gui) -> None:
         """The title, the status line and the line that says where the cup is."""
         self.title = gui.add_markdown("")
         self.status = gui.add_markdown("")
         self.where = gui.add_markdown("")
+        self.probe = gui.add_html("") if self.blind else None
 
     def _first_view(self) -> None:
         """What a tab that connects sees first: the end, the teaching, or the plan (once it
@@ -412,11 +504,15 @@ class Page:
         self._moving = {piece.geom for piece in pieces() if piece.moves}
 
     def _add_belief_panel(self, gui) -> None:
-        """θ̂ and its uncertainty: a picture and a table (see :meth:`_show_belief`)."""
+        """θ̂ and its uncertainty: a picture and a table (see :meth:`_show_belief`); not on a
+        participant's page (what the robot believes is the study's to analyse, not theirs to
+        read)."""
         self.belief_image = gui.add_image(
-            np.full((10, 10, 3), 255, np.uint8), label="θ̂ and its uncertainty"
+            np.full((10, 10, 3), 255, np.uint8),
+            label="θ̂ and its uncertainty",
+            visible=not self.blind,
         )
-        self.belief_text = gui.add_markdown("")
+        self.belief_text = gui.add_markdown("", visible=not self.blind)
 
     def _say(self, text: str) -> None:
         self.last_message = text
@@ -446,7 +542,9 @@ class Page:
         s = self.session
         teach = self.teaching and not s.ended and not self._busy
         ready = self.proposal is not None and not s.ended and not self._busy and not self.teaching
-        first = ready and s.iteration == 0 and self.stated is None
+        first = ready and s.iteration == 0 and (self.blind or self.stated is None)
+        stated = self.stated is not None or not self.require_stated
+        enough = s.iteration >= self.minimum or self.limit is None
         return [
             (self.start_trace, teach and not self.recording),
             (self.end_trace, teach and self.recording and len(self.trace_points) >= 2),
@@ -455,10 +553,10 @@ class Page:
             *((slider, first) for slider in self.sliders),
             (self.waypoint, ready),
             (self.play, ready),
-            (self.submit_button, ready and self.corrected is not None),
+            (self.submit_button, ready and stated and self.corrected is not None),
             (self.reset_button, ready and self.corrected is not None),
             (self.skip_button, ready),
-            (self.done_button, ready),
+            (self.done_button, ready and enough),
         ]
 
     def _refresh(self) -> None:
@@ -522,22 +620,42 @@ class Page:
             scene.add_spline_catmull_rom(name, path[:2], color=CORRECTION_RGB, visible=False)
         self._make_handle()
         k = s.iteration
-        self.title.content = (
-            f"### Correction {k + 1}: environment {self.proposal.env.name}\n"
-            + (
-                ""
-                if self.blind
-                else f"Learner **{s.learner}**, correction model **{s.correction_name}**. "
+        if self.blind:
+            of = "" if self.limit is None else f" of {self.limit}"
+            self.title.content = (
+                f"### Correction {k + 1}{of}\n{self._first_line()}Drag the arrows on the cup "
+                "to move it where you want it at the chosen point of the path, then press "
+                "**Submit correction**." + self._ask_line()
             )
-            + "Drag the arrows on the cup to move it at the chosen waypoint, then submit."
-            + self._ask_line()
-        )
+        else:
+            self.title.content = (
+                f"### Correction {k + 1}: environment {self.proposal.env.name}\n"
+                f"Learner **{s.learner}**, correction model **{s.correction_name}**. "
+                "Drag the arrows on the cup to move it at the chosen waypoint, then submit."
+                + self._ask_line()
+            )
         if self._clicked is not None:  # set before the title can reach a reader of the page
             self.last_submit = (self._clicked, time.perf_counter())
             self._clicked = None
         self._show_belief()
         self._refresh()
         self._say("The robot's plan is the blue path. Move the cup where you want it.")
+
+    def _first_line(self) -> str:
+        """The line that asks for the stated preference while it is missing ("" after)."""
+        return FIRST_LINE if self.require_stated and self.stated is None else ""
+
+    def _show_where(self, i: int, cup, moved: bool = False) -> None:
+        """The line under the title: which point of the path, and (for a researcher) where
+        the cup is; a participant's page keeps the numbers out of sight, in an element a
+        script reads (``data-cup``), never shown."""
+        verb = " moved to" if moved else ""
+        line = f"Cup at waypoint {i}{verb}: ({cup[0]:.3f}, {cup[1]:.3f}, {cup[2]:.3f}) m"
+        if self.blind:
+            self.where.content = f"Point {i} of the path" + (": moved" if moved else "")
+            self.probe.content = f'<span hidden data-cup="{line}"></span>'
+        else:
+            self.where.content = line
 
     def _ask_line(self) -> str:
         """The labelled correction the session asks for now, as a paragraph ("" if none)."""
@@ -551,7 +669,7 @@ class Page:
         cup = cup_pose(self.proposal.plan.trajectory[i])[1]
         self.handle = self._cup_handle("/handle", cup)
         self.handle.on_update(lambda event: self._dragged() if event.phase == "end" else None)
-        self.where.content = f"Cup at waypoint {i}: ({cup[0]:.3f}, {cup[1]:.3f}, {cup[2]:.3f}) m"
+        self._show_where(i, cup)
         self._pose_arm(self.proposal.plan.trajectory[i])
 
     def _show_waypoint(self) -> None:
@@ -564,6 +682,8 @@ class Page:
             self._refresh()
 
     def _show_belief(self) -> None:
+        if self.blind:
+            return
         s = self.session
         b = s.belief
         cov = b.cov if s.has_covariance else None
@@ -601,13 +721,38 @@ class Page:
 
     def _state(self) -> None:
         theta = np.array([s.value for s in self.sliders], float)
+        names = self.session.settings.features
+        if self.blind:
+            untouched = [
+                name
+                for name, slider, made in zip(names, self.sliders, self._made, strict=True)
+                if slider.update_timestamp == made and self.stated is None
+            ]
+            if untouched:
+                # What the page shows may be ahead of what arrived (viser drops a change sent
+                # in the same 50 ms as another): the sliders show the server's values again.
+                self._show_values(theta)
+                self._say(
+                    f"**Not yet**: move the slider of {', '.join(untouched)} to your answer "
+                    "(even to leave it at 0), then press State my preference again."
+                )
+                return
         try:
             self.stated = self.session.state(theta)
         except Refused as exc:
             self._say(f"**Refused**: {exc}")
             return
         self._show_belief()
-        self._say(f"Stated preference θ = {np.round(theta, 2).tolist()} recorded.")
+        if self.blind:
+            self._show_values(theta)
+            values = ", ".join(f"{n} {v:+.1f}" for n, v in zip(names, theta, strict=True))
+            self._say(
+                f"Your preference is recorded as: **{values}**. You can change it until your "
+                "first correction."
+            )
+            self.title.content = self.title.content.replace(FIRST_LINE, "")
+        else:
+            self._say(f"Stated preference θ = {np.round(theta, 2).tolist()} recorded.")
 
     def _dragged(self) -> None:
         if not self._action.acquire(blocking=False):
@@ -629,6 +774,12 @@ class Page:
 
     def _take_drag(self) -> None:
         i = int(self.waypoint.value)
+        if self.require_stated and self.stated is None:
+            self._make_handle()  # back where it was
+            self._refresh()
+            self._say("**First state your preference** (above); then move the cup.")
+            self.drags += 1
+            return
         position = np.array(self.handle.position, float)
         try:
             corrected = self.session.drag(i, position)
@@ -644,10 +795,7 @@ class Page:
         draw_path(self.client.scene, "/correction/path", corrected, CORRECTION_RGB)
         self._pose_arm(corrected[i])
         self._refresh()
-        self.where.content = (
-            f"Cup at waypoint {i} moved to: ({position[0]:.3f}, {position[1]:.3f}, "
-            f"{position[2]:.3f}) m"
-        )
+        self._show_where(i, position, moved=True)
         self._say("Your correction is the orange path. Submit it, or drag again.")
         self.drags += 1
 
@@ -684,6 +832,9 @@ class Page:
         else:
             self._new_proposal()
         self.submitted += 1
+        if self.blind:
+            self._say(f"Correction {row['iteration'] + 1} recorded. Here is the next plan.")
+            return
         skipped = f" (update skipped: {row['update_skipped']})" if row["update_skipped"] else ""
         self._say(
             f"Correction {row['iteration'] + 1} recorded{skipped}{relevance_note(row)}; "
@@ -881,6 +1032,8 @@ class Page:
 
     def _ended_text(self) -> str:
         s, deployment = self.session, self.deployment
+        if self.blind:
+            return "This trial is over. Thank you."
         done = f"Session ended after {s.iteration} {plural(s.iteration, 'correction')}."
         if deployment is None:
             learner = "the robot" if self.blind else s.learner
@@ -914,7 +1067,9 @@ class Page:
             self._pose_arm(deployment.plain.trajectory[0])
             draw_path(scene, "/plan/path", deployment.plain.trajectory, PLAN_RGB)
             draw_path(scene, "/deploy/averse", deployment.averse.trajectory, AVERSE_RGB)
-        self.title.content = f"### Session {self.session.id} has ended"
+        self.title.content = (
+            "### This trial is over" if self.blind else f"### Session {self.session.id} has ended"
+        )
         self.where.content = ""
         self._show_belief()
         self._say(self._ended_text())

@@ -35,6 +35,8 @@ from corrections_sim.interact.page import (
     CORRECTION_RGB,
     HANDLE_SCALE,
     PLAN_RGB,
+    SKIP,
+    SKIP_BLIND,
     Page,
     draw_path,
     relevance_note,
@@ -111,11 +113,14 @@ class PhysicalPage(Page):
         scene, gui = client.scene, client.gui
         self._add_meshes(scene)
         self._add_texts(gui)
+        if self.require_stated:
+            self._add_preference(gui)
+        else:
+            self.sliders, self.state_button = [], None
         self.play = gui.add_button("Play: push the cup while it moves", disabled=True)
-        self.skip_button = gui.add_button("Skip this environment", disabled=True)
-        self.done_button = gui.add_button("Done: deploy", disabled=True)
+        self.skip_button = gui.add_button(SKIP_BLIND if self.blind else SKIP, disabled=True)
+        self.done_button = self._add_done(gui)
         self.submit_button = gui.add_button("Submit correction", visible=False, disabled=True)
-        self.sliders = []
         self._add_belief_panel(gui)
         self.play.on_click(self._act(self.play, self._start))
         self.skip_button.on_click(self._act(self.skip_button, self._skip, "planning"))
@@ -126,7 +131,16 @@ class PhysicalPage(Page):
         s = self.session
         ready = self.proposal is not None and not s.ended and not self._busy
         ready = ready and not self._in_motion
-        return [(self.play, ready), (self.skip_button, ready), (self.done_button, ready)]
+        stated = self.stated is not None or not self.require_stated
+        enough = s.iteration >= self.minimum or self.limit is None
+        first = ready and s.iteration == 0
+        preference = [(self.state_button, first), *((x, first) for x in self.sliders)]
+        return [
+            *(preference if self.state_button is not None else []),
+            (self.play, ready and stated),
+            (self.skip_button, ready),
+            (self.done_button, ready and enough),
+        ]
 
     def _new_proposal(self) -> None:
         s = self.session
@@ -149,10 +163,16 @@ class PhysicalPage(Page):
         self._let_go()
         self._pose_arm(plan[0])
         self.where.content = ""  # the last push's time and force belong to the last plan
+        if self.blind:
+            of = "" if self.limit is None else f" of {self.limit}"
+            head = f"### Push {s.iteration + 1}{of}\n{self._first_line()}"
+        else:
+            head = (
+                f"### Push {s.iteration + 1}: environment {self.proposal.env.name}\n"
+                f"Learner **{s.learner}**. "
+            )
         self.title.content = (
-            f"### Push {s.iteration + 1}: environment {self.proposal.env.name}\n"
-            + ("" if self.blind else f"Learner **{s.learner}**. ")
-            + "Press Play; while the arm moves, drag the arrows of the "
+            head + "Press Play; while the arm moves, drag the arrows of the "
             f"cup's handle to push the cup (a spring, at most {self.force_cap:.0f} N); let go "
             "and the robot learns and replans." + self._ask_line()
         )

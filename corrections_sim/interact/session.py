@@ -461,6 +461,12 @@ class Session:
         than drags a waypoint."""
         return self.correction_name == "physical"
 
+    @property
+    def teaches(self) -> bool:
+        """Whether the learner may ask its person for feature traces (a page shows the
+        teaching controls only then)."""
+        return bool(getattr(self.agent, "expand_traces", 0)) and not self.physical
+
     def motion(self, duration: float = 5.0, *, look_steps: int | None = None) -> PushedMotion:
         """The current proposal played under impedance, for a person to push (no sensing
         noise: the robot senses what the simulation gives it); ``look_steps`` physics steps a

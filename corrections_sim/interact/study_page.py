@@ -17,19 +17,35 @@ to the connection that sent them, so a client can only move the controls viser m
 own connection: replaying another participant's messages on one's own connection touches
 nothing of theirs.
 
-**A participant's page.** The code they were given, typed → their step: instructions and
-"Continue"; a trial (the drag page or the physical page of the trial's session, which ends
-after the protocol's corrections, or with "Done"), then "Continue"; a questionnaire (each
-Likert item a choice of its points with its anchors, the raw NASA-TLX as six sliders, free
-text), "Submit answers"; the end. Every step is in the log before the page moves on; a
-reload, a closed tab or a restarted server shows the same step. A participant who has begun
-and returns (a new tab after the server restarted, or another day) waits until the
-experimenter lets them continue.
+**A participant's page.** The code they were given, typed (in any case) → their step:
+instructions and "Continue"; a trial (the drag page or the physical page of the trial's
+session, in a participant's words: their stated preference first where the primary outcome
+needs it, then the protocol's corrections; "Done" only once it has ``min_corrections``), then
+"This trial is over" and "Continue"; a questionnaire, then the end. Every step is in the log
+before the page moves on; a reload, a closed tab or a restarted server shows the same step,
+and a reload on the same server goes straight back to it. A participant who has begun and
+returns to a restarted server waits until the experimenter lets them continue. At every step
+"Need to stop?" offers a way out (end this trial early; leave the study), each confirmed
+first and logged as such.
+
+**Only what the participant gave is an answer.** A questionnaire shows every question with
+its own anchors (the TLX's six questions written out, each scale with its own ends:
+performance runs from perfect to failure). A Likert item starts at "(choose)" and a slider
+counts only once the participant has moved it; under each control the page says what the
+server has received ("not answered yet", or the value). viser's client sends the panel's
+changes through one 50 ms throttle that keeps only the latest message, so a value set in the
+same 50 ms as another control's (or as the Submit click) never reaches the server. So Submit
+never writes by itself: it redraws the questionnaire from what the server holds (a value
+that did not arrive shows as unanswered, or as its older value), refuses while a required
+item is unanswered, and otherwise shows the answers as received with "Yes, submit these
+answers" and "Change an answer"; only the confirmation writes them. What was set and not
+yet submitted survives a reload on the same server.
 
 **The experimenter's view.** Who is where (refreshed every second), enrolling a participant
 (their link is shown there once), letting a returning participant continue, aborting a
 trial (it starts over with a new session; the aborted one is kept, marked), withdrawing a
-participant (their rows leave the analysis) or deleting their rows.
+participant (their rows leave the analysis) or deleting their rows. The three that end or
+delete something ask for confirmation, naming the participant.
 """
 
 from __future__ import annotations
@@ -41,14 +57,25 @@ from collections.abc import Callable
 
 from corrections_sim.interact.log import StudyError
 from corrections_sim.interact.page import plural
-from corrections_sim.interact.participant import Participant, StudyRun
+from corrections_sim.interact.participant import Participant, StudyRun, check_answers
 from corrections_sim.interact.server import configure, make_page
-from corrections_sim.study.protocol import TLX_SCALES, TLX_TEXT, Step
+from corrections_sim.study.protocol import TLX_ANCHORS, TLX_TEXT, TLX_TITLES, Question, Step
 
 #: The placeholder of a Likert choice not yet made.
 UNANSWERED = "(choose)"
+#: Where an untouched TLX slider rests (no answer until it is moved).
+TLX_REST = 50
 #: Seconds between refreshes of the experimenter's view.
 REFRESH = 1.0
+#: The experimenter's actions that end or delete something, each with what it does (asked
+#: again before it is done).
+DESTRUCTIVE = {
+    "Abort the trial": "Their current trial starts over with a new session (the aborted one "
+    "is kept, marked, and left out of the analysis).",
+    "Withdraw": "They leave the study; their rows stay, marked, and leave every analysis.",
+    "Withdraw and delete their rows": "Every row of theirs (sessions, corrections, answers) "
+    "is deleted for good; only the code stays taken. This cannot be undone.",
+}
 
 
 def connection_path(server, client) -> str | None:
@@ -65,6 +92,28 @@ def _same(given: str, secret: str) -> bool:
     """``given == secret`` in constant time (any text: a path or a typed code may hold
     characters that are not ASCII)."""
     return hmac.compare_digest(given.encode("utf-8"), secret.encode("utf-8"))
+
+
+def likert_options(question: Question) -> list[str]:
+    """A Likert item's choices: the placeholder, then each point, the ends with their
+    anchors ("1: Strongly disagree", "2", …)."""
+    low, high = question.anchors
+    return [UNANSWERED] + [
+        f"{i}" + (f": {low}" if i == 1 else f": {high}" if i == question.points else "")
+        for i in range(1, question.points + 1)
+    ]
+
+
+def shown_value(question: Question, item: str, value) -> str:
+    """An answer as the page shows it back to the participant."""
+    if value is None or value == "":
+        return "not answered" if question.kind != "text" else "(nothing)"
+    if question.kind == "likert":
+        return likert_options(question)[int(value)]
+    if question.kind == "tlx":
+        low, high = TLX_ANCHORS[item.split(".", 1)[1]]
+        return f"{value} (0: {low.lower()}, 100: {high.lower()})"
+    return f"“{value}”"
 
 
 class StudyServer:
@@ -87,6 +136,9 @@ class StudyServer:
         #: participants who went on from their code on this server (a reload goes on too)
         self.entered: set[str] = set()
         self.refused = 0  # connections with no valid link (tests count them)
+        #: (code, step key) -> item -> the value the server received and the participant
+        #: has not submitted yet (a reload on this server shows them again)
+        self.drafts: dict[tuple[str, str], dict[str, object]] = {}
         configure(server)
         server.on_client_connect(self._connect)
         server.on_client_disconnect(self._disconnect)
@@ -116,6 +168,14 @@ class StudyServer:
         kind, _, secret = path.strip("/").partition("/")
         if kind == "x" and secret and _same(secret, self.secret):
             view: ParticipantView | ExperimenterView = ExperimenterView(self, client)
+        elif kind == "x":
+            with self._lock:
+                self.refused += 1
+            client.gui.add_markdown(
+                "**This experimenter link is from an earlier run of the server.** Use the "
+                "experimenter link the server printed when it started."
+            )
+            return
         elif kind == "p" and (person := self.run.by_token(secret)) is not None:
             with self._lock:
                 if person.code in self.active:
@@ -162,9 +222,12 @@ class StudyServer:
             view.render()
         return aborted
 
-    def withdraw(self, code: str, *, delete: bool = False) -> None:
+    def withdraw(self, code: str, *, delete: bool = False, by: str = "experimenter") -> None:
         view = self.participant_views().get(code)
-        self.run.withdraw(code, delete=delete)
+        self.run.withdraw(code, delete=delete, by=by)
+        with self._lock:
+            for key in [k for k in self.drafts if k[0] == code]:
+                self.drafts.pop(key)
         if view is not None:
             view.render()
 
@@ -199,8 +262,16 @@ class ParticipantView:
         self.person = person
         self.code = person.code
         self.page = None
-        self.entered = False
+        # A reload on this server goes straight back (the link is the credential; the code
+        # is typed once per server, to catch a link opened by the wrong person).
+        with study._lock:
+            self.entered = person.code in study.entered or person.code in study.confirmed
         self.message = ""
+        #: the questionnaire's answers shown for confirmation (None while editing)
+        self.pending: dict | None = None
+        #: a way out the participant pressed and has not confirmed yet ("stop" or "leave")
+        self.leaving: str | None = None
+        self.exit_folder = None
         self._busy = threading.Lock()
         self._lock = threading.RLock()
         self.shown: Step | None = None  # the step on the page (tests wait on it)
@@ -221,6 +292,7 @@ class ParticipantView:
             self.client = None
 
     def _clear(self) -> None:
+        self.exit_folder = None  # gone with the reset below
         if self.page is not None:
             self.page.close()
             self.page = None
@@ -263,10 +335,80 @@ class ParticipantView:
                 self._questions(step)
             else:
                 gui.add_markdown(step.text)
+                return
+            self._way_out(step)
 
-    def _guarded(self, action: Callable[[], object]) -> Callable:
-        """A click handler: one action at a time, errors on the page in one line, then the
-        step the log says the participant is at."""
+    def _way_out(self, step: Step) -> None:
+        """The way out, "Need to stop?": end this trial early (at a trial) or leave the
+        study, each asked again before it is done (the folder is redrawn alone: a trial's
+        page stays as it is)."""
+        gui = self.client.gui
+        old = getattr(self, "exit_folder", None)
+        if old is not None:
+            try:
+                old.remove()
+            except Exception:  # gone with a reset of the panel
+                pass
+        self.exit_folder = gui.add_folder(
+            "Need to stop?", expand_by_default=self.leaving is not None
+        )
+        with self.exit_folder:
+            if self.leaving is None:
+                if step.kind == "trial" and not self._trial_ended(step):
+                    stop = gui.add_button("Stop this trial early")
+                    stop.on_click(
+                        self._guarded(lambda: self._ask_leave("stop", step), redraw=False)
+                    )
+                    self.controls["stop"] = stop
+                leave = gui.add_button("Leave the study")
+                leave.on_click(self._guarded(lambda: self._ask_leave("leave", step), redraw=False))
+                self.controls["leave"] = leave
+                return
+            if self.leaving == "stop":
+                gui.add_markdown(
+                    "**End this trial now?** The robot stops learning from you here and we go "
+                    "on to the next step. Your corrections so far are kept."
+                )
+                yes = gui.add_button("Yes, stop this trial", color="red")
+                yes.on_click(self._guarded(lambda: self._leave(step)))
+            else:
+                gui.add_markdown(
+                    "**Leave the study?** You can stop at any time, with no need to say why. "
+                    "What you gave so far is kept unless you ask the experimenter to delete it."
+                )
+                yes = gui.add_button("Yes, leave the study", color="red")
+                yes.on_click(self._guarded(lambda: self._leave(step)))
+            no = gui.add_button("No, go on")
+            no.on_click(self._guarded(lambda: self._ask_leave(None, step), redraw=False))
+            self.controls |= {"confirm_leave": yes, "go_on": no}
+
+    def _ask_leave(self, what: str | None, step: Step) -> None:
+        with self._lock:
+            self.leaving = what
+            if self.client is not None:
+                self._way_out(step)
+
+    def _leave(self, step: Step) -> None:
+        what, self.leaving = self.leaving, None
+        if what == "stop":
+            self.person.stop_trial(step.key)
+        elif what == "leave":
+            self.study.withdraw(self.code, by="participant")
+
+    def _trial_ended(self, step: Step) -> bool:
+        row = {r["position"]: r for r in self.person.log.steps(self.code)}.get(
+            self.person.position()
+        )
+        if row is None or row["session_id"] is None:
+            return False
+        return self.person.log.session(row["session_id"]).ended is not None
+
+    def _guarded(
+        self, action: Callable[[], object], *, redraw: bool = True, redraw_refused: bool = False
+    ) -> Callable:
+        """A click handler: one action at a time, errors on the page in one line, then (with
+        ``redraw``) the step the log says the participant is at; ``redraw_refused``: a
+        refusal redraws too (the questionnaire then shows what the server holds)."""
 
         def on_click(_event) -> None:
             if not self._busy.acquire(blocking=False):
@@ -277,10 +419,13 @@ class ParticipantView:
                     self.message = ""
                 except (StudyError, ValueError) as exc:
                     self.message = str(exc).splitlines()[0]
-                    if self.error is not None and self.client is not None:
+                    if redraw_refused:
+                        self.render()
+                    elif self.error is not None and self.client is not None:
                         self.error.content = f"**Not taken**: {self.message}"
                     return
-                self.render()
+                if redraw:
+                    self.render()
             finally:
                 self._busy.release()
 
@@ -293,8 +438,11 @@ class ParticipantView:
         self.error = gui.add_markdown("")
 
         def enter() -> None:
-            if not _same(code.value.strip(), self.code):
-                raise ValueError("that is not the code of this link")
+            typed = code.value.strip().casefold()
+            if not _same(typed, self.code.casefold()):
+                raise ValueError(
+                    "that is not the code of this link: check it with the experimenter"
+                )
             self.entered = True
             begun = any(r["finished"] for r in self.person.log.steps(self.code))
             with self.study._lock:
@@ -310,12 +458,20 @@ class ParticipantView:
 
     def _trial(self, step: Step) -> None:
         gui = self.client.gui
+        if self._trial_ended(step):
+            self._trial_over(step)
+            return
         gui.add_markdown(step.text)
-        session = self.person.session(step.key)
         limit = self.person.corrections(step)
-        gui.add_markdown(
-            f"This trial ends after {limit} {plural(limit, 'correction')} (or when you press Done)."
-        )
+        minimum = self.person.minimum(step)
+        physical = self.study.run.protocol.condition(step.condition).mode == "physical"
+        move = "push" if physical else "correction"
+        ends = f"This trial has {limit} {plural(limit, move)}"
+        if minimum < limit:
+            ends += f"; after {minimum} you may press Done"
+        gui.add_markdown(ends + ".")
+        ready = gui.add_markdown("_The robot is getting ready…_")
+        session = self.person.session(step.key)
         self.page = make_page(
             self.study.server,
             session,
@@ -323,50 +479,170 @@ class ParticipantView:
             attach=False,
             blind=True,
             limit=limit,
-            on_end=lambda: self._trial_over(step),
+            minimum=minimum,
+            require_stated=self.person.needs_stated,
+            on_end=lambda: self._ended(step),
         )
-        self.page.connect(self.client)
+        self.page.connect(self.client)  # until its first plan is on the page
+        ready.remove()
+
+    def _ended(self, step: Step) -> None:
+        """The trial's page showed its end: the panel is drawn again, as "This trial is
+        over" (from another thread: the page's action that ended it holds the page)."""
+        threading.Thread(target=self.render, name="trial-over", daemon=True).start()
 
     def _trial_over(self, step: Step) -> None:
-        client = self.client
-        if client is None:
-            return
-        self.error = client.gui.add_markdown("")
-        button = client.gui.add_button("Continue to the next step")
+        gui = self.client.gui
+        gui.add_markdown("**This trial is over.** Thank you. Press Continue to go on.")
+        self.error = gui.add_markdown("")
+        button = gui.add_button("Continue")
         button.on_click(self._guarded(lambda: self.person.finish_trial(step.key)))
+        self.controls["continue"] = button
+
+    def _draft(self, step: Step) -> dict:
+        with self.study._lock:
+            return self.study.drafts.setdefault((self.code, step.key), {})
 
     def _questions(self, step: Step) -> None:
+        """The questionnaire (see the module): editing, or the answers as received shown for
+        confirmation (:attr:`pending`)."""
         gui = self.client.gui
         gui.add_markdown(step.text)
-        fields: dict[str, Callable[[], object]] = {}
+        draft = self._draft(step)
+        confirming = self.pending is not None
+        readers: dict[str, Callable[[], object]] = {}
+        echoes: dict[str, object] = {}
+        self.fields = readers
         for q in step.questions:
-            if q.kind == "likert":
-                gui.add_markdown(q.text)
-                low, high = q.anchors
-                options = [UNANSWERED] + [
-                    f"{i}" + (f" ({low})" if i == 1 else f" ({high})" if i == q.points else "")
-                    for i in range(1, q.points + 1)
-                ]
-                choice = gui.add_dropdown(q.id, options=options, initial_value=UNANSWERED)
-                fields[q.id] = lambda c=choice: (
-                    None if c.value == UNANSWERED else int(c.value.split(" ")[0])
-                )
-            elif q.kind == "tlx":
-                gui.add_markdown("**NASA-TLX**: 0 very low … 100 very high.")
-                for scale in TLX_SCALES:
-                    slider = gui.add_slider(
-                        scale, min=0, max=100, step=5, initial_value=50, hint=TLX_TEXT[scale]
-                    )
-                    fields[f"{q.id}.{scale}"] = lambda s=slider: int(s.value)
-            else:
-                gui.add_markdown(q.text)
-                box = gui.add_text(q.id, initial_value="")
-                fields[q.id] = lambda b=box: b.value
-        self.error = gui.add_markdown("")
+            for item in q.items():
+                self._question(q, item, draft, readers, echoes, confirming)
+        self.error = gui.add_markdown(f"**Not taken**: {self.message}" if self.message else "")
+        if confirming:
+            rows = "\n".join(
+                f"| {self._label(q, item)} | {shown_value(q, item, self.pending.get(item))} |"
+                for q in step.questions
+                for item in q.items()
+            )
+            gui.add_markdown(
+                "**Please check your answers as we received them.** If one is not what you "
+                f"chose, press Change an answer.\n\n| question | your answer |\n|---|---|\n{rows}"
+            )
+            confirm = gui.add_button("Yes, submit these answers", color="green")
+            change = gui.add_button("Change an answer")
+            confirm.on_click(self._guarded(lambda: self._confirm(step)))
+            change.on_click(self._guarded(lambda: self._change()))
+            self.controls |= {"confirm": confirm, "change": change}
+            return
         submit = gui.add_button("Submit answers")
-        submit.on_click(
-            self._guarded(lambda: self.person.answer({k: f() for k, f in fields.items()}, step.key))
-        )
+        submit.on_click(self._guarded(lambda: self._submit(step, readers), redraw_refused=True))
+        self.controls["submit"] = submit
+
+    @staticmethod
+    def _label(q: Question, item: str) -> str:
+        if q.kind == "tlx":
+            return TLX_TITLES[item.split(".", 1)[1]]
+        return q.text
+
+    def _question(self, q, item, draft, readers, echoes, confirming) -> None:
+        """One item's control, its text and the line that says what the server has."""
+        gui = self.client.gui
+        value = draft.get(item)
+        if q.kind == "tlx":
+            scale = item.split(".", 1)[1]
+            low, high = TLX_ANCHORS[scale]
+            gui.add_markdown(f"**{TLX_TITLES[scale]}.** {TLX_TEXT[scale]}")
+            control = gui.add_slider(
+                TLX_TITLES[scale],
+                min=0,
+                max=100,
+                step=5,
+                initial_value=TLX_REST if value is None else int(value),
+                marks=((0, low), (100, high)),
+                disabled=confirming,
+            )
+        elif q.kind == "likert":
+            gui.add_markdown(f"**{q.text}**")
+            options = likert_options(q)
+            control = gui.add_dropdown(
+                "Your answer",
+                options=options,
+                initial_value=UNANSWERED if value is None else options[int(value)],
+                disabled=confirming,
+            )
+        else:
+            gui.add_markdown(f"**{q.text}**" + ("" if q.required else " (optional)"))
+            control = gui.add_text(
+                "Your answer",
+                initial_value="" if value is None else str(value),
+                disabled=confirming,
+            )
+        echo = gui.add_markdown(self._echo(q, item, value))
+        made = control.update_timestamp
+        self.controls[item] = control
+
+        def read(c=control, made=made) -> object:
+            """The value the server holds for the item (None: not answered): a control the
+            participant has not moved has none, unless a draft gave it one."""
+            if c.update_timestamp == made:
+                return value
+            if q.kind == "likert":
+                return None if c.value == UNANSWERED else int(c.value.split(":")[0])
+            if q.kind == "tlx":
+                return int(c.value)
+            return c.value
+
+        def moved(_event, c=control, read=read) -> None:
+            got = read()
+            with self.study._lock:
+                if got is None or got == "":
+                    draft.pop(item, None)
+                else:
+                    draft[item] = got
+            try:
+                echo.content = self._echo(q, item, got)
+            except Exception:  # the step left the page meanwhile
+                pass
+
+        control.on_update(moved)
+        readers[item] = read
+
+    @staticmethod
+    def _echo(q: Question, item: str, value) -> str:
+        if value is None or value == "":
+            if q.kind == "text":
+                return "_Nothing written yet._"
+            how = "choose one" if q.kind == "likert" else "move the slider (even to 50)"
+            return f"_Not answered yet: {how}._"
+        return f"Received: **{shown_value(q, item, value)}**"
+
+    def _submit(self, step: Step, readers: dict) -> None:
+        """Submit: the answers as the server has them, kept as the draft; refused while a
+        required one is missing, else shown for confirmation."""
+        got = {item: read() for item, read in readers.items()}
+        with self.study._lock:
+            draft = self.study.drafts.setdefault((self.code, step.key), {})
+            draft.clear()
+            draft.update({k: v for k, v in got.items() if v is not None and v != ""})
+        missing = [
+            self._label(q, item)
+            for q in step.questions
+            for item in q.items()
+            if q.required and got.get(item) in (None, "")
+        ]
+        if missing:
+            raise ValueError(
+                f"not answered yet: {', '.join(missing)} (the page now shows what we have received)"
+            )
+        self.pending = check_answers(step, got)
+
+    def _change(self) -> None:
+        self.pending = None
+
+    def _confirm(self, step: Step) -> None:
+        answers, self.pending = self.pending, None
+        self.person.answer(answers, step.key)
+        with self.study._lock:
+            self.study.drafts.pop((self.code, step.key), None)
 
 
 class ExperimenterView:
@@ -383,7 +659,7 @@ class ExperimenterView:
         gui = self.client.gui
         gui.add_markdown(f"### Study: {self.study.run.protocol.description or 'protocol'}")
         self.table = gui.add_markdown("")
-        b = self.buttons = {}
+        b: dict = {}  # self.buttons once every control is made (a test waits on it)
         with gui.add_folder("Enroll a participant"):
             self.new_code = gui.add_text("New code", initial_value="")
             b["enroll"] = gui.add_button("Enroll")
@@ -394,16 +670,23 @@ class ExperimenterView:
             actions = {
                 "Let continue": lambda: self.study.let_continue(self._code()),
                 "New link": self._new_link,
-                "Abort the trial": lambda: self.study.abort_trial(self._code()),
-                "Withdraw": lambda: self.study.withdraw(self._code()),
-                "Withdraw and delete their rows": lambda: self.study.withdraw(
-                    self._code(), delete=True
-                ),
             }
             for label, action in actions.items():
                 b[label] = gui.add_button(label)
                 b[label].on_click(lambda _, a=action: self._do(a))
+            # What ends or deletes something is asked again, naming the participant.
+            for label in DESTRUCTIVE:
+                b[label] = gui.add_button(label, color="red" if "delete" in label else None)
+                b[label].on_click(lambda _, label=label: self._do(lambda: self._arm(label)))
+            self.question = gui.add_markdown("", visible=False)
+            b["confirm"] = gui.add_button("Confirm", color="red", visible=False)
+            b["cancel"] = gui.add_button("Cancel", visible=False)
+            b["confirm"].on_click(lambda _: self._do(self._confirmed))
+            b["cancel"].on_click(lambda _: self._do(self._disarm))
+        #: (action, code) pressed and not yet confirmed
+        self.armed: tuple[str, str] | None = None
         self.said = gui.add_markdown("")
+        self.buttons = b
         self.refresh()
         self._thread = threading.Thread(target=self._loop, name="experimenter", daemon=True)
         self._thread.start()
@@ -419,6 +702,30 @@ class ExperimenterView:
                 if self._stop.is_set():
                     return
 
+    def _arm(self, label: str) -> None:
+        code = self._code()
+        self.armed = (label, code)
+        self.question.content = f"**{label}: {code}?** {DESTRUCTIVE[label]}"
+        self.buttons["confirm"].label = f"Confirm: {label.lower()} {code}"
+        for part in (self.question, self.buttons["confirm"], self.buttons["cancel"]):
+            part.visible = True
+
+    def _disarm(self) -> None:
+        self.armed = None
+        for part in (self.question, self.buttons["confirm"], self.buttons["cancel"]):
+            part.visible = False
+
+    def _confirmed(self) -> None:
+        if self.armed is None:
+            raise StudyError("nothing to confirm")
+        (label, code), self.armed = self.armed, None
+        self._disarm()
+        if label == "Abort the trial":
+            self.study.abort_trial(code)
+        else:
+            self.study.withdraw(code, delete=label != "Withdraw")
+        self.said.content = f"Done: {label.lower()} {code}."
+
     def _code(self) -> str:
         code = self.who.value.strip()
         if self.study.run.log.participant(code) is None:
@@ -427,8 +734,8 @@ class ExperimenterView:
 
     def _do(self, action: Callable[[], object]) -> None:
         try:
-            action()
             self.said.content = ""
+            action()
         except (StudyError, ValueError) as exc:
             self.said.content = f"**Not done**: {str(exc).splitlines()[0]}"
         self.refresh()
