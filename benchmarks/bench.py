@@ -405,7 +405,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         "'confidence': the iterated and particle learners' cost per correction against "
         "KF-C's in figs. 4 and 5 (CPU seconds, planner solves). 'study': several participants "
         "at once on one study server (scripted websocket clients submitting together): "
-        "server submit -> next plan, and each one's isolation.",
+        "server submit -> next plan, and each one's isolation. 'questionnaire': the raw "
+        "NASA-TLX answered in chromium as fast as the page takes input, and whether every value "
+        "set reaches the log (--problems questionnaires, default 20).",
     )
     parser.add_argument(
         "what",
@@ -419,6 +421,7 @@ def main(argv: Sequence[str] | None = None) -> None:
             "learnt",
             "confidence",
             "study",
+            "questionnaire",
         ],
         help="which benchmark to run",
     )
@@ -582,6 +585,16 @@ def main(argv: Sequence[str] | None = None) -> None:
         if n < 2:
             parser.error("--problems: learnt takes >= 2 problems (default 24)")
         print("\n".join(run_learnt(n, 0 if args.seed is None else args.seed, args.build)))
+        return
+    if args.what == "questionnaire":
+        from benchmarks.bench_questionnaire import report as report_questionnaire
+        from benchmarks.bench_questionnaire import run as run_questionnaire
+
+        count = 20 if args.problems is None else args.problems
+        if count < 1:
+            parser.error("--problems: questionnaire takes the questionnaires to answer, >= 1")
+        seed = 0 if args.seed is None else args.seed
+        print("\n".join(report_questionnaire(run_questionnaire(count, seed))), flush=True)
         return
     if args.what == "study":
         from benchmarks.bench_study import report, run

@@ -11,7 +11,9 @@ correction and participant. Isolation: each participant's page holds only their 
 and each session's logged θ̂ is the one their page showed last.
 
 With ``--browser`` the fourth participant is a chromium tab driven with the mouse, and the
-report says whether its page showed its own next plan after each submit.
+report says whether its page showed its own next plan after each submit (its correction's
+number, and the cup where that participant's plan has it). Each states a preference first, as
+the page asks before the first correction.
 
 It prints figures and never asserts.
 """
@@ -74,6 +76,20 @@ def _participant(study, code, link, corrections, barrier, out, errors) -> None:
             button = drive.wait_for(lambda: view.controls.get("continue"), "the welcome")
             _click(tab, button)
             page = drive.wait_for(lambda: view.page, "the trial's page", timeout=300)
+            # The stated preference first (the page asks for it before the first correction).
+            drive.wait_for(lambda: page.proposal is not None, "the first plan", timeout=300)
+            for slider, value in zip(page.sliders, (1.0, -1.0), strict=True):
+                _send(
+                    tab,
+                    {
+                        "type": "GuiUpdateMessage",
+                        "uuid": slider._impl.uuid,
+                        "updates": {"value": value},
+                    },
+                )
+            drive.wait_for(lambda: "-1.0" in page.pref_echo.content, "the preference received")
+            _click(tab, page.state_button)
+            drive.wait_for(lambda: "recorded as" in page.last_message, "the preference recorded")
             spans = []
             for _ in range(corrections):
                 # The plan and its handle on the page (the handle comes after the plan).
@@ -155,8 +171,10 @@ def _browser_participant(study, code, link, corrections, barrier, out, errors, b
         view = study.participant_views()[code]
         page = drive.wait_for(lambda: view.page, "the trial's page", timeout=300)
         spans, shown = [], 0
+        tab.get_by_role("button", name="Submit correction").wait_for(timeout=300_000)
+        drive.state_preference(tab, [1.0, -1.0])
         for _ in range(corrections):
-            tab.get_by_text("Submit correction").wait_for(timeout=300_000)
+            tab.get_by_role("button", name="Submit correction").wait_for(timeout=300_000)
             drive.wait_for(lambda: page.handle is not None and not page._busy, "the plan", 300)
             drive.wait_for(lambda: drive.cup_position(tab), "the cup on the page")
             try:
@@ -166,7 +184,7 @@ def _browser_participant(study, code, link, corrections, barrier, out, errors, b
                     timeout=20.0,
                 )
             except TimeoutError:
-                drive.click(tab, "Skip this environment")
+                drive.click(tab, "Skip: show me another scene")
                 continue
             submitted = page.submitted
             barrier.wait(timeout=600)
@@ -175,9 +193,19 @@ def _browser_participant(study, code, link, corrections, barrier, out, errors, b
             drive.wait_for(lambda: not page._busy, "the next plan", 300)
             arrived, sent = page.last_submit
             spans.append(sent - arrived)
-            title = f"Correction {page.session.iteration + 1}: environment {page.proposal.env.name}"
+            # Its own next plan: the correction's number, and the cup where its plan has it.
+            title = f"Correction {page.session.iteration + 1} of {corrections}"
+            plan = page.proposal.plan.trajectory
+            cup = cup_pose(plan[int(page.waypoint.value)])[1]
+
+            def own(t=title, cup=cup) -> bool:
+                at = drive.cup_position(tab)
+                return (
+                    t in drive.status(tab) and at is not None and np.allclose(at[1], cup, atol=2e-3)
+                )
+
             try:
-                drive.wait_for(lambda t=title: t in drive.status(tab), "its own plan", 60)
+                drive.wait_for(own, "its own plan", 60)
                 shown += 1
             except TimeoutError:
                 pass

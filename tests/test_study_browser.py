@@ -98,9 +98,12 @@ def _enter(tab, code: str) -> None:
 
 
 def _correct(tab) -> None:
-    """One drag of the cup and its submission; the trial's end then offers to go on."""
-    tab.get_by_text("Submit correction").wait_for(timeout=120_000)
+    """One drag of the cup and its submission (the stated preference first, where the page
+    asks for it); the trial's end then offers to go on."""
+    tab.get_by_role("button", name="Submit correction").wait_for(timeout=120_000)
     drive.wait_for(lambda: drive.cup_position(tab), "the cup on the page")
+    if "First state your preference" in drive.status(tab):
+        drive.state_preference(tab, [1.0, -1.0])
     drive.until_landed(lambda: drive.drag_cup(tab, 50), lambda: "orange path" in drive.status(tab))
     drive.click(tab, "Submit correction")
 
@@ -121,22 +124,16 @@ def test_two_participants_go_through_a_whole_protocol_at_once(browser, study):
                 _correct(tab)
             for tab in tabs.values():
                 text = drive.wait_for(
-                    lambda t=tab: (
-                        "Continue to the next step" in drive.status(t) and drive.status(t)
-                    ),
+                    lambda t=tab: "This trial is over" in drive.status(t) and drive.status(t),
                     "the trial's end",
                 )
-                # Blind: the page never names the learner.
-                assert "KF-C" not in text and "KF-CL" not in text
-                drive.click(tab, "Continue to the next step")
+                # Blind: the page never names the learner, nor shows the robot's estimate.
+                assert "KF-C" not in text and "KF-CL" not in text and "θ" not in text
+                drive.click(tab, "Continue")
             if round_ == 0:
                 continue
             for tab in tabs.values():
-                tab.get_by_text("The robot understood me.").wait_for(timeout=60_000)
-                drive.click(tab, "Submit answers")  # unanswered: refused on the page
-                tab.get_by_text("understood: not answered").wait_for(timeout=30_000)
-                drive.choose(tab, 0, "4")
-                drive.click(tab, "Submit answers")
+                _answer_understood(tab, "4")
         for tab in tabs.values():
             tab.get_by_text("you are done").wait_for(timeout=60_000)
     finally:
@@ -153,6 +150,20 @@ def test_two_participants_go_through_a_whole_protocol_at_once(browser, study):
         assert all(len(log.corrections(s)) == 1 for s in sessions)
     # Counterbalanced: the two participants met the robots in opposite orders.
     assert study.run.protocol.order_of(0) == study.run.protocol.order_of(1)[::-1]
+
+
+def _answer_understood(tab, value: str) -> None:
+    """The questionnaire's one item: Submit unanswered is refused on the page, then the
+    answer, what the page received, and its confirmation."""
+    tab.get_by_text("The robot understood me.").wait_for(timeout=60_000)
+    drive.click(tab, "Submit answers")
+    tab.get_by_text("not answered yet: The robot understood me.").wait_for(timeout=30_000)
+    drive.choose(tab, 0, value)
+    drive.wait_for(lambda: drive.echoes(tab) == [value], "the answer reaching the server")
+    drive.click(tab, "Submit answers")
+    tab.get_by_text("Please check your answers").wait_for(timeout=30_000)
+    assert drive.confirmed_values(tab) == [value]
+    drive.click(tab, "Yes, submit these answers")
 
 
 def test_a_link_reaches_only_its_own_participant(browser, study):
@@ -263,8 +274,8 @@ def test_a_killed_server_loses_nothing_and_the_participant_resumes_at_the_same_s
         tab.get_by_text("Hello there.").wait_for(timeout=60_000)
         drive.click(tab, "Continue")
         _correct(tab)  # the practice's one correction
-        tab.get_by_role("button", name="Continue to the next step").wait_for(timeout=120_000)
-        drive.click(tab, "Continue to the next step")
+        tab.get_by_text("This trial is over").wait_for(timeout=120_000)
+        drive.click(tab, "Continue")
         _correct(tab)  # the first robot's first of two
         drive.wait_for(lambda: "Correction 2" in drive.status(tab), "the next plan")
         server.send_signal(signal.SIGKILL)  # mid-condition
@@ -275,15 +286,13 @@ def test_a_killed_server_loses_nothing_and_the_participant_resumes_at_the_same_s
         server = _back_after_a_kill(browser, tab, links["P1"], protocol, db, port)
         tab.get_by_text("Correction 2").wait_for(timeout=120_000)  # the same trial, resumed
         _correct(tab)
-        tab.get_by_role("button", name="Continue to the next step").wait_for(timeout=120_000)
-        drive.click(tab, "Continue to the next step")
+        tab.get_by_text("This trial is over").wait_for(timeout=120_000)
+        drive.click(tab, "Continue")
         tab.get_by_text("The robot understood me.").wait_for(timeout=60_000)
         server.send_signal(signal.SIGKILL)  # mid-questionnaire (nothing submitted yet)
         server.wait(timeout=30)
         server = _back_after_a_kill(browser, tab, links["P1"], protocol, db, port)
-        tab.get_by_text("The robot understood me.").wait_for(timeout=60_000)  # the same step
-        drive.choose(tab, 0, "5")
-        drive.click(tab, "Submit answers")
+        _answer_understood(tab, "5")  # the same step
         tab.get_by_text("Robot 2 of 2").wait_for(timeout=60_000)
         server.send_signal(signal.SIGKILL)  # right after the questionnaire
         server.wait(timeout=30)
@@ -328,8 +337,19 @@ def test_the_experimenters_page_enrolls_and_withdraws(study):
         drive.wait_for(lambda: "already used" in view.said.content, "the refusal")
         send(view.who, "P7")
         drive.wait_for(lambda: view.who.value == "P7", "the code typed")
+        send(view.buttons["Withdraw and delete their rows"], True)  # asked again first
+        drive.wait_for(lambda: "cannot be undone" in view.question.content, "the question")
+        assert (
+            view.buttons["confirm"].visible and study.run.log.participant("P7")["withdrawn"] is None
+        )
+        send(view.buttons["cancel"], True)
+        drive.wait_for(lambda: not view.buttons["confirm"].visible, "cancelled")
         send(view.buttons["Withdraw"], True)
+        drive.wait_for(lambda: view.buttons["confirm"].visible, "the question")
+        assert study.run.log.participant("P7")["withdrawn"] is None
+        send(view.buttons["confirm"], True)
         drive.wait_for(lambda: study.run.log.participant("P7")["withdrawn"], "withdrawn")
+        assert study.run.log.participant("P7")["token_hash"] != "deleted:P7"  # kept, marked
         drive.wait_for(lambda: "withdrawn" in view.table.content, "the table")
 
 
@@ -371,3 +391,23 @@ def test_a_physical_condition_shows_the_physical_page_blind_to_the_learner(tmp_p
     finally:
         server.stop()
         run.log.close()
+
+
+def test_every_tlx_value_set_as_fast_as_the_page_takes_it_reaches_the_log(browser, tmp_path):
+    """Two questionnaires of the 20 of ``bench questionnaire``: six values and Submit from one
+    script in the page (one throttle window of viser's client, which keeps only its latest
+    message), then what the page shows back mended and confirmed; and a slider left untouched
+    is refused, never stored."""
+    from benchmarks.bench_questionnaire import open_study, questionnaire, untouched
+
+    study, server = open_study(tmp_path)
+    try:
+        left = untouched(study, browser)
+        assert left == {"refused": True, "stored": 0}
+        for i, values in enumerate(([70, 10, 40, 30, 60, 75], [50, 50, 0, 100, 5, 95])):
+            outcome = questionnaire(study, browser, f"Q{i}", values)
+            assert outcome["exact"], outcome
+            assert outcome["lost"] >= 1  # the throttle did drop values: the mending mattered
+    finally:
+        server.stop()
+        study.run.log.close()

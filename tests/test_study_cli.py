@@ -146,7 +146,14 @@ def test_the_committed_pilot_analyses_to_its_committed_numbers(tmp_path):
     for key, value in old.items():
         # The analysis reads the log's numbers; only the model's optimizer rounds per CPU.
         assert np.isclose(new[key], value, rtol=1e-4, atol=1e-6, equal_nan=True), key
-    assert "Simulated participants" in (tmp_path / "report.md").read_text()
+    report = (tmp_path / "report.md").read_text()
+    assert "Simulated participants" in report
+    # No p-value from a singular fit (final_error's participant variance is at 0), and the
+    # end question mapped to the conditions by each participant's order.
+    assert "| final_error | not reported: singular" in report
+    assert "## Which robot they would rather work with" in report
+    comparisons = (committed / "analysis" / "comparisons.csv").read_text().splitlines()
+    assert len(comparisons) == 13
 
 
 def test_study_status_prints_where_everyone_is(capsys):

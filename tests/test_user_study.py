@@ -8,6 +8,7 @@ import itertools
 import json
 import math
 import tomllib
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,7 +18,13 @@ from corrections_sim.interact.log import StudyError, StudyLog
 from corrections_sim.interact.participant import StudyRun, simulate_participant
 from corrections_sim.interact.study_report import analyze, protocol_of, tidy
 from corrections_sim.study import user_study
-from corrections_sim.study.protocol import balance, latin_square, load_protocol, parse_protocol
+from corrections_sim.study.protocol import (
+    TLX_SCALES,
+    balance,
+    latin_square,
+    load_protocol,
+    parse_protocol,
+)
 
 #: A short protocol: a practice of one correction, two conditions of two corrections each.
 SHORT = """
@@ -140,6 +147,20 @@ def test_a_fixed_order_is_the_same_for_everyone():
             "conditions[0].mode = 'fly'",
         ),
         ({"primary": "joy"}, "primary = 'joy'"),
+        (
+            {"conditions": [{"name": "A", "learner": "KF", "instructions": "**Robot 2.** Go."}]},
+            "conditions[0].instructions: names a robot by number ('Robot 2')",
+        ),
+        ({"min_corrections": 3}, "min_corrections = 3"),
+        ({"min_participants": 1}, "min_participants = 1"),
+        (
+            {"questionnaires": {"end": [{"id": "q", "text": "?", "compare": "yes"}]}},
+            "questionnaires.end[0].compare = 'yes': expected true or false",
+        ),
+        (
+            {"questionnaires": {"condition": [{"id": "q", "text": "?", "compare": True}]}},
+            "questionnaires.condition[0].compare: an item after one condition cannot compare",
+        ),
     ],
 )
 def test_a_bad_protocol_is_one_line_naming_the_key(change, message):
@@ -158,6 +179,44 @@ def test_the_example_protocol_parses_and_its_study_keys_are_checked(tmp_path):
     bad.write_text(SHORT.replace('name = "CL"', 'name = "CL"\nset = { runz = 3 }'))
     with pytest.raises(ValueError, match=r"conditions\[1\]\.set: runz: unknown key"):
         open_run(bad, tmp_path / "bad.sqlite")
+
+
+def test_a_conditions_text_names_the_robot_by_the_participants_own_order():
+    protocol = parse_protocol(
+        values(
+            conditions=[
+                {"name": "C", "learner": "KF-C", "instructions": "Robot {robot} of {robots}."},
+                {"name": "CL", "learner": "KF-CL", "instructions": "Robot {robot} of {robots}."},
+            ]
+        )
+    )
+    for index in range(4):
+        order = protocol.order_of(index)
+        texts = {s.condition: s.text for s in protocol.steps(index) if s.kind == "instructions"}
+        assert texts[order[0]] == "Robot 1 of 2." and texts[order[1]] == "Robot 2 of 2."
+
+
+def test_the_prose_may_be_corrected_but_not_the_design(short, tmp_path):
+    db = tmp_path / "study.sqlite"
+    run = open_run(short, db)
+    run.enroll("P01")
+    run.log.close()
+    reworded = tmp_path / "reworded.toml"
+    reworded.write_text(
+        SHORT.replace('welcome = "Hello."', 'welcome = "Hello, and thank you."').replace(
+            '"The robot understood me."', '"The robot understood what I wanted."'
+        )
+    )
+    run = open_run(reworded, db)  # the same design: adopted, the earlier wording kept
+    assert "thank you" in json.loads(run.log.meta("protocol"))["welcome"]
+    assert json.loads(run.log.meta("protocol_versions"))[0]["source"]["welcome"] == "Hello."
+    assert run.participant("P01").index == 0
+    run.log.close()
+    changed = tmp_path / "changed.toml"
+    changed.write_text(SHORT.replace("corrections = 2\n", "corrections = 3\n", 1))
+    with pytest.raises(ValueError, match="belongs to another protocol") as caught:
+        open_run(changed, db)
+    assert "\n" not in str(caught.value)
 
 
 # --- the participant's state machine over the log ---------------------------------------------
@@ -197,7 +256,7 @@ def test_a_simulated_participant_goes_through_and_a_crash_resumes_at_the_same_st
     assert step.key == f"{order[0]}.trial1"
     session = person.session(step.key)
     simulate(session, make_user("noisy", {"noise": 0.5}), [1.0, -1.0], 1)
-    with pytest.raises(StudyError, match="has 1 of 2 corrections"):
+    with pytest.raises(StudyError, match="has 1 of the 2 corrections it needs"):
         person.finish_trial(step.key)
     first_theta = session.belief.theta.copy()
     run.log.close()
@@ -270,11 +329,19 @@ def test_a_cohort_analysed_says_it_is_simulated_and_leaves_out_the_withdrawn(sho
     assert "Simulated participants" in report
     trials = (out / "trials.csv").read_text().splitlines()
     assert len(trials) == 1 + 4 * 2  # four participants, two conditions, the practice out
-    # Four participants, both orders twice: the period is balanced, and the model's effect
-    # is the paired difference.
-    mixed = summary["outcomes"]["mean_regret"]["mixed"]
-    paired = summary["outcomes"]["mean_regret"]["paired"][0]
-    assert mixed["effects"][0]["estimate"] == pytest.approx(paired["mean"], abs=1e-6)
+    # Four participants, fewer than min_participants (6): descriptive only, said at the top,
+    # no interval, test or model in the summary or the report.
+    assert summary["descriptive_only"] and summary["min_participants"] == 6
+    assert "Descriptive only" in report and "| p |" not in report and "95% CI" not in report
+    entry = summary["outcomes"]["mean_regret"]
+    assert not entry["mixed"]["reported"] and "p" not in entry["paired"][0]
+    assert all("lo" not in row for row in entry["summary"])
+    # The model itself, on the same rows: both orders twice, so the period is balanced and
+    # its effect is the paired difference.
+    with StudyLog(db) as log:
+        rows = tidy(log)["trials"]
+    mixed = user_study.mixed_model(rows, "mean_regret", ["C", "CL"])
+    assert mixed["effects"][0]["estimate"] == pytest.approx(entry["paired"][0]["mean"], abs=1e-6)
     # Deleted on request: nothing of theirs is left but the emptied code.
     with StudyLog(db) as log:
         run = StudyRun(protocol_of(log), log, open_run(short, tmp_path / "x.sqlite").settings_of)
@@ -345,6 +412,88 @@ def test_simulated_participants_are_deterministic_functions_of_their_index(short
     assert list(itertools.chain(*a)) != [1.0, -1.0] * 3
 
 
+def test_codes_are_read_without_regard_to_case(short, tmp_path):
+    run = open_run(short, tmp_path / "study.sqlite")
+    run.enroll("P01")
+    with pytest.raises(StudyError, match="P01 is enrolled already"):
+        run.enroll("p01")
+    run.log.close()
+
+
+def _to_questions(run, code: str, corrections: int | None = None):
+    """``code`` enrolled and through the welcome, the practice and their first robot's trial
+    (``corrections`` of it: all by default, then finished) by a simulated user."""
+    from corrections_sim.interact.session import simulate
+    from corrections_sim.people.users import make_user
+
+    user = make_user("noisy", {"noise": 0.5})
+    person, _ = run.enroll(code)
+    person.proceed("welcome")
+    simulate(person.session("practice"), user, [1.0, -1.0], 1)
+    person.finish_trial("practice")
+    step = person.current()
+    if step.kind == "instructions":
+        step = person.proceed(step.key)
+    session = person.session(step.key)
+    simulate(session, user, [1.0, -1.0], corrections or person.corrections(step))
+    return person, step
+
+
+def test_a_trial_ends_when_it_has_its_minimum_or_the_participant_stops_it(short, tmp_path):
+    db = tmp_path / "study.sqlite"
+    run = open_run(short, db)
+    person, step = _to_questions(run, "P01", corrections=1)
+    with pytest.raises(StudyError, match="has 1 of the 2 corrections it needs"):
+        person.finish_trial(step.key)
+    after = person.stop_trial(step.key)  # "Stop this trial early", confirmed on the page
+    assert after.kind == "questions"
+    events = run.log.participant_events("P01", "stopped")
+    assert events[0]["detail"] == {"step": step.key, "corrections": 1, "by": "participant"}
+    person.leave()  # "Leave the study"
+    assert run.log.participant("P01")["withdrawn"] is not None
+    assert run.log.participant_events("P01", "withdrew")[0]["detail"] == {"by": "participant"}
+    other, step = _to_questions(run, "P02", corrections=1)
+    other.stop_trial(step.key)
+    run.log.close()
+    with StudyLog(db) as log:
+        tables = tidy(log)
+    assert tables["excluded"]["withdrew_themselves"] == ["P01"]
+    assert tables["excluded"]["ended_early_trials"] == 1
+    (trial,) = tables["trials"]
+    assert trial["ended_early"] and trial["stopped_by_participant"] and trial["corrections"] == 1
+
+
+def test_an_optional_item_left_blank_is_missing_and_every_answer_keeps_its_question(
+    short, tmp_path
+):
+    db = tmp_path / "study.sqlite"
+    run = open_run(short, db)
+    person, step = _to_questions(run, "P01")
+    step = person.finish_trial(step.key)
+    tlx = {f"tlx.{s}": 5 * i for i, s in enumerate(TLX_SCALES)}
+    person.answer({"understood": 3, **tlx}, step.key)
+    asked = run.log.asked("P01")
+    assert asked[("P01", step.key, "understood")]["text"] == "The robot understood me."
+    assert asked[("P01", step.key, "tlx.performance")]["anchors"] == ["Perfect", "Failure"]
+    # The end's free text is optional: left blank, it is missing (no row), never "".
+    while person.current().kind != "questions" or person.current().key != "end.questions":
+        current = person.current()
+        if current.kind == "instructions":
+            person.proceed(current.key)
+        elif current.kind == "trial":
+            from corrections_sim.interact.session import simulate
+            from corrections_sim.people.users import make_user
+
+            session = person.session(current.key)
+            simulate(session, make_user("noisy", {"noise": 0.5}), [1.0, -1.0], 2)
+            person.finish_trial(current.key)
+        else:
+            person.answer({"understood": 4, **tlx}, current.key)
+    person.answer({"comments": ""}, "end.questions")
+    assert not [a for a in run.log.answers("P01") if a["item"] == "comments"]
+    run.log.close()
+
+
 def test_a_person_is_not_simulated(short, tmp_path):
     run = open_run(short, tmp_path / "study.sqlite")
     run.enroll("P01")
@@ -399,4 +548,155 @@ def test_a_simulated_participant_pushes_in_a_physical_condition_and_drags_in_the
     assert physical["simulated"] and "released_at" in physical  # a push, let go of
     assert dragged == {"simulated": True}
     assert run.log.session(by_condition["P"]).correction["name"] == "physical"
+    run.log.close()
+
+
+# --- what the report refuses to say ------------------------------------------------------------
+
+
+def _tables(protocol, trials, answers=(), comparisons=()):
+    people = sorted({t["participant"] for t in trials})
+    excluded = {"withdrawn": [], "aborted_trials": 0, "unfinished_trials": 0}
+    return {
+        "protocol": protocol,
+        "participants": people,
+        "corrections": [],
+        "trials": list(trials),
+        "answers": list(answers),
+        "comparisons": list(comparisons),
+        "excluded": excluded,
+        "simulated": False,
+    }
+
+
+def _trial(code, condition, period, regret, error=0.3):
+    return {
+        "participant": code,
+        "condition": condition,
+        "period": period,
+        "mean_regret": regret,
+        "final_error": error,
+        "seconds": 5.0,
+        "ended_early": False,
+    }
+
+
+def test_two_people_get_a_descriptive_report_with_the_end_preference_mapped_to_conditions():
+    from corrections_sim.interact.study_report import analyse, compared, report, strict_json
+
+    protocol = parse_protocol(
+        values(
+            questionnaires={
+                "end": [
+                    {"id": "prefer", "text": "Which?", "points": 5, "compare": True},
+                    {"id": "comments", "kind": "text", "text": "Else?"},
+                ]
+            }
+        )
+    )
+    # P1 met C then CL and answered 5 (the second); P2 met CL then C and answered 1 (the
+    # first): both preferred CL.
+    trials = [_trial("P1", "C", 1, 1.0), _trial("P1", "CL", 2, 4.0)]
+    trials += [_trial("P2", "CL", 1, 2.0), _trial("P2", "C", 2, 1.5)]
+    comparisons = [
+        compared("P1", "prefer", 5, 5, ("C", "CL")),
+        compared("P2", "prefer", 1, 5, ("CL", "C")),
+    ]
+    assert [c["preferred"] for c in comparisons] == ["CL", "CL"]
+    assert [c["score"] for c in comparisons] == [2.0, 2.0]
+    text = {"participant": "P2", "item": "comments", "kind": "text", "condition": ""}
+    answers = [{**text, "value": "<script>x</script> **great** | 10/10\n# yes"}]
+    tables = _tables(protocol, trials, answers, comparisons)
+    result = analyse(tables)
+    assert result["descriptive_only"]
+    assert result["comparisons"]["prefer"]["preferred"] == {"C": 0, "CL": 2}
+    for entry in result["outcomes"].values():
+        assert not entry["mixed"]["reported"]
+        assert all("p" not in row and "lo" not in row for row in entry["paired"])
+    json.dumps(strict_json(result), allow_nan=False)  # strict JSON: no NaN token
+    md = report(tables, result, Path("study.sqlite"))
+    assert "Descriptive only" in md and "| p |" not in md and "95% CI" not in md
+    assert "| prefer | C 0, CL 2 | 0 | CL |" in md
+    line = next(x for x in md.splitlines() if x.startswith("- P2"))
+    assert "<script>" not in line and "&lt;script&gt;" in line
+    assert "\\*\\*great\\*\\*" in line and "\\|" in line and "\\#" in line
+
+
+def test_a_saturated_model_is_no_result_and_the_report_says_why():
+    from corrections_sim.interact.study_report import analyse, report
+
+    protocol = parse_protocol(values(min_participants=2))
+    trials = [_trial("P1", "C", 1, 1.0), _trial("P1", "CL", 2, 4.0)]
+    trials += [_trial("P2", "CL", 1, 2.0), _trial("P2", "C", 2, 1.5)]
+    fit = user_study.mixed_model(trials, "mean_regret", ["C", "CL"])
+    assert not fit["reported"] and fit["why"].startswith("saturated")
+    tables = _tables(protocol, trials)
+    md = report(tables, analyse(tables), Path("study.sqlite"))
+    assert "| mean_regret | not reported: saturated" in md
+    assert "[-3.000, -3.000]" not in md and "0.000 |" not in md.split("## Paired")[0]
+
+
+def test_a_singular_fit_is_no_result():
+    # Every participant's mean is the same: no variance between them, the fit's boundary.
+    rng = np.random.default_rng(3)
+    rows = []
+    for p in range(12):
+        d = rng.normal()
+        order = ("A", "B") if p % 2 else ("B", "A")
+        for period, c in enumerate(order, 1):
+            rows.append(
+                {
+                    "participant": f"p{p}",
+                    "condition": c,
+                    "period": period,
+                    "y": d if c == "B" else -d,
+                }
+            )
+    fit = user_study.mixed_model(rows, "y", ["A", "B"])
+    assert not fit["reported"] and fit["why"].startswith("singular")
+
+
+def test_an_interval_on_a_bounded_scale_stays_on_it():
+    plain = user_study.mean_ci([7, 7, 6])
+    bounded = user_study.mean_ci([7, 7, 6], bounds=(1.0, 7.0))
+    assert plain["hi"] > 7 and 1 <= bounded["lo"] < bounded["mean"] < bounded["hi"] <= 7
+    positive = user_study.mean_ci([0.1, 0.02, 3.0], bounds=(0.0, None))
+    assert user_study.mean_ci([0.1, 0.02, 3.0])["lo"] < 0 < positive["lo"]
+    difference = user_study.mean_ci([6, 6, -6], bounds=user_study.difference_bounds((1, 7)))
+    assert -6 <= difference["lo"] and difference["hi"] <= 6
+    assert user_study.mean_ci([7, 7, 7], bounds=(1.0, 7.0))["hi"] == 7
+
+
+def test_analyze_makes_no_folder_for_a_log_it_cannot_read(tmp_path):
+    db = tmp_path / "sessions.sqlite"
+    StudyLog(db).close()  # a log of single sessions: no protocol
+    out = tmp_path / "analysis"
+    with pytest.raises(ValueError, match="not a protocol's study log"):
+        analyze(db, out)
+    assert not out.exists()
+
+
+def test_a_log_made_before_answers_kept_their_questions_still_opens_and_analyses(short, tmp_path):
+    """As the committed pilot's log was made: no asked or participant_events table, the
+    protocol in its meta with a condition's text naming a robot by number."""
+    import sqlite3
+
+    db = tmp_path / "study.sqlite"
+    run = open_run(short, db)
+    simulate_cohort(run, range(2))
+    run.log.close()
+    with sqlite3.connect(db) as old:
+        old.execute("DROP TABLE asked")
+        old.execute("DROP TABLE participant_events")
+        source = json.loads(
+            old.execute("SELECT value FROM meta WHERE key = 'protocol'").fetchone()[0]
+        )
+        source["conditions"][0]["instructions"] = "**Robot 1.** Go."
+        old.execute("UPDATE meta SET value = ? WHERE key = 'protocol'", (json.dumps(source),))
+    paths = analyze(db, tmp_path / "analysis")
+    assert (tmp_path / "analysis" / "report.md") in paths
+    answers = (tmp_path / "analysis" / "answers.csv").read_text()
+    assert "The robot understood me." in answers  # the question from the protocol kept
+    run = open_run(short, db)  # served again: the same design, its prose corrected
+    assert run.participant("sim00001").where().step.kind == "end"
     run.log.close()
