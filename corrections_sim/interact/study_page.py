@@ -308,7 +308,9 @@ class ParticipantView:
             self.controls = {}
             gui = self.client.gui
             if self.person.withdrawn():
-                gui.add_markdown("**This session has ended.** Thank you.")
+                gui.add_markdown(
+                    "**Your part in the study has ended.** Thank you; you may close this page."
+                )
                 self.shown = None
                 return
             study = self.study

@@ -515,6 +515,13 @@ def _number(x, digits: int = 3) -> str:
     return "—" if x is None or not np.isfinite(x) else f"{x:.{digits}f}"
 
 
+def _head(columns: list[str], inferential: list[str], descriptive: bool) -> list[str]:
+    """A Markdown table's header and rule: ``columns``, and ``inferential`` unless the report
+    is descriptive only."""
+    names = columns + ([] if descriptive else inferential)
+    return ["| " + " | ".join(names) + " |", "|" + "---|" * len(names)]
+
+
 def _interval(row: dict) -> str:
     if "lo" not in row:
         return ""
@@ -612,10 +619,7 @@ def report(tables: dict, result: dict, log_path: Path) -> str:
         "",
         "## Paired comparisons (each participant's difference)",
         "",
-        "| outcome | difference | n | mean | sd"
-        + ("" if descriptive else " | 95% CI | d_z | p")
-        + " |",
-        "|---|---|---|---|---|" + ("" if descriptive else "---|---|---|"),
+        *_head(["outcome", "difference", "n", "mean", "sd"], ["95% CI", "d_z", "p"], descriptive),
     ]
     for name, entry in result["outcomes"].items():
         for p in entry["paired"]:
@@ -638,10 +642,11 @@ def report(tables: dict, result: dict, log_path: Path) -> str:
             "anchor is the robot they met first). Score: toward the condition named, "
             "−(points−1)/2 … +(points−1)/2.",
             "",
-            "| item | preferred | neither | score toward | mean score"
-            + ("" if descriptive else " | 95% CI | sign test p")
-            + " |",
-            "|---|---|---|---|---|" + ("" if descriptive else "---|---|"),
+            *_head(
+                ["item", "preferred", "neither", "score toward", "mean score"],
+                ["95% CI", "sign test p"],
+                descriptive,
+            ),
         ]
         for item, c in result["comparisons"].items():
             preferred = ", ".join(f"{k} {v}" for k, v in c["preferred"].items())
