@@ -113,10 +113,9 @@ class PhysicalPage(Page):
         scene, gui = client.scene, client.gui
         self._add_meshes(scene)
         self._add_texts(gui)
+        self.sliders = []  # the stated preference only where a study asks for it
         if self.require_stated:
             self._add_preference(gui)
-        else:
-            self.sliders, self.state_button = [], None
         self.play = gui.add_button("Play: push the cup while it moves", disabled=True)
         self.skip_button = gui.add_button(SKIP_BLIND if self.blind else SKIP, disabled=True)
         self.done_button = self._add_done(gui)
@@ -134,9 +133,11 @@ class PhysicalPage(Page):
         stated = self.stated is not None or not self.require_stated
         enough = s.iteration >= self.minimum or self.limit is None
         first = ready and s.iteration == 0
-        preference = [(self.state_button, first), *((x, first) for x in self.sliders)]
+        preference = []
+        if self.sliders:  # a study's page, which asks for the stated preference
+            preference = [(self.state_button, first), *((x, first) for x in self.sliders)]
         return [
-            *(preference if self.state_button is not None else []),
+            *preference,
             (self.play, ready and stated),
             (self.skip_button, ready),
             (self.done_button, ready and enough),
