@@ -556,9 +556,7 @@ def parse_protocol(
     raw = values.get("conditions")
     if not isinstance(raw, list) or not raw:
         raise ValueError("conditions: expected at least one [[conditions]] table")
-    conditions = tuple(
-        _condition(f"conditions[{i}]", c, "drag", strict) for i, c in enumerate(raw)
-    )
+    conditions = tuple(_condition(f"conditions[{i}]", c, "drag", strict) for i, c in enumerate(raw))
     names = [c.name for c in conditions]
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:
