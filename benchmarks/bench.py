@@ -407,7 +407,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         "at once on one study server (scripted websocket clients submitting together): "
         "server submit -> next plan, and each one's isolation. 'questionnaire': the raw "
         "NASA-TLX answered in chromium as fast as the page takes input, and whether every value "
-        "set reaches the log (--problems questionnaires, default 20).",
+        "set reaches the log (--problems questionnaires, default 20). 'catch': how often a "
+        "hand catches the moving handle on the physical page, against a binomial bar "
+        "(--problems tries, default 62).",
     )
     parser.add_argument(
         "what",
@@ -422,6 +424,7 @@ def main(argv: Sequence[str] | None = None) -> None:
             "confidence",
             "study",
             "questionnaire",
+            "catch",
         ],
         help="which benchmark to run",
     )
@@ -585,6 +588,15 @@ def main(argv: Sequence[str] | None = None) -> None:
         if n < 2:
             parser.error("--problems: learnt takes >= 2 problems (default 24)")
         print("\n".join(run_learnt(n, 0 if args.seed is None else args.seed, args.build)))
+        return
+    if args.what == "catch":
+        from benchmarks.bench_catch import report as report_catch
+        from benchmarks.bench_catch import run as run_catch
+
+        tries = 62 if args.problems is None else args.problems
+        if tries < 1:
+            parser.error("--problems: catch takes the tries, >= 1")
+        print("\n".join(report_catch(run_catch(tries))), flush=True)
         return
     if args.what == "questionnaire":
         from benchmarks.bench_questionnaire import report as report_questionnaire
