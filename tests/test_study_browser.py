@@ -388,6 +388,15 @@ def test_a_physical_condition_shows_the_physical_page_blind_to_the_learner(tmp_p
             drive.wait_for(lambda: "Push 1" in page.title.content, "the title")
             assert "KF-C" not in page.title.content and "Learner" not in page.title.content
             assert page.session.correction_name == "physical"
+            # The stated preference first, on the physical page too: Play waits for it.
+            assert "First state your preference" in page.title.content and page.play.disabled
+            for slider, value in zip(page.sliders, (1.0, -1.0), strict=True):
+                send(slider, value)
+            drive.wait_for(lambda: "table -1.0" in page.pref_echo.content, "the echo")
+            send(page.state_button, True)
+            drive.wait_for(lambda: not page.play.disabled, "Play once stated")
+            logged = run.log.session(page.session.id).stated_theta
+            assert list(logged) == [1.0, -1.0]
     finally:
         server.stop()
         run.log.close()
