@@ -89,19 +89,24 @@ def catch(tab, page, tries: int, *, stop_at: int | None = None) -> tuple[int, in
     return caught, tried
 
 
+def physical_session(log: StudyLog, participant: str) -> Session:
+    """A session of STUDY in which the person pushes the moving arm, learnt by KF-C told so."""
+    return Session.start(
+        parse_study(STUDY, name="t"),
+        log,
+        learner="KF-C",
+        params={"model": "physical"},
+        correction="physical",
+        participant=participant,
+    )
+
+
 def run(tries: int = 62) -> dict:
     from playwright.sync_api import sync_playwright
 
     with tempfile.TemporaryDirectory() as folder, sync_playwright() as p:
         log = StudyLog(Path(folder) / "catch.sqlite")
-        session = Session.start(
-            parse_study(STUDY, name="catch"),
-            log,
-            learner="KF-C",
-            params={"model": "physical"},
-            correction="physical",
-            participant="hand",
-        )
+        session = physical_session(log, "hand")
         server, page = serve(session, port=_port())
         browser = drive.launch(p)
         try:

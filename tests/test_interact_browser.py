@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from benchmarks.bench_catch import catch
+from benchmarks.bench_catch import catch, physical_session
 from corrections_sim.interact import drive
 from corrections_sim.interact.log import StudyLog
 from corrections_sim.interact.page import project
@@ -41,18 +41,6 @@ learners = ["KF-C"]
 seed = 3
 iterations = 3
 """
-
-
-def physical_session(log: StudyLog, participant: str) -> Session:
-    """A session of STUDY in which the person pushes the moving arm, learnt by KF-C told so."""
-    return Session.start(
-        parse_study(STUDY, name="t"),
-        log,
-        learner="KF-C",
-        params={"model": "physical"},
-        correction="physical",
-        participant=participant,
-    )
 
 
 def _free_port() -> int:

@@ -11,8 +11,9 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from test_interact_browser import STUDY, _free_port, physical_session
+from test_interact_browser import STUDY, _free_port
 
+from benchmarks.bench_catch import physical_session
 from corrections_sim.interact import drive
 from corrections_sim.interact.log import StudyLog
 from corrections_sim.interact.server import serve

@@ -335,17 +335,15 @@ def echoes(tab) -> list[str | None]:
     return [m.group(1) for m in _ECHO.finditer(status(tab))]
 
 
-def _settle(tab, index: int, value: float, shown: str | None) -> None:
-    """Make the server hold ``value`` for number box ``index`` of a questionnaire (its echo
-    ``shown`` now): typed again, and where the box already shows it (a change the page never
-    sent), a step away first; each waited for on the page."""
-    box = number_boxes(tab).nth(index)
-    if float(box.input_value() or "nan") == value:
-        away = value + 5 if value <= 95 else value - 5
+def _set_until(tab, index: int, value: float, away: float, seen: Callable[[float], bool]):
+    """Type ``value`` into number box ``index`` until the page says the server has it
+    (``seen``); where the box already shows it (a change the page never sent, or a start
+    that is no answer), a step to ``away`` first: the page counts only a moved control."""
+    if float(number_boxes(tab).nth(index).input_value() or "nan") == value:
         set_number(tab, index, away)
-        wait_for(lambda: _echo_at(tab, index) == _plain(away), "the step away reaching the server")
+        wait_for(lambda: seen(away), "the step away reaching the server")
     set_number(tab, index, value)
-    wait_for(lambda: _echo_at(tab, index) == _plain(value), "the value reaching the server")
+    wait_for(lambda: seen(value), "the value reaching the server")
 
 
 def _plain(value: float) -> str:
@@ -388,7 +386,8 @@ def answer_sliders(tab, values: Sequence[float], *, rounds: int = 6) -> dict:
             lost = sum(a != _plain(v) for a, v in zip(got, values, strict=False))
         for i, v in enumerate(values):
             if got[i] != _plain(v):
-                _settle(tab, i, v, got[i])
+                away = v + 5 if v <= 95 else v - 5
+                _set_until(tab, i, v, away, lambda x, i=i: _echo_at(tab, i) == _plain(x))
         old = _button(tab, "Submit answers")
         old.click()
     raise TimeoutError(f"the answers did not go through in {rounds} rounds")
@@ -423,12 +422,7 @@ def state_preference(tab, values: Sequence[float]) -> None:
         return parts[i].split(" ")[-1] if i < len(parts) else None
 
     for i, value in enumerate(values):
-        box = number_boxes(tab).nth(i)
-        if float(box.input_value() or "nan") == value:
-            away = value + 0.5 if value <= 1.5 else value - 0.5
-            set_number(tab, i, away)
-            wait_for(lambda i=i, a=away: have(i) == f"{a:+.1f}", "the step away")
-        set_number(tab, i, value)
-        wait_for(lambda i=i, v=value: have(i) == f"{v:+.1f}", "the preference reaching the server")
+        away = value + 0.5 if value <= 1.5 else value - 0.5
+        _set_until(tab, i, value, away, lambda x, i=i: have(i) == f"{x:+.1f}")
     click(tab, "State my preference")
     wait_for(lambda: "recorded as" in status(tab), "the stated preference recorded")

@@ -542,7 +542,7 @@ class Page:
         s = self.session
         teach = self.teaching and not s.ended and not self._busy
         ready = self.proposal is not None and not s.ended and not self._busy and not self.teaching
-        first = ready and s.iteration == 0 and (self.blind or self.stated is None)
+        first = ready and s.iteration == 0  # stated (again) until the first correction
         stated = self.stated is not None or not self.require_stated
         enough = s.iteration >= self.minimum or self.limit is None
         return [
@@ -777,7 +777,7 @@ class Page:
         if self.require_stated and self.stated is None:
             self._make_handle()  # back where it was
             self._refresh()
-            self._say("**First state your preference** (above); then move the cup.")
+            self._say("**First state your preference** (below); then move the cup.")
             self.drags += 1
             return
         position = np.array(self.handle.position, float)
@@ -1036,8 +1036,7 @@ class Page:
             return "This trial is over. Thank you."
         done = f"Session ended after {s.iteration} {plural(s.iteration, 'correction')}."
         if deployment is None:
-            learner = "the robot" if self.blind else s.learner
-            why = "no plan to deploy" if s.has_covariance else f"{learner} has no covariance"
+            why = "no plan to deploy" if s.has_covariance else f"{s.learner} has no covariance"
             return f"**{done}** Nothing deployed ({why}). You may close this tab."
         f = s.features
 

@@ -234,9 +234,9 @@ class StudyRun:
                     held.log.add_event(held.id, held.iteration, "withdrawn", {"by": by})
                     held.log.end_session(held.id)
                     held.ended = True
+            self.log.withdraw(code, delete=delete)  # refuses a code not in the log
             if not delete:
                 self.log.add_participant_event(code, "withdrew", {"by": by})
-            self.log.withdraw(code, delete=delete)
 
 
 class Participant:
@@ -376,6 +376,7 @@ class Participant:
         with run._lock:
             position, step = self._expect("trial", key)
             session = self.session(step.key)
+            # A stop whose step never finished (the server died in between) ends it here.
             stopped = bool(self.log.events(session.id, "stopped"))
             if session.iteration < self.minimum(step) and not stopped:
                 raise StudyError(

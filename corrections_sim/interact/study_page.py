@@ -345,12 +345,8 @@ class ParticipantView:
         study, each asked again before it is done (the folder is redrawn alone: a trial's
         page stays as it is)."""
         gui = self.client.gui
-        old = getattr(self, "exit_folder", None)
-        if old is not None:
-            try:
-                old.remove()
-            except Exception:  # gone with a reset of the panel
-                pass
+        if self.exit_folder is not None:  # redrawn in place (a reset of the panel clears it)
+            self.exit_folder.remove()
         self.exit_folder = gui.add_folder(
             "Need to stop?", expand_by_default=self.leaving is not None
         )
@@ -398,12 +394,10 @@ class ParticipantView:
             self.study.withdraw(self.code, by="participant")
 
     def _trial_ended(self, step: Step) -> bool:
-        row = {r["position"]: r for r in self.person.log.steps(self.code)}.get(
-            self.person.position()
-        )
-        if row is None or row["session_id"] is None:
-            return False
-        return self.person.log.session(row["session_id"]).ended is not None
+        """The current trial's session has ended (its page showed its end, or it was
+        stopped) and the step waits for Continue."""
+        session_id = self.person.where().session_id
+        return session_id is not None and self.person.log.session(session_id).ended is not None
 
     def _guarded(
         self, action: Callable[[], object], *, redraw: bool = True, redraw_refused: bool = False
@@ -513,11 +507,9 @@ class ParticipantView:
         draft = self._draft(step)
         confirming = self.pending is not None
         readers: dict[str, Callable[[], object]] = {}
-        echoes: dict[str, object] = {}
-        self.fields = readers
         for q in step.questions:
             for item in q.items():
-                self._question(q, item, draft, readers, echoes, confirming)
+                readers[item] = self._question(q, item, draft, confirming)
         self.error = gui.add_markdown(f"**Not taken**: {self.message}" if self.message else "")
         if confirming:
             rows = "\n".join(
@@ -545,8 +537,9 @@ class ParticipantView:
             return TLX_TITLES[item.split(".", 1)[1]]
         return q.text
 
-    def _question(self, q, item, draft, readers, echoes, confirming) -> None:
-        """One item's control, its text and the line that says what the server has."""
+    def _question(self, q: Question, item: str, draft: dict, confirming: bool) -> Callable:
+        """One item's control, its text and the line that says what the server has; the
+        function that reads the item's value as the server holds it."""
         gui = self.client.gui
         value = draft.get(item)
         if q.kind == "tlx":
@@ -593,7 +586,7 @@ class ParticipantView:
                 return int(c.value)
             return c.value
 
-        def moved(_event, c=control, read=read) -> None:
+        def moved(_event) -> None:
             got = read()
             with self.study._lock:
                 if got is None or got == "":
@@ -606,7 +599,7 @@ class ParticipantView:
                 pass
 
         control.on_update(moved)
-        readers[item] = read
+        return read
 
     @staticmethod
     def _echo(q: Question, item: str, value) -> str:
@@ -621,8 +614,8 @@ class ParticipantView:
         """Submit: the answers as the server has them, kept as the draft; refused while a
         required one is missing, else shown for confirmation."""
         got = {item: read() for item, read in readers.items()}
+        draft = self._draft(step)
         with self.study._lock:
-            draft = self.study.drafts.setdefault((self.code, step.key), {})
             draft.clear()
             draft.update({k: v for k, v in got.items() if v is not None and v != ""})
         missing = [
