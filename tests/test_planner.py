@@ -342,3 +342,36 @@ def test_seven_starts_reach_the_restarts_best_where_theta_laptop_is_below_zero_b
     assert seven >= best - 0.01 * abs(best)
     assert len(initial_guesses(env, 12, 7)) == 7
     np.testing.assert_array_equal(initial_guesses(env, 12, 7)[:4], initial_guesses(env, 12, 4))
+
+
+def _build_slowly(path, log):
+    """A build that takes a while and says each time it runs (for the race below)."""
+    import time
+
+    with open(log, "a") as f:
+        f.write("built\n")
+    time.sleep(0.5)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text("library")
+    tmp.replace(path)
+
+
+def _race(path, log, barrier):
+    from corrections_sim.planning.compiled import build_once
+
+    barrier.wait()
+    build_once(path, lambda target: _build_slowly(target, log))
+    return path.read_text()
+
+
+def test_two_processes_build_a_cached_library_once_and_both_load_it(tmp_path):
+    """Two test workers on a fresh machine ask for the same library at once: one builds, the
+    other waits and loads the finished file (never half of it, never a second gcc)."""
+    import multiprocessing
+
+    context = multiprocessing.get_context("spawn")
+    path, log = tmp_path / "cache" / "lib.so", tmp_path / "log"
+    with context.Manager() as manager, context.Pool(2) as pool:
+        got = pool.starmap(_race, [(path, log, manager.Barrier(2))] * 2)
+    assert got == ["library", "library"]
+    assert log.read_text() == "built\n"

@@ -27,6 +27,7 @@ import csv
 import dataclasses
 import hashlib
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -54,6 +55,7 @@ from corrections_sim.learning.relevance import (
 )
 from corrections_sim.people.corrections import OptimalCorrection
 from corrections_sim.people.users import Situation
+from corrections_sim.planning.compiled import build_once
 from corrections_sim.planning.features import waypoint_features
 from corrections_sim.planning.planner import Planner, PlanningError, build_key, cache_dir
 from corrections_sim.planning.plans import PlanBook
@@ -69,8 +71,18 @@ def grid_plans(planner: Planner, env: Environment, grid: ref.Grid) -> np.ndarray
         f"{build_key(planner.config)}|{env.key().hex()}|{grid}".encode()
     ).hexdigest()[:20]
     path = cache_dir() / "reference" / f"{key}.npy"
-    if path.is_file():
-        return np.load(path)
+    build_once(path, lambda target: _save(target, _solve_grid(planner, env, grid)))
+    return np.load(path)
+
+
+def _save(path: Path, array: np.ndarray) -> None:
+    """``array`` to ``path`` atomically (written beside it under this process's name)."""
+    tmp = path.with_name(f"{path.stem}.{os.getpid()}.tmp.npy")
+    np.save(tmp, array)
+    tmp.replace(path)
+
+
+def _solve_grid(planner: Planner, env: Environment, grid: ref.Grid) -> np.ndarray:
     thetas, n = grid.thetas(), grid.points
     plans = np.full((len(thetas), planner.config.n_waypoints, 7), np.nan)
     previous = None
@@ -87,10 +99,6 @@ def grid_plans(planner: Planner, env: Environment, grid: ref.Grid) -> np.ndarray
                 plans[i] = previous = plan.trajectory
             except PlanningError:
                 previous = None
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(f".{hashlib.sha256(str(id(plans)).encode()).hexdigest()[:6]}.tmp.npy")
-    np.save(tmp, plans)
-    tmp.replace(path)
     return plans
 
 

@@ -54,7 +54,7 @@ import mujoco
 import numpy as np
 
 from corrections_sim.planning import compiled
-from corrections_sim.planning.compiled import build_shared_library
+from corrections_sim.planning.compiled import build_once, build_shared_library
 from corrections_sim.scene.environments import Environment
 from corrections_sim.scene.world import CollisionChecker, CollisionReport, check_waypoints
 
@@ -238,8 +238,7 @@ class ClearanceCertificate:
         self._md = self._double_tables(model, data, chain)
         self._placed: dict[bytes, np.ndarray] = {}
         library = Path(library)
-        if not library.is_file():
-            build_library(library)
+        build_once(library, build_library)
         lib = ctypes.CDLL(str(library))
         p, i, d = ctypes.c_void_p, ctypes.c_int, ctypes.c_double
         self._bound = lib.clearance_bound

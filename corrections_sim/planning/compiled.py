@@ -8,10 +8,12 @@ C entry point with preallocated buffers instead (≈ 5 µs of overhead).
 from __future__ import annotations
 
 import ctypes
+import fcntl
 import os
 import subprocess
 import tempfile
 import threading
+from collections.abc import Callable
 from pathlib import Path
 
 import casadi as ca
@@ -65,6 +67,23 @@ class Compiled:
         if self._call(arg, res, iw.ctypes.data, w.ctypes.data, 0) != 0:
             raise RuntimeError(f"{self._fn.name()}: the compiled evaluation failed")
         return [o.copy() for o in outs]
+
+
+def build_once(path: Path, build: Callable[[Path], None]) -> None:
+    """``build(path)`` unless ``path`` exists, by one process of the machine at a time: the
+    others wait on a lock beside it (``path.lock``) and then find the file made. ``build``
+    writes atomically, so a reader that takes no lock never sees half a file; the lock spares
+    two processes (two test workers on a fresh machine) the same minutes of gcc."""
+    if path.is_file():
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path.with_name(path.name + ".lock"), "a") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            if not path.is_file():
+                build(path)
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
 
 
 def compile_library(

@@ -59,7 +59,7 @@ from scipy.linalg import cython_lapack
 from scipy.linalg.lapack import dpbtrf, dpbtrs, dposv
 
 from corrections_sim.planning import compiled
-from corrections_sim.planning.compiled import Compiled, compile_library
+from corrections_sim.planning.compiled import Compiled, build_once, compile_library
 from corrections_sim.planning.features import slot_feature_function
 
 #: A clearance below this at the warm start is guessed active (fatrop stops with active
@@ -252,9 +252,10 @@ class NewtonPath:
         clearance = ca.Function(
             "newton_clearance", [q, p, mu_i], [ca.densify(ca.hessian(ca.dot(mu_i, c_i), q)[0])]
         )
-        if library is not None and not library.is_file():
+        if library is not None:
             source = resources.files(__package__).joinpath(_SOURCE).read_bytes()
-            compile_library([first, fn, features, waypoint, clearance], library, (_SOURCE, source))
+            functions = [first, fn, features, waypoint, clearance]
+            build_once(library, lambda path: compile_library(functions, path, (_SOURCE, source)))
         self._first = Compiled(first, library)
         self._eval = Compiled(fn, library)
         self._features = Compiled(features, library)

@@ -48,7 +48,7 @@ import numpy as np
 from corrections_sim.planning import compiled
 from corrections_sim.planning.clearance import CertifiedChecker
 from corrections_sim.planning.clearance import library_key as clearance_library_key
-from corrections_sim.planning.compiled import build_shared_library
+from corrections_sim.planning.compiled import build_once, build_shared_library
 from corrections_sim.planning.features import (
     canonical,
     check_feature_names,
@@ -231,8 +231,9 @@ class Plan:
 # Deterministic initial guesses: the straight joint-space line, then the line bent by a
 # half-sine bump (rad at mid-path, per joint): the base turned one way with the shoulder lifted,
 # the other way, then elbow and wrist folded. Chosen by measurement over 400 off-grid problems
-# at figs. 4-5's settings against 30 random restarts (README): within 1% of the restarts' best,
-# the line alone 96.0%, all four 99.5% (the old three, lifting or lowering the hand, 96.6%).
+# at figs. 4-5's settings against 30 random restarts (docs/speed.md): within 1% of the
+# restarts' best, the line alone 96.0%, all four 99.5% (the old three, lifting or lowering the
+# hand, 96.6%).
 # The line stays first so that single-start figures (1, 2, 6) keep their start.
 # Then the three bumps 2.2 times as deep, and 1.6 times, for θ in every sign quadrant, where
 # the misses are θ_laptop < 0 < θ_table. Within 1% of 30 random restarts with θ ∈ [-2, 2]^k
@@ -536,8 +537,7 @@ def _load_solver(name: str, plugin: str, nlp: dict, opts: dict, cfg: PlannerConf
     if not cfg.jit:
         return ca.nlpsol(name, plugin, nlp, opts)
     library = cache_dir() / f"trajopt-{build_key(cfg)}.so"
-    if not library.is_file():
-        _compile_library(ca.nlpsol(name, plugin, nlp, opts), library)
+    build_once(library, lambda path: _compile_library(ca.nlpsol(name, plugin, nlp, opts), path))
     # The solver evaluates the NLP through the compiled library; every process dlopens the
     # same finished file, which nobody rewrites (a fresh build goes to a new name).
     return ca.nlpsol(name, plugin, str(library), opts)
