@@ -21,15 +21,16 @@ METRIC_NAMES = {
 }
 
 
-def _pm(stat: dict, digits: int = 3) -> str:
+def pm(stat: dict, digits: int = 3) -> str:
     if stat.get("sem") is None:
         return f"{stat['mean']:.{digits}f} (N = 1)"
     return f"{stat['mean']:.{digits}f} ± {stat['sem']:.{digits}f}"
 
 
-def final_table(summary: dict) -> list[str]:
-    """Final mean ± SEM; area under the mean curve, per learner and metric."""
-    learners = list(summary["final"])
+def final_table(summary: dict, learners: Sequence[str] | None = None) -> list[str]:
+    """Final mean ± SEM; area under the mean curve, per learner (all, or ``learners``) and
+    metric."""
+    learners = list(summary["final"]) if learners is None else _known(summary["final"], learners)
     lines = [
         "| after the last correction (mean ± SEM; AUC) | "
         + " | ".join(f"{n} (N = {summary['final'][n]['runs']})" for n in learners)
@@ -38,23 +39,26 @@ def final_table(summary: dict) -> list[str]:
     ]
     for key, name in METRIC_NAMES.items():
         cells = [
-            f"{_pm(summary['final'][n][key])}; {summary['final'][n][key]['auc_mean']:.1f}"
+            f"{pm(summary['final'][n][key])}; {summary['final'][n][key]['auc_mean']:.1f}"
             for n in learners
         ]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     return lines
 
 
-def calibration_table(summary: dict) -> list[str]:
-    """Mean NEES per iteration, the band, and coverage, per learner with a covariance."""
+def calibration_table(summary: dict, learners: Sequence[str] | None = None) -> list[str]:
+    """Mean NEES per iteration, the band, and coverage, per learner with a covariance (all, or
+    ``learners``)."""
     calib = summary["calibration"]
+    if learners is not None:
+        calib = {n: calib[n] for n in _known(calib, learners)}
     if not calib:
         return []
     n_iter = len(next(iter(calib.values()))["mean_nees"])
     lines = [
         "| learner (N) | mean NEES at t = 0 … "
         + str(n_iter - 1)
-        + " | 95% band | inside | 68% / 95% coverage |",
+        + " | 95% band | inside | 68% / 95% coverage (mean over t) |",
         "|---|---|---|---|---|",
     ]
     for name, c in calib.items():
@@ -67,11 +71,22 @@ def calibration_table(summary: dict) -> list[str]:
     return lines
 
 
-def paired_table(summary: dict, pairs: Sequence[tuple[str, str]] | None = None) -> list[str]:
-    """Paired differences a − b (final value and AUC) with their 95% intervals."""
+def paired_table(
+    summary: dict,
+    pairs: Sequence[tuple[str, str]] | None = None,
+    metrics: Sequence[str] | None = None,
+) -> list[str]:
+    """Paired differences a − b (final value and AUC) with their 95% intervals, for every pair
+    or ``pairs`` (in their order), every metric or ``metrics``."""
     rows = summary.get("paired", [])
     if pairs is not None:
-        rows = [r for r in rows if (r["a"], r["b"]) in pairs or (r["b"], r["a"]) in pairs]
+        found = {(r["a"], r["b"]) for r in rows}
+        missing = [f"{a}/{b}" for a, b in pairs if (a, b) not in found]
+        if missing:
+            raise KeyError(f"no paired comparison {', '.join(missing)} in the summary")
+        rows = [r for pair in pairs for r in rows if (r["a"], r["b"]) == tuple(pair)]
+    if metrics is not None:
+        rows = [r for r in rows if r["metric"] in metrics]
     if not rows:
         return []
     lines = [
@@ -85,6 +100,36 @@ def paired_table(summary: dict, pairs: Sequence[tuple[str, str]] | None = None) 
             cells.append(f"{s['mean']:+.3f} [{s['ci95'][0]:+.3f}, {s['ci95'][1]:+.3f}]")
         lines.append(f"| {r['a']} − {r['b']} | {r['metric']} | {cells[0]} | {cells[1]} |")
     return lines
+
+
+def learner_table(summary: dict, learners: Sequence[str]) -> list[str]:
+    """The paper's metrics after the last correction, mean ± SEM (a learner of one run: its
+    value), for ``learners``."""
+    final = summary["final"]
+    learners = _known(final, learners)
+    iterations = summary["settings"]["iterations"]
+    head = [f"{n} (1 run)" if final[n]["runs"] == 1 else n for n in learners]
+    lines = [
+        f"| after {iterations} corrections (mean ± SEM) | " + " | ".join(head) + " |",
+        "|---|" + "---|" * len(learners),
+    ]
+    for key, digits in (("estimate_error", 3), ("regret", 2), ("regret_paper", 1)):
+        cells = [
+            f"{final[n][key]['mean']:.{digits}f}"
+            if final[n]["runs"] == 1
+            else pm(final[n][key], digits)
+            for n in learners
+        ]
+        lines.append(f"| {METRIC_NAMES[key]} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def _known(table: dict, learners: Sequence[str]) -> list[str]:
+    missing = [n for n in learners if n not in table]
+    if missing:
+        known = ", ".join(table)
+        raise KeyError(f"no learner {', '.join(missing)} in the summary (it has {known})")
+    return list(learners)
 
 
 def matrix_table(summary: dict, key: str) -> list[str]:

@@ -1,0 +1,224 @@
+"""Numbers the README and the docs quote from committed results, filled in from the files.
+
+A page marks each quoted number or table with what it quotes, a name and its arguments::
+
+    The main job took <!-- quote minutes fig4 -->19<!-- /quote --> minutes.
+    KF-C ends at <!-- quote value fig4 final.KF-C.estimate_error.mean .3f -->0.633<!-- /quote -->.
+
+    <!-- quote learners fig4 PP,KF,AL -->
+
+    | after 12 corrections (mean ± SEM) | PP | KF | AL (1 run) |
+    …
+
+    <!-- /quote -->
+
+The comments render as nothing (GitHub, MkDocs); what stands between them is what
+:data:`QUOTES` computes from ``results/<figure>/summary.json`` now. ``python -m
+corrections_sim.figures.quotes README.md docs/*.md`` lists every quote that differs from its
+file (exit status 1), ``--fill`` rewrites them in place (``--root DIR``: the folder that holds
+``results/``, by default the working directory); the test suite runs the check, so a
+page and its file cannot disagree unnoticed.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import re
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+from corrections_sim.figures import report
+
+#: ``<!-- quote NAME ARGS -->TEXT<!-- /quote -->``, TEXT inline or a block between blank lines.
+PATTERN = re.compile(r"<!-- quote ([^>]+?) -->(.*?)<!-- /quote -->", re.DOTALL)
+
+
+def _summary(root: Path, figure: str) -> dict:
+    return json.loads((root / "results" / figure / "summary.json").read_text())
+
+
+def _names(text: str) -> list[str]:
+    return text.split(",")
+
+
+def headline(root: Path) -> str:
+    """Fig. 4's learners after the last correction: error, regret and mean NEES, with the
+    band a calibrated mean NEES lies in (95%), for the learners the README discusses."""
+    summary = _summary(root, "fig4")
+    names = ["PP", "KF", "KF-C", "KF-CL", "KF-CI", "PF-C"]
+    final, calib = summary["final"], summary["calibration"]
+    (n_runs,) = {final[n]["runs"] for n in names}
+    iterations = summary["settings"]["iterations"]
+    lines = [
+        f"| fig. 4 after {iterations} corrections ({n_runs} runs, mean ± SEM) | "
+        + " | ".join(names)
+        + " |",
+        "|---|" + "---|" * len(names),
+    ]
+    for key in ("estimate_error", "regret"):
+        digits = 3 if key == "estimate_error" else 2
+        cells = [report.pm(final[n][key], digits) for n in names]
+        lines.append(f"| {report.METRIC_NAMES[key]} | " + " | ".join(cells) + " |")
+    (band,) = {tuple(round(b, 2) for b in calib[n]["band"]) for n in names if n in calib}
+    cells = []
+    for n in names:
+        if n not in calib:
+            cells.append("— (no covariance)")
+            continue
+        value = calib[n]["mean_nees"][-1]
+        inside = band[0] <= value <= band[1]
+        where = "inside" if inside else ("above" if value > band[1] else "below")
+        cells.append(f"{value:.3g} ({where})")
+    lines.append(
+        f"| mean NEES (a calibrated mean lies in [{band[0]:.2f}, {band[1]:.2f}] in 95% of "
+        "studies; above: over-confident, below: under-confident) | " + " | ".join(cells) + " |"
+    )
+    return "\n".join(lines)
+
+
+def value(root: Path, figure: str, path: str, spec: str = "") -> str:
+    """One value of ``figure``'s summary at the dotted ``path`` (a list index may be negative),
+    formatted by ``spec`` (Python's format mini-language, e.g. ``.3f``, ``,``)."""
+    item = _summary(root, figure)
+    for key in path.split("."):
+        item = item[int(key)] if isinstance(item, list) else item[key]
+    return format(item, spec)
+
+
+def minutes(root: Path, figure: str) -> str:
+    """How long ``figure``'s committed run took, in whole minutes (``wall_time_s``)."""
+    return f"{_summary(root, figure)['wall_time_s'] / 60:.0f}"
+
+
+def workers(root: Path, figure: str) -> str:
+    """Where ``figure``'s committed run ran, e.g. "2 workers"."""
+    return _summary(root, figure)["executor"].rsplit(", ", 1)[-1]
+
+
+def weights(root: Path, figure: str, learners: str, iterations: str) -> str:
+    """Mean |θ̂ᵢ − θ*ᵢ| over runs, per weight, at each of ``iterations`` (t), one column per
+    learner, from ``figure``'s ``curves.csv``."""
+    names, steps = _names(learners), [int(t) for t in _names(iterations)]
+    theta_star = _summary(root, figure)["settings"]["theta_star"]
+    sums: dict[tuple[str, int], list] = {}
+    with open(root / "results" / figure / "curves.csv", newline="") as f:
+        for row in csv.DictReader(f):
+            key = (row["learner"], int(row["iteration"]))
+            if key[0] in names and key[1] in steps:
+                gaps = [abs(float(row[f"theta_{i}"]) - w) for i, w in enumerate(theta_star)]
+                sums.setdefault(key, []).append(gaps)
+    missing = [f"{n} t = {t}" for n in names for t in steps if (n, t) not in sums]
+    if missing:
+        raise KeyError(f"{figure}/curves.csv has no {', '.join(missing)}")
+    lines = ["| t | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
+    for t in steps:
+        cells = []
+        for n in names:
+            runs = sums[(n, t)]
+            means = [sum(r[i] for r in runs) / len(runs) for i in range(len(theta_star))]
+            cells.append(", ".join(f"{m:.2f}" for m in means))
+        lines.append(f"| {t} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def _table(make: Callable[..., list[str]]) -> Callable[..., str]:
+    def quote(root: Path, figure: str, *args: str) -> str:
+        return "\n".join(make(_summary(root, figure), *args))
+
+    quote.__doc__ = make.__doc__
+    return quote
+
+
+#: What a page may quote: name → function(root, *arguments) → text.
+QUOTES: dict[str, Callable[..., str]] = {
+    "headline": headline,
+    "value": value,
+    "minutes": minutes,
+    "weights": weights,
+    "workers": workers,
+    "final": _table(lambda s, names=None: report.final_table(s, names and _names(names))),
+    "calibration": _table(
+        lambda s, names=None: report.calibration_table(s, names and _names(names))
+    ),
+    "paired": _table(
+        lambda s, pairs=None, metrics=None: report.paired_table(
+            s,
+            pairs and [tuple(p.split("/")) for p in _names(pairs)],
+            metrics and _names(metrics),
+        )
+    ),
+    "learners": _table(lambda s, names: report.learner_table(s, _names(names))),
+    "matrix": _table(report.matrix_table),
+}
+
+
+class QuoteError(ValueError):
+    """A quote that names no quote, or whose file or value is missing (one line)."""
+
+
+def _rendered(what: str, root: Path) -> str:
+    """The quote's text as it stands in a page: a table between blank lines, a number inline."""
+    name, *args = what.split()
+    if name not in QUOTES:
+        raise QuoteError(f"quote {what!r}: no such quote (known: {', '.join(QUOTES)})")
+    try:
+        text = QUOTES[name](root, *args)
+    except (KeyError, IndexError, TypeError, ValueError, OSError) as exc:
+        detail = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
+        raise QuoteError(f"quote {what!r}: {detail}") from None
+    return f"\n\n{text}\n\n" if "\n" in text else text
+
+
+def fill(text: str, root: Path) -> str:
+    """``text`` with every quote's content computed afresh from ``root/results``."""
+    return PATTERN.sub(
+        lambda m: f"<!-- quote {m[1]} -->{_rendered(m[1], root)}<!-- /quote -->", text
+    )
+
+
+def stale(text: str, root: Path) -> list[tuple[str, str, str]]:
+    """(name, what the page says, what the file says) for every quote that differs."""
+    found = []
+    for m in PATTERN.finditer(text):
+        now = _rendered(m[1], root)
+        if m[2].strip() != now.strip():
+            found.append((m[1], m[2].strip(), now.strip()))
+    return found
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = list(sys.argv[1:] if argv is None else argv)
+    write = "--fill" in args
+    root = Path.cwd()
+    if "--root" in args:
+        at = args.index("--root")
+        root = Path(args[at + 1]) if at + 1 < len(args) else Path()
+        del args[at : at + 2]
+    paths = [Path(a) for a in args if a != "--fill"]
+    if not paths or not (root / "results").is_dir():
+        print(
+            "error: usage: python -m corrections_sim.figures.quotes [--fill] [--root DIR] "
+            "PAGE.md ... (DIR holds results/; default: here)",
+            file=sys.stderr,
+        )
+        return 2
+    bad = 0
+    for path in paths:
+        try:
+            text = path.read_text()
+            if write:
+                path.write_text(fill(text, root))
+                continue
+            for name, page, file in stale(text, root):
+                bad += 1
+                print(f"{path}: quote {name}: the page says {page!r}, results/ says {file!r}")
+        except (OSError, QuoteError) as exc:
+            print(f"error: {path}: {exc}", file=sys.stderr)
+            return 2
+    return 1 if bad else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

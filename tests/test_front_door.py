@@ -1,0 +1,138 @@
+"""The README and the docs cannot go stale: every number they quote from a committed result is
+the file's, the README quotes no result by hand, and every pointer into the README or the docs
+from the code, the presets and the examples leads somewhere."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+from corrections_sim.figures import quotes
+
+ROOT = Path(__file__).resolve().parents[1]
+README = ROOT / "README.md"
+PAGES = [README, *sorted((ROOT / "docs").glob("*.md"))]
+
+#: The README's numbers that are not results: names, versions and counts of the text itself.
+NOT_RESULTS = {
+    "CoRL 2018": "the paper's venue",
+    "7-DoF": "the Panda's joints",
+    "Python 3.11": "what a fresh machine has",
+    "fig. 4": "a figure's name",
+    "figs. 1–3, 5 and 6": "figures' names",
+    "issue 50": "an issue's number",
+}
+
+
+def _prose(text: str) -> str:
+    """``text`` without code blocks, inline code, quotes, link targets and HTML comments."""
+    text = re.sub(r"```.*?```", "", text, flags=re.DOTALL)
+    text = quotes.PATTERN.sub("", text)
+    text = re.sub(r"`[^`]*`", "", text)
+    text = re.sub(r"\]\([^)]*\)", "]", text)
+    return re.sub(r"<!--.*?-->", "", text, flags=re.DOTALL)
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: p.name)
+def test_every_quoted_number_is_its_files(page):
+    stale = quotes.stale(page.read_text(), ROOT)
+    assert not stale, "; ".join(
+        f"{name}: the page says {said!r}, the file {now!r}" for name, said, now in stale
+    )
+
+
+def test_the_readme_quotes_its_headline_table_and_time():
+    text = README.read_text()
+    assert {"headline", "minutes fig4"} <= {m[1] for m in quotes.PATTERN.finditer(text)}
+
+
+def test_the_readme_has_no_number_outside_a_quote():
+    """A result typed by hand goes stale: every digit in the README's prose is a quote or one
+    of the names in NOT_RESULTS."""
+    prose = _prose(README.read_text())
+    for allowed in NOT_RESULTS:
+        prose = prose.replace(allowed, "")
+    assert re.findall(r"[^\s]*\d[^\s]*", prose) == []
+
+
+def test_the_readme_is_two_screens():
+    assert len(README.read_text().splitlines()) <= 110
+
+
+def test_a_stale_quote_is_found_and_filled(tmp_path):
+    """The check finds a hand-edited number and --fill puts the file's back, nothing else."""
+    page = tmp_path / "page.md"
+    right = quotes.fill("took <!-- quote minutes fig4 -->0<!-- /quote --> minutes", ROOT)
+    page.write_text(right.replace("-->" + quotes.minutes(ROOT, "fig4"), "-->999"))
+    assert quotes.main(["--root", str(ROOT), str(page)]) == 1
+    assert quotes.main(["--root", str(ROOT), "--fill", str(page)]) == 0
+    assert page.read_text() == right
+    assert quotes.main(["--root", str(ROOT), str(page)]) == 0
+
+
+@pytest.mark.parametrize(
+    "quote, named",
+    [
+        ("nothing fig4", "no such quote"),
+        ("value fig9 final", "fig9"),
+        ("value fig4 final.XX.estimate_error.mean", "XX"),
+        ("learners fig4 PP,XX", "no learner XX"),
+        ("paired fig4 PP/XX", "no paired comparison PP/XX"),
+    ],
+)
+def test_a_bad_quote_is_one_line_and_changes_nothing(tmp_path, capsys, quote, named):
+    page = tmp_path / "page.md"
+    text = f"<!-- quote minutes fig4 -->0<!-- /quote --> <!-- quote {quote} -->1<!-- /quote -->"
+    page.write_text(text)
+    assert quotes.main(["--root", str(ROOT), "--fill", str(page)]) == 2
+    err = capsys.readouterr().err
+    assert named in err and quote in err and len(err.strip().splitlines()) == 1
+    assert page.read_text() == text
+
+
+def test_a_value_quote_formats_the_files_number():
+    summary = quotes._summary(ROOT, "fig4")
+    said = quotes.value(ROOT, "fig4", "final.KF-C.estimate_error.mean", ".3f")
+    assert said == f"{summary['final']['KF-C']['estimate_error']['mean']:.3f}"
+    assert quotes.value(ROOT, "fig4", "calibration.KF.mean_nees.-1", ".3g") == format(
+        summary["calibration"]["KF"]["mean_nees"][-1], ".3g"
+    )
+
+
+def _anchors(page: Path) -> set[str]:
+    """The heading anchors MkDocs makes (toc's slugify: lowercase, words joined by '-')."""
+    found = set()
+    text = re.sub(r"```.*?```", "", page.read_text(), flags=re.DOTALL)
+    for line in text.splitlines():
+        if line.startswith("#"):
+            title = line.lstrip("#").strip().lower()
+            slug = re.sub(r"[^\w\s-]", "", title)
+            found.add(re.sub(r"[-\s]+", "-", slug).strip("-"))
+    return found
+
+
+SOURCES = [
+    path
+    for folder in ("corrections_sim", "experiments", "examples", "benchmarks", "tests")
+    for path in sorted((ROOT / folder).rglob("*"))
+    if path.suffix in {".py", ".toml"}
+]
+
+
+@pytest.mark.parametrize("source", SOURCES, ids=lambda p: str(p.relative_to(ROOT)))
+def test_every_pointer_into_the_readme_or_the_docs_leads_somewhere(source):
+    """A comment, help line or preset that names a README section or a docs page: the README
+    has that section (the README names sections by their title in quotes), the page exists,
+    and so does its anchor."""
+    text = source.read_text()
+    readme = _anchors(README)
+    for m in re.finditer(r'README,? "([^"]+)"', text):
+        title = re.sub(r"[-\s]+", "-", re.sub(r"[^\w\s-]", "", m[1].lower())).strip("-")
+        assert title in readme, f"{source.name}: README has no section {m[1]!r}"
+    for m in re.finditer(r"docs/([\w-]+\.md)(#[\w-]+)?", text):
+        page = ROOT / "docs" / m[1]
+        assert page.is_file(), f"{source.name}: no docs/{m[1]}"
+        if m[2]:
+            assert m[2][1:] in _anchors(page), f"{source.name}: docs/{m[1]} has no {m[2]}"
