@@ -79,15 +79,15 @@ def measure(label: str, argv: Sequence[str]) -> Measurement:
 
 #: Dask's nanny starts workers with MALLOC_TRIM_THRESHOLD_=65536 (to hand memory back to the
 #: OS). Any explicit trim threshold switches off glibc's dynamic mmap threshold, and IPOPT's
-#: allocations then go through mmap/munmap: a run is ~20% slower (measured, README). None
-#: unsets it, as on a cluster started per the README.
+#: allocations then go through mmap/munmap: a run is slower (measured: docs/getting-started.md).
+#: None unsets it, as on a cluster started per docs/getting-started.md.
 DASK_WORKER_CONFIG = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
 
 
 @contextlib.contextmanager
 def local_cluster(n_workers: int) -> Iterator[tuple[str, object]]:
     """A Dask LocalCluster on loopback (one thread per worker process) and a client to it,
-    its workers configured as the README recommends for a cluster."""
+    its workers configured as docs/getting-started.md recommends for a cluster."""
     import dask
     from distributed import Client, LocalCluster
 

@@ -2,8 +2,15 @@
 
 from __future__ import annotations
 
-import numpy as np
-import pytest
+import os
+
+if "PYTEST_XDIST_WORKER" in os.environ:
+    # A worker keeps to one core (below): BLAS threads would only wait on each other there.
+    # Set before numpy loads its BLAS, and inherited by every process a test starts.
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
 
 from corrections_sim.learning import Belief
 
@@ -31,3 +38,34 @@ def planner():
     from corrections_sim.planning.planner import PlannerConfig, shared_planner
 
     return shared_planner(PlannerConfig(n_starts=4))
+
+
+def pytest_collection_modifyitems(config, items):
+    """How the suite shares the machine's cores (pytest-xdist, ``--dist loadgroup``): each
+    module's tests go to one worker, so a module fixture (a compiled planner, a quick run) is
+    built once; the browser tests of every module go to one worker together and first, since
+    they share a chromium, are the longest group and wait on pages that must not starve.
+    Without xdist the order is the files' own, the browser tests first."""
+    for item in items:
+        group = "browser" if item.get_closest_marker("browser") else item.module.__name__
+        item.add_marker(pytest.mark.xdist_group(group))
+    items.sort(key=lambda item: not item.get_closest_marker("browser"))
+
+
+#: The cores this suite may use, read before any test narrows them.
+CORES = sorted(os.sched_getaffinity(0))
+
+
+@pytest.fixture(autouse=True)
+def _a_core_per_worker(request):
+    """Under pytest-xdist each worker keeps to a core of its own, and so does every process a
+    test starts (a figure's pool, a Dask cluster, gcc): a command left to choose its workers
+    takes one, and a test that asks for a 2-worker pool (to check that 1 worker and 2 give
+    the same numbers) runs it on its own core, not on top of the other worker's. The browser
+    tests keep every core: chromium, the page's server and the test share them."""
+    worker = os.environ.get("PYTEST_XDIST_WORKER")
+    if worker is not None and len(CORES) > 1:
+        browser = request.node.get_closest_marker("browser") is not None
+        mine = CORES if browser else [CORES[int(worker.removeprefix("gw")) % len(CORES)]]
+        os.sched_setaffinity(0, mine)
+    yield

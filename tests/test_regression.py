@@ -87,7 +87,7 @@ def test_fig5_paper_claims_hold_active_learning_best_and_kalman_below_perceptron
 def test_active_learning_shrinks_the_covariance_fastest(quick_run):
     """What AL optimizes, eq. (A1): its final P is smaller than the random-environment KF's.
 
-    In fig. 4 this is also why the paper's ordering does not reproduce here (see README):
+    In fig. 4 this is also why the paper's ordering does not reproduce here (see docs/results.md):
     AL's P collapses so fast that its later gains vanish, and KF and PP end within a few
     percent of each other, so no ordering of fig. 4 is asserted.
     """

@@ -78,7 +78,7 @@ def test_three_features_every_weight_moves_towards_the_truth(tmp_path):
     assert not any(r["update_skipped"] for r in rows)
     # KF and KF-C: each weight, laptop and table and coffee, ends nearer θ* than it started;
     # the coffee weight (θ* = −1) is learned from the tilted environments (upright ones alone
-    # leave it at 0: README, "Three features").
+    # leave it at 0: docs/three-features.md).
     for learner in ("KF", "KF-C"):
         for i, star in enumerate(theta_star):
             start = _mean(rows, learner, f"theta_{i}", 0)

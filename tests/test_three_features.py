@@ -1,5 +1,5 @@
 """Three features: the coffee weight θ_coffee ≤ 0 carries information only where the cup does
-not start and end upright (README, "Three features").
+not start and end upright (docs/three-features.md).
 
 From the paper's upright starts and goals the robot keeps the cup upright whatever
 θ_coffee ≤ 0, so Φ_coffee of ξ*(θ, E) hardly changes with it and no correction can show it;
@@ -54,8 +54,9 @@ def test_coffee_features_follow_the_coffee_weight_only_when_the_cup_starts_tilte
 
 
 def test_kf_c_learns_all_three_weights_where_the_cup_starts_tilted(planner):
-    """README's three-feature study in small: 8 environments (4 upright, 4 tilted), the
-    deforming user, KF-C with the deformation model; each weight's error falls, coffee's too."""
+    """The three-feature study (docs/three-features.md) in small: 8 environments (4 upright,
+    4 tilted), the deforming user, KF-C with the deformation model; each weight's error falls,
+    coffee's too."""
     from corrections_sim.learning.base import make_learner
     from corrections_sim.people.users import DeformingUser
     from corrections_sim.planning.plans import Target

@@ -2,7 +2,7 @@
 
     python -m corrections_sim.run fig4             # results/fig4/ (CSV, summary, PNG, PDF)
     python -m corrections_sim.run fig5 --quick     # results/quick/fig5/ (what CI runs)
-    python -m corrections_sim.run study my.toml    # results/my/ (a study file, see README)
+    python -m corrections_sim.run study my.toml    # results/my/ (docs/study-files.md)
     python -m corrections_sim.run scene            # results/scene.png
 
 Bad input ends with a one-line message on stderr and exit status 2; nothing already in the
@@ -278,7 +278,7 @@ def _executor(args: argparse.Namespace) -> Iterator[tuple[Executor, str]]:
     """The executor the runs go to: a Dask cluster's (--scheduler) or a local process pool
     whose workers die with the command (see :mod:`corrections_sim.cli.executors`)."""
     if args.scheduler is None:
-        workers = args.workers or os.cpu_count() or 1
+        workers = args.workers or len(os.sched_getaffinity(0)) or 1
         with process_pool(workers) as pool:
             yield pool, f"process pool, {workers} worker{'s' if workers != 1 else ''}"
         return
@@ -910,7 +910,7 @@ def catalogue() -> argparse.ArgumentParser:
         "study_file",
         nargs="?",
         metavar="FILE",
-        help="the study file (TOML; see README, and experiments/ for examples)",
+        help="the study file (TOML; see docs/study-files.md, and experiments/ for examples)",
     )
     p.add_argument(
         "--out",
@@ -927,7 +927,11 @@ def catalogue() -> argparse.ArgumentParser:
     g = p.add_argument_group(
         "learning studies (fig4, fig5, fig6, study); defaults come from the study file"
     )
-    g.add_argument("--runs", type=_positive_int, help="runs of PP, KF and EKF (AL runs once)")
+    g.add_argument(
+        "--runs",
+        type=_positive_int,
+        help="runs per learner (an active learner runs once: it chooses its environments)",
+    )
     g.add_argument("--iterations", type=_positive_int, help="corrections per run")
     g.add_argument("--seed", type=int, help="root seed of every random draw")
     g.add_argument(
@@ -989,7 +993,7 @@ def catalogue() -> argparse.ArgumentParser:
         action="store_true",
         default=None,
         help="start each solve from the run's nearest solved θ (faster; results move at the "
-        "solver's tolerance, see README)",
+        "solver's tolerance, see docs/choices.md)",
     )
     g.add_argument(
         "--online",
@@ -1080,7 +1084,7 @@ def catalogue() -> argparse.ArgumentParser:
     x.add_argument(
         "--workers",
         type=_positive_int,
-        help="local worker processes (default: the number of cores)",
+        help="local worker processes (default: the cores this process may use)",
     )
     x.add_argument(
         "--scheduler",

@@ -1,12 +1,12 @@
 """Which folder a figure goes to, and when it may replace what is there.
 
-The policy (README, "Output folders"): paper-scale presets write to ``results/`` and quick
-presets to the scratch folder ``results/quick/`` (ignored by git) unless ``--out`` says
-otherwise. A figure folder is replaced only by the same figure made with the same settings
-(said in one line); a folder made with other settings, by another preset, or holding files
-no figure wrote is refused unless ``--force`` is given, and then the command says what it
-replaces. So the committed ``results/`` changes only when a paper-scale command is run with
-the settings it already records, or with ``--force``.
+The policy (docs/getting-started.md, "Output folders and interrupts"): paper-scale presets write
+to ``results/`` and quick presets to the scratch folder ``results/quick/`` (ignored by git)
+unless ``--out`` says otherwise. A figure folder is replaced only by the same figure made with
+the same settings (said in one line); a folder made with other settings, by another preset, or
+holding files no figure wrote is refused unless ``--force`` is given, and then the command says
+what it replaces. So the committed ``results/`` changes only when a paper-scale command is run
+with the settings it already records, or with ``--force``.
 """
 
 from __future__ import annotations

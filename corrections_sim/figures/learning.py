@@ -217,12 +217,17 @@ class LearningStudy:
 
 register(
     LearningStudy(
-        "fig4", "PP vs KF vs AL, equal initial uncertainty", EXPERIMENTS_DIR / "fig4.toml"
+        "fig4",
+        "the paper's fig. 4: every learner of experiments/fig4.toml, equal initial uncertainty",
+        EXPERIMENTS_DIR / "fig4.toml",
     )
 )
 register(
     LearningStudy(
-        "fig5", "PP vs KF vs AL, laptop known, table uncertain", EXPERIMENTS_DIR / "fig5.toml"
+        "fig5",
+        "the paper's fig. 5: every learner of experiments/fig5.toml, laptop known, table "
+        "uncertain",
+        EXPERIMENTS_DIR / "fig5.toml",
     )
 )
-register(LearningStudy("study", "a learning study described in a TOML file (see README)"))
+register(LearningStudy("study", "a learning study in a TOML file (see docs/study-files.md)"))

@@ -195,7 +195,7 @@ def _outline(corners: np.ndarray) -> np.ndarray:
     return closed[:, ::-1]
 
 
-#: Fonts of figs. 1-3, sized for the README's width (a figure is shown ~1000 px wide).
+#: Fonts of figs. 1-3, sized for the width the README and the docs show them at (~1000 px).
 FIGURE_FONTS = {
     "font.size": 12,
     "axes.titlesize": 13,

@@ -33,7 +33,7 @@ class PlanBook:
     whose θ is nearest (Euclidean; the first solved wins a tie), and falls back to the
     planner's cold starts if that fails. Along a run θ̂ moves in small steps, so this saves
     IPOPT iterations; the answer can then depend on what was solved before (the same local
-    optimum up to the solver's tolerance when the landscape has one basin nearby, see README).
+    optimum up to the solver's tolerance when the landscape has one basin nearby: docs/speed.md).
     """
 
     def __init__(

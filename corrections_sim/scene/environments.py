@@ -213,7 +213,8 @@ def tilted(q, angle: float) -> np.ndarray:
     hand-down gives ≈ 52°, coffee feature ≈ 0.19 per waypoint) and its centre moves a few cm.
 
     Environments whose start and goal hold the cup tilted make the coffee weight learnable:
-    from an upright start the robot keeps the cup upright whatever θ_coffee ≤ 0 (README).
+    from an upright start the robot keeps the cup upright whatever θ_coffee ≤ 0
+    (docs/three-features.md).
 
     Raises:
         ValueError: the turned joint leaves its range.

@@ -48,7 +48,7 @@ _HEADER = (
     "     and example-robot-data's panda_collision.urdf; do not edit by hand: "
     "tests/test_models.py fails on drift.\n"
     "     Geom groups: 0 props, 2 robot meshes (visual only), 3 robot collision primitives.\n"
-    "     Open it in MuJoCo's viewer as the README says (section models/). -->\n"
+    "     Open it in MuJoCo's viewer as docs/scene.md says. -->\n"
 )
 
 
