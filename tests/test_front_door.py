@@ -78,8 +78,8 @@ def test_a_stale_quote_is_found_and_filled(tmp_path):
         ("nothing fig4", "no such quote"),
         ("value fig9 final", "fig9"),
         ("value fig4 final.XX.estimate_error.mean", "XX"),
-        ("learners fig4 PP,XX", "no learner XX"),
-        ("paired fig4 PP/XX", "no paired comparison PP/XX"),
+        ("learners-table fig4 PP,XX", "no learner XX"),
+        ("paired-table fig4 PP/XX", "no paired comparison PP/XX"),
     ],
 )
 def test_a_bad_quote_is_one_line_and_changes_nothing(tmp_path, capsys, quote, named):

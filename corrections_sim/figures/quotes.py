@@ -5,7 +5,7 @@ A page marks each quoted number or table with what it quotes, a name and its arg
     The main job took <!-- quote minutes fig4 -->19<!-- /quote --> minutes.
     KF-C ends at <!-- quote value fig4 final.KF-C.estimate_error.mean .3f -->0.633<!-- /quote -->.
 
-    <!-- quote learners fig4 PP,KF,AL -->
+    <!-- quote learners-table fig4 PP,KF,AL -->
 
     | after 12 corrections (mean ± SEM) | PP | KF | AL (1 run) |
     …
@@ -87,6 +87,43 @@ def value(root: Path, figure: str, path: str, spec: str = "") -> str:
     return format(item, spec)
 
 
+def final(root: Path, figure: str, learner: str, metric: str, digits: str = "3") -> str:
+    """``learner``'s final mean ± SEM of ``metric`` in ``figure`` (one run: its value)."""
+    stat = _summary(root, figure)["final"][learner]
+    if stat["runs"] == 1:
+        return f"{stat[metric]['mean']:.{int(digits)}f}"
+    return report.pm(stat[metric], int(digits))
+
+
+def pair(root: Path, figure: str, pair: str, metric: str, digits: str = "3") -> str:
+    """The paired difference a − b of the final ``metric`` with its 95% interval."""
+    a, b = pair.split("/")
+    rows = [r for r in _summary(root, figure)["paired"] if (r["a"], r["b"]) == (a, b)]
+    rows = [r for r in rows if r["metric"] == metric]
+    if not rows:
+        raise KeyError(f"no paired comparison {pair} of {metric} in {figure}")
+    s, d = rows[0]["final"], int(digits)
+    return f"{s['mean']:+.{d}f} [{s['ci95'][0]:.{d}f}, {s['ci95'][1]:.{d}f}]"
+
+
+def cell(root: Path, figure: str, learner: str, user: str, key: str, digits: str = "3") -> str:
+    """One cell of a learners × users study's ``matrix`` (``user`` with ``_`` for spaces):
+    ``key`` (e.g. ``regret``) as mean ± SEM, or a field as it is (``regret_mean``,
+    ``relevance_auc``); "—" where the study has none."""
+    user = user.replace("_", " ")
+    rows = [
+        r for r in _summary(root, figure)["matrix"] if (r["learner"], r["user"]) == (learner, user)
+    ]
+    if not rows:
+        raise KeyError(f"no {learner} × {user!r} in {figure}'s matrix")
+    row, d = rows[0], int(digits)
+    if f"{key}_mean" in row and f"{key}_sem" in row:
+        if row[f"{key}_mean"] is None:
+            return "—"
+        return f"{row[f'{key}_mean']:.{d}f} ± {row[f'{key}_sem']:.{d}f}"
+    return "—" if row[key] is None else f"{row[key]:.{d}f}"
+
+
 def minutes(root: Path, figure: str) -> str:
     """How long ``figure``'s committed run took, in whole minutes (``wall_time_s``)."""
     return f"{_summary(root, figure)['wall_time_s'] / 60:.0f}"
@@ -137,20 +174,23 @@ QUOTES: dict[str, Callable[..., str]] = {
     "value": value,
     "minutes": minutes,
     "weights": weights,
+    "final": final,
+    "pair": pair,
+    "cell": cell,
     "workers": workers,
-    "final": _table(lambda s, names=None: report.final_table(s, names and _names(names))),
-    "calibration": _table(
+    "final-table": _table(lambda s, names=None: report.final_table(s, names and _names(names))),
+    "calibration-table": _table(
         lambda s, names=None: report.calibration_table(s, names and _names(names))
     ),
-    "paired": _table(
+    "paired-table": _table(
         lambda s, pairs=None, metrics=None: report.paired_table(
             s,
             pairs and [tuple(p.split("/")) for p in _names(pairs)],
             metrics and _names(metrics),
         )
     ),
-    "learners": _table(lambda s, names: report.learner_table(s, _names(names))),
-    "matrix": _table(report.matrix_table),
+    "learners-table": _table(lambda s, names: report.learner_table(s, _names(names))),
+    "matrix-table": _table(report.matrix_table),
 }
 
 
