@@ -109,19 +109,20 @@ def pair(root: Path, figure: str, pair: str, metric: str, digits: str = "3") -> 
 def cell(root: Path, figure: str, learner: str, user: str, key: str, digits: str = "3") -> str:
     """One cell of a learners × users study's ``matrix`` (``user`` with ``_`` for spaces):
     ``key`` (e.g. ``regret``) as mean ± SEM, or a field as it is (``regret_mean``,
-    ``relevance_auc``); "—" where the study has none."""
+    ``relevance_auc``), with ``digits`` decimals or a format spec (``.1%``); "—" where the
+    study has none."""
     user = user.replace("_", " ")
     rows = [
         r for r in _summary(root, figure)["matrix"] if (r["learner"], r["user"]) == (learner, user)
     ]
     if not rows:
         raise KeyError(f"no {learner} × {user!r} in {figure}'s matrix")
-    row, d = rows[0], int(digits)
+    row, spec = rows[0], f".{digits}f" if digits.isdigit() else digits
     if f"{key}_mean" in row and f"{key}_sem" in row:
         if row[f"{key}_mean"] is None:
             return "—"
-        return f"{row[f'{key}_mean']:.{d}f} ± {row[f'{key}_sem']:.{d}f}"
-    return "—" if row[key] is None else f"{row[key]:.{d}f}"
+        return f"{row[f'{key}_mean']:{spec}} ± {row[f'{key}_sem']:{spec}}"
+    return "—" if row[key] is None else format(row[key], spec)
 
 
 def minutes(root: Path, figure: str) -> str:
