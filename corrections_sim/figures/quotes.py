@@ -125,6 +125,19 @@ def cell(root: Path, figure: str, learner: str, user: str, key: str, digits: str
     return "—" if row[key] is None else format(row[key], spec)
 
 
+def find(root: Path, figure: str, path: str, where: str, key: str, spec: str = "") -> str:
+    """A field of the one record, in the list at ``path`` of ``figure``'s summary, whose fields
+    match ``where`` (``field=value;field=value``), formatted by ``spec``."""
+    items = _summary(root, figure)
+    for part in path.split("."):
+        items = items[part]
+    want = dict(pair.split("=", 1) for pair in where.split(";"))
+    found = [r for r in items if all(str(r.get(k)) == v for k, v in want.items())]
+    if len(found) != 1:
+        raise KeyError(f"{len(found)} records of {figure} {path} match {where}, not one")
+    return format(found[0][key], spec)
+
+
 def minutes(root: Path, figure: str) -> str:
     """How long ``figure``'s committed run took, in whole minutes (``wall_time_s``)."""
     return f"{_summary(root, figure)['wall_time_s'] / 60:.0f}"
@@ -178,6 +191,7 @@ QUOTES: dict[str, Callable[..., str]] = {
     "final": final,
     "pair": pair,
     "cell": cell,
+    "find": find,
     "workers": workers,
     "final-table": _table(lambda s, names=None: report.final_table(s, names and _names(names))),
     "calibration-table": _table(
