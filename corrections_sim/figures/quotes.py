@@ -13,7 +13,8 @@ A page marks each quoted number or table with what it quotes, a name and its arg
     <!-- /quote -->
 
 The comments render as nothing (GitHub, MkDocs); what stands between them is what
-:data:`QUOTES` computes from ``results/<figure>/summary.json`` now. ``python -m
+:data:`QUOTES` computes from ``results/<figure>/summary.json`` (or another JSON file under
+``results/``, named by its path there) now. ``python -m
 corrections_sim.figures.quotes README.md docs/*.md`` lists every quote that differs from its
 file (exit status 1), ``--fill`` rewrites them in place (``--root DIR``: the folder that holds
 ``results/``, by default the working directory); the test suite runs the check, so a
@@ -36,7 +37,9 @@ PATTERN = re.compile(r"<!-- quote ([^>]+?) -->(.*?)<!-- /quote -->", re.DOTALL)
 
 
 def _summary(root: Path, figure: str) -> dict:
-    return json.loads((root / "results" / figure / "summary.json").read_text())
+    """``results/<figure>/summary.json``, or ``results/<figure>`` where it names a JSON file."""
+    path = root / "results" / figure
+    return json.loads((path if figure.endswith(".json") else path / "summary.json").read_text())
 
 
 def _names(text: str) -> list[str]:
