@@ -22,7 +22,6 @@ NOT_RESULTS = {
     "Python 3.11": "what a fresh machine has",
     "fig. 4": "a figure's name",
     "figs. 1–3, 5 and 6": "figures' names",
-    "issue 50": "an issue's number",
 }
 
 

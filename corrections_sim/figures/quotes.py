@@ -105,8 +105,32 @@ def pair(root: Path, figure: str, pair: str, metric: str, digits: str = "3") -> 
     rows = [r for r in rows if r["metric"] == metric]
     if not rows:
         raise KeyError(f"no paired comparison {pair} of {metric} in {figure}")
-    s, d = rows[0]["final"], int(digits)
-    return f"{s['mean']:+.{d}f} [{s['ci95'][0]:.{d}f}, {s['ci95'][1]:.{d}f}]"
+    return _difference(rows[0]["final"], int(digits))
+
+
+def _difference(stat: dict, digits: int, interval: bool = True) -> str:
+    """"+0.130 [0.120, 0.139]": a signed mean and its 95% interval, with the page's minus."""
+    text = f"{stat['mean']:+.{digits}f}"
+    if interval:
+        text += f" [{stat['ci95'][0]:.{digits}f}, {stat['ci95'][1]:.{digits}f}]"
+    return text.replace("-", "−")
+
+
+def user_pair(
+    root: Path, figure: str, pair: str, user: str, metric: str, digits: str, mean_only: str = ""
+) -> str:
+    """A paired difference a − b of ``metric`` (``:`` for spaces: ``final:regret``) for one
+    ``user`` (``_`` for spaces) of a learners × users study, with its 95% interval (``mean``:
+    the mean alone)."""
+    a, b, user = *pair.split("/"), user.replace("_", " ")
+    rows = [
+        r
+        for r in _summary(root, figure)["paired"]
+        if (r["a"], r["b"], r["user"], r["metric"]) == (a, b, user, metric.replace(":", " "))
+    ]
+    if len(rows) != 1:
+        raise KeyError(f"no paired comparison {pair} of {metric} for {user!r} in {figure}")
+    return _difference(rows[0], int(digits), interval=mean_only != "mean")
 
 
 def cell(root: Path, figure: str, learner: str, user: str, key: str, digits: str = "3") -> str:
@@ -193,6 +217,7 @@ QUOTES: dict[str, Callable[..., str]] = {
     "weights": weights,
     "final": final,
     "pair": pair,
+    "user-pair": user_pair,
     "cell": cell,
     "find": find,
     "workers": workers,
