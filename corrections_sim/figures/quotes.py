@@ -82,11 +82,14 @@ def headline(root: Path) -> str:
 
 
 def value(root: Path, figure: str, path: str, spec: str = "") -> str:
-    """One value of ``figure``'s summary at the dotted ``path`` (a list index may be negative),
-    formatted by ``spec`` (Python's format mini-language, e.g. ``.3f``, ``,``)."""
+    """One value of ``figure``'s summary at the dotted ``path`` (a list index may be negative;
+    ``_`` stands for a space in a key that has one), formatted by ``spec`` (Python's format mini-language, e.g. ``.3f``, ``,``)."""
     item = _summary(root, figure)
     for key in path.split("."):
-        item = item[int(key)] if isinstance(item, list) else item[key]
+        if isinstance(item, list):
+            item = item[int(key)]
+        else:
+            item = item[key] if key in item else item[key.replace("_", " ")]
     return format(item, spec)
 
 
