@@ -83,7 +83,8 @@ def headline(root: Path) -> str:
 
 def value(root: Path, figure: str, path: str, spec: str = "") -> str:
     """One value of ``figure``'s summary at the dotted ``path`` (a list index may be negative;
-    ``_`` stands for a space in a key that has one), formatted by ``spec`` (Python's format mini-language, e.g. ``.3f``, ``,``)."""
+    ``_`` stands for a space in a key that has one), formatted by ``spec`` (Python's format
+    mini-language, e.g. ``.3f``, ``,``)."""
     item = _summary(root, figure)
     for key in path.split("."):
         if isinstance(item, list):
