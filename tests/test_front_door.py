@@ -135,3 +135,18 @@ def test_every_pointer_into_the_readme_or_the_docs_leads_somewhere(source):
         assert page.is_file(), f"{source.name}: no docs/{m[1]}"
         if m[2]:
             assert m[2][1:] in _anchors(page), f"{source.name}: docs/{m[1]} has no {m[2]}"
+
+
+def test_help_lines_name_registered_learners_and_the_true_defaults():
+    """A list of learners in any command's --help names registered learners only, and
+    replay's stated default is the one it uses."""
+    from corrections_sim.cli.main import _COMMAND_HELP, catalogue
+    from corrections_sim.interact.replay import DEFAULT_LEARNERS
+    from corrections_sim.learning.base import LEARNERS
+
+    assert ",".join(DEFAULT_LEARNERS) in _COMMAND_HELP[("replay", "learners")]
+    texts = [*_COMMAND_HELP.values(), *(a.help or "" for a in catalogue()._actions)]
+    lists = re.findall(r"\b[A-Z]+(?:-[A-Z]+)?(?:,[A-Z]+(?:-[A-Z]+)?)+\b", " ".join(texts))
+    assert lists, "the help names no list of learners: this test would check nothing"
+    named = {name for found in lists for name in found.split(",")}
+    assert named <= set(LEARNERS), named - set(LEARNERS)
