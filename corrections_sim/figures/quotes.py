@@ -205,6 +205,20 @@ def weights(root: Path, figure: str, learners: str, iterations: str) -> str:
     return "\n".join(lines)
 
 
+def final_theta(root: Path, curves: str, learner: str, digits: str = "2") -> str:
+    """``learner``'s θ̂ after its last correction in ``results/<curves>`` (a curves.csv), as
+    "(−0.71, −0.86)"."""
+    theta = None
+    with open(root / "results" / curves, newline="") as f:
+        for row in csv.DictReader(f):
+            if row["learner"] == learner:
+                weights = sorted(k for k in row if k.startswith("theta_"))
+                theta = [float(row[k]) for k in weights]
+    if theta is None:
+        raise KeyError(f"{curves} has no learner {learner}")
+    return "(" + ", ".join(f"{w:.{int(digits)}f}" for w in theta).replace("-", "−") + ")"
+
+
 def _table(make: Callable[..., list[str]]) -> Callable[..., str]:
     def quote(root: Path, figure: str, *args: str) -> str:
         return "\n".join(make(_summary(root, figure), *args))
@@ -224,6 +238,7 @@ QUOTES: dict[str, Callable[..., str]] = {
     "user-pair": user_pair,
     "cell": cell,
     "find": find,
+    "theta": final_theta,
     "workers": workers,
     "final-table": _table(lambda s, names=None: report.final_table(s, names and _names(names))),
     "calibration-table": _table(
