@@ -219,6 +219,22 @@ def final_theta(root: Path, curves: str, learner: str, digits: str = "2") -> str
     return "(" + ", ".join(f"{w:.{int(digits)}f}" for w in theta).replace("-", "−") + ")"
 
 
+def aggregate(root: Path, table: str, where: str, column: str, stat: str, spec: str = "") -> str:
+    """``stat`` (mean, min, max) of ``column`` over the rows of ``results/<table>`` (a CSV)
+    whose fields match ``where`` (``field=value;field=value``), formatted by ``spec``."""
+    want = dict(pair.split("=", 1) for pair in where.split(";"))
+    with open(root / "results" / table, newline="") as f:
+        values = [
+            float(r[column])
+            for r in csv.DictReader(f)
+            if all(r.get(k) == v for k, v in want.items())
+        ]
+    if not values:
+        raise KeyError(f"no row of {table} matches {where}")
+    reduce = {"mean": lambda v: sum(v) / len(v), "min": min, "max": max}[stat]
+    return format(reduce(values), spec)
+
+
 def _table(make: Callable[..., list[str]]) -> Callable[..., str]:
     def quote(root: Path, figure: str, *args: str) -> str:
         return "\n".join(make(_summary(root, figure), *args))
@@ -239,6 +255,7 @@ QUOTES: dict[str, Callable[..., str]] = {
     "cell": cell,
     "find": find,
     "theta": final_theta,
+    "aggregate": aggregate,
     "workers": workers,
     "final-table": _table(lambda s, names=None: report.final_table(s, names and _names(names))),
     "calibration-table": _table(
