@@ -394,3 +394,32 @@ def test_a_log_read_on_another_machine_is_held_to_the_stated_tolerance(tmp_path,
         )
     with StudyLog(db) as log, pytest.raises(ValueError, match="other code or settings"):
         Session.resume(log, 1)
+
+
+def test_closing_the_log_waits_for_a_query_in_another_thread(tmp_path):
+    """A page's callback thread may still be inside a query when its server stops and the
+    log closes (a full run segfaulted there once): close waits for the query, and a query
+    after the close is an error, never a read of a closed handle."""
+    import threading
+
+    log = StudyLog(tmp_path / "s.sqlite")
+    inside, release, closed = threading.Event(), threading.Event(), threading.Event()
+
+    def query():
+        with log._lock:  # as every query of the log does
+            inside.set()
+            release.wait(5)
+            log._db.execute("SELECT 1").fetchone()
+
+    worker = threading.Thread(target=query)
+    worker.start()
+    inside.wait(5)
+    closer = threading.Thread(target=lambda: (log.close(), closed.set()))
+    closer.start()
+    assert not closed.wait(0.3)  # the close waits while the query runs
+    release.set()
+    worker.join(5)
+    assert closed.wait(5)
+    closer.join(5)
+    with pytest.raises(sqlite3.ProgrammingError):
+        log.has_study()

@@ -232,7 +232,11 @@ class StudyLog:
         self._lock = threading.Lock()
 
     def close(self) -> None:
-        self._db.close()
+        """Close the file once no other thread is inside a query (a page's callback thread may
+        still be answering a click when its server stops); a query after this raises
+        sqlite3.ProgrammingError, never touches a closed handle mid-statement."""
+        with self._lock:
+            self._db.close()
 
     def __enter__(self) -> StudyLog:
         return self
