@@ -56,16 +56,16 @@ def pytest_collection_modifyitems(config, items):
 CORES = sorted(os.sched_getaffinity(0))
 
 
-@pytest.fixture(autouse=True)
-def _a_core_per_worker(request):
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item):
     """Under pytest-xdist each worker keeps to a core of its own, and so does every process a
-    test starts (a figure's pool, a Dask cluster, gcc): a command left to choose its workers
-    takes one, and a test that asks for a 2-worker pool (to check that 1 worker and 2 give
-    the same numbers) runs it on its own core, not on top of the other worker's. The browser
-    tests keep every core: chromium, the page's server and the test share them."""
+    test or its fixtures start (a figure's pool, a Dask cluster, gcc): a command left to choose
+    its workers takes one, and a test that asks for a 2-worker pool (to check that 1 worker and
+    2 give the same numbers) runs it on its own core, not on top of the other worker's. The
+    browser tests keep every core: chromium, the page's server and the test share them. Set
+    before the test's fixtures, module-scoped ones included, are made."""
     worker = os.environ.get("PYTEST_XDIST_WORKER")
     if worker is not None and len(CORES) > 1:
-        browser = request.node.get_closest_marker("browser") is not None
+        browser = item.get_closest_marker("browser") is not None
         mine = CORES if browser else [CORES[int(worker.removeprefix("gw")) % len(CORES)]]
         os.sched_setaffinity(0, mine)
-    yield
