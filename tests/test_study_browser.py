@@ -274,7 +274,9 @@ def test_a_killed_server_loses_nothing_and_the_participant_resumes_at_the_same_s
         tab.get_by_text("Hello there.").wait_for(timeout=60_000)
         drive.click(tab, "Continue")
         _correct(tab)  # the practice's one correction
-        tab.get_by_text("This trial is over").wait_for(timeout=120_000)
+        # The study's trial-over panel, not the page's own end (its title and status also say
+        # "This trial is over" until the panel is drawn).
+        tab.get_by_text("Press Continue to go on").wait_for(timeout=120_000)
         drive.click(tab, "Continue")
         _correct(tab)  # the first robot's first of two
         drive.wait_for(lambda: "Correction 2" in drive.status(tab), "the next plan")
@@ -286,7 +288,7 @@ def test_a_killed_server_loses_nothing_and_the_participant_resumes_at_the_same_s
         server = _back_after_a_kill(browser, tab, links["P1"], protocol, db, port)
         tab.get_by_text("Correction 2").wait_for(timeout=120_000)  # the same trial, resumed
         _correct(tab)
-        tab.get_by_text("This trial is over").wait_for(timeout=120_000)
+        tab.get_by_text("Press Continue to go on").wait_for(timeout=120_000)
         drive.click(tab, "Continue")
         tab.get_by_text("The robot understood me.").wait_for(timeout=60_000)
         server.send_signal(signal.SIGKILL)  # mid-questionnaire (nothing submitted yet)
