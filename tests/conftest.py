@@ -41,15 +41,30 @@ def planner():
 
 
 def pytest_collection_modifyitems(config, items):
-    """How the suite shares the machine's cores (pytest-xdist, ``--dist loadgroup``): each
-    module's tests go to one worker, so a module fixture (a compiled planner, a quick run) is
-    built once; the browser tests of every module go to one worker together and first, since
-    they share a chromium, are the longest group and wait on pages that must not starve.
-    Without xdist the order is the files' own, the browser tests first."""
+    """The browser tests first (see :func:`pytest_xdist_make_scheduler`), otherwise the files'
+    own order; a browser test outside a ``*_browser.py`` module is refused (the scheduler
+    groups the browser tests by their module's name)."""
     for item in items:
-        group = "browser" if item.get_closest_marker("browser") else item.module.__name__
-        item.add_marker(pytest.mark.xdist_group(group))
+        if item.get_closest_marker("browser") and not item.path.name.endswith("_browser.py"):
+            raise pytest.UsageError(f"{item.nodeid}: a browser test belongs in a *_browser.py")
     items.sort(key=lambda item: not item.get_closest_marker("browser"))
+
+
+def pytest_xdist_make_scheduler(config, log):
+    """How the suite shares the machine's cores (pytest-xdist): each module's tests go to one
+    worker, so a module fixture (a compiled planner, a quick run) is built once, and the
+    browser tests of every ``*_browser.py`` module go to one worker together, first: they share
+    a chromium, are the longest group and wait on pages that must not starve. (xdist's own
+    ``loadgroup`` cannot do this under pytest 9, which ignores the group it writes into a
+    test's id: every module fixture was built on both workers.)"""
+    from xdist.scheduler import LoadScopeScheduling
+
+    class ModulesAndBrowser(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            module = nodeid.split("::", 1)[0]
+            return "browser" if module.endswith("_browser.py") else module
+
+    return ModulesAndBrowser(config, log)
 
 
 #: The cores this suite may use, read before any test narrows them.
