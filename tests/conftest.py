@@ -41,13 +41,36 @@ def planner():
 
 
 def pytest_collection_modifyitems(config, items):
-    """The browser tests first (see :func:`pytest_xdist_make_scheduler`), otherwise the files'
-    own order; a browser test outside a ``*_browser.py`` module is refused (the scheduler
-    groups the browser tests by their module's name)."""
+    """The browser tests first (see :func:`pytest_xdist_make_scheduler`), then the longest
+    modules, then the rest in the files' own order; a browser test outside a ``*_browser.py``
+    module is refused (the scheduler groups the browser tests by their module's name)."""
     for item in items:
         if item.get_closest_marker("browser") and not item.path.name.endswith("_browser.py"):
             raise pytest.UsageError(f"{item.nodeid}: a browser test belongs in a *_browser.py")
-    items.sort(key=lambda item: not item.get_closest_marker("browser"))
+    items.sort(key=_order)
+
+
+#: The modules that take longest (a minute or more of one core, ``--durations``), scheduled
+#: right after the browser tests so that the suite does not end waiting on one of them.
+LONG = (
+    "test_regression.py",
+    "test_robustness.py",
+    "test_cli.py",
+    "test_video.py",
+    "test_reference_run.py",
+    "test_cli_input.py",
+    "test_wheel.py",
+    "test_interrupt.py",
+    "test_user_study.py",
+    "test_study_file.py",
+)
+
+
+def _order(item) -> tuple[int, int, str]:
+    name = item.path.name
+    if item.get_closest_marker("browser"):
+        return (0, 0, name)  # module by module: each launches its chromium once
+    return (1, LONG.index(name), "") if name in LONG else (2, 0, "")
 
 
 def pytest_xdist_make_scheduler(config, log):
