@@ -7,6 +7,7 @@ Marked ``browser``: ``pytest -m 'not browser'`` skips them; CI (which installs c
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import socket
@@ -18,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from benchmarks.bench_catch import catch, physical_session
+from benchmarks.bench_catch import STUDY, catch, physical_session
 from corrections_sim.interact import drive
 from corrections_sim.interact.log import StudyLog
 from corrections_sim.interact.page import project
@@ -28,19 +29,8 @@ from corrections_sim.study.schema import parse_study
 
 pytestmark = pytest.mark.browser
 
-STUDY = {
-    "environments": ["s0-t0-l1", "s0-t0-l2", "s1-t1-l0", "s2-t0-l1"],
-    "theta_star": [1.0, -1.0],
-    "learners": ["KF-C"],
-    "seed": 3,
-    "iterations": 3,
-}
-STUDY_TOML = """environments = ["s0-t0-l1", "s0-t0-l2", "s1-t1-l0", "s2-t0-l1"]
-theta_star = [1.0, -1.0]
-learners = ["KF-C"]
-seed = 3
-iterations = 3
-"""
+#: The same study as a file (its values are TOML as JSON writes them).
+STUDY_TOML = "".join(f"{key} = {json.dumps(value)}\n" for key, value in STUDY.items())
 
 
 def _free_port() -> int:

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import re
 import sys
 from collections.abc import Callable, Sequence
@@ -102,14 +103,17 @@ def final(root: Path, figure: str, learner: str, metric: str, digits: str = "3")
     return report.pm(stat[metric], int(digits))
 
 
-def pair(root: Path, figure: str, pair: str, metric: str, digits: str = "3") -> str:
-    """The paired difference a − b of the final ``metric`` with its 95% interval."""
-    a, b = pair.split("/")
-    rows = [r for r in _summary(root, figure)["paired"] if (r["a"], r["b"]) == (a, b)]
-    rows = [r for r in rows if r["metric"] == metric]
-    if not rows:
-        raise KeyError(f"no paired comparison {pair} of {metric} in {figure}")
-    return _difference(rows[0]["final"], int(digits))
+def _where(text: str) -> dict[str, str]:
+    """``field=value;field=value`` as a dict."""
+    return dict(part.split("=", 1) for part in text.split(";"))
+
+
+def _one(records: list[dict], want: dict[str, str], what: str) -> dict:
+    """The one record whose fields read as ``want``; KeyError naming ``what`` otherwise."""
+    found = [r for r in records if all(str(r.get(k)) == v for k, v in want.items())]
+    if len(found) != 1:
+        raise KeyError(f"{len(found)} records of {what} match {want}, not one")
+    return found[0]
 
 
 def _difference(stat: dict, digits: int, interval: bool = True) -> str:
@@ -120,21 +124,24 @@ def _difference(stat: dict, digits: int, interval: bool = True) -> str:
     return text.replace("-", "−")
 
 
+def pair(root: Path, figure: str, names: str, metric: str, digits: str = "3") -> str:
+    """The paired difference a − b (``names``: ``a/b``) of the final ``metric`` with its 95%
+    interval."""
+    a, b = names.split("/")
+    row = _one(_summary(root, figure)["paired"], {"a": a, "b": b, "metric": metric}, figure)
+    return _difference(row["final"], int(digits))
+
+
 def user_pair(
-    root: Path, figure: str, pair: str, user: str, metric: str, digits: str, mean_only: str = ""
+    root: Path, figure: str, names: str, user: str, metric: str, digits: str, mean_only: str = ""
 ) -> str:
-    """A paired difference a − b of ``metric`` (``:`` for spaces: ``final:regret``) for one
-    ``user`` (``_`` for spaces) of a learners × users study, with its 95% interval (``mean``:
-    the mean alone)."""
-    a, b, user = *pair.split("/"), user.replace("_", " ")
-    rows = [
-        r
-        for r in _summary(root, figure)["paired"]
-        if (r["a"], r["b"], r["user"], r["metric"]) == (a, b, user, metric.replace(":", " "))
-    ]
-    if len(rows) != 1:
-        raise KeyError(f"no paired comparison {pair} of {metric} for {user!r} in {figure}")
-    return _difference(rows[0], int(digits), interval=mean_only != "mean")
+    """A paired difference a − b (``names``: ``a/b``) of ``metric`` (``:`` for spaces:
+    ``final:regret``) for one ``user`` (``_`` for spaces) of a learners × users study, with its
+    95% interval (``mean``: the mean alone)."""
+    a, b = names.split("/")
+    want = {"a": a, "b": b, "user": user.replace("_", " "), "metric": metric.replace(":", " ")}
+    row = _one(_summary(root, figure)["paired"], want, figure)
+    return _difference(row, int(digits), interval=mean_only != "mean")
 
 
 def cell(root: Path, figure: str, learner: str, user: str, key: str, digits: str = "3") -> str:
@@ -142,13 +149,9 @@ def cell(root: Path, figure: str, learner: str, user: str, key: str, digits: str
     ``key`` (e.g. ``regret``) as mean ± SEM, or a field as it is (``regret_mean``,
     ``relevance_auc``), with ``digits`` decimals or a format spec (``.1%``); "—" where the
     study has none."""
-    user = user.replace("_", " ")
-    rows = [
-        r for r in _summary(root, figure)["matrix"] if (r["learner"], r["user"]) == (learner, user)
-    ]
-    if not rows:
-        raise KeyError(f"no {learner} × {user!r} in {figure}'s matrix")
-    row, spec = rows[0], f".{digits}f" if digits.isdigit() else digits
+    want = {"learner": learner, "user": user.replace("_", " ")}
+    row = _one(_summary(root, figure)["matrix"], want, f"{figure}'s matrix")
+    spec = f".{digits}f" if digits.isdigit() else digits
     if f"{key}_mean" in row and f"{key}_sem" in row:
         if row[f"{key}_mean"] is None:
             return "—"
@@ -162,11 +165,7 @@ def find(root: Path, figure: str, path: str, where: str, key: str, spec: str = "
     items = _summary(root, figure)
     for part in path.split("."):
         items = items[part]
-    want = dict(pair.split("=", 1) for pair in where.split(";"))
-    found = [r for r in items if all(str(r.get(k)) == v for k, v in want.items())]
-    if len(found) != 1:
-        raise KeyError(f"{len(found)} records of {figure} {path} match {where}, not one")
-    return format(found[0][key], spec)
+    return format(_one(items, _where(where), f"{figure} {path}")[key], spec)
 
 
 def minutes(root: Path, figure: str) -> str:
@@ -222,7 +221,7 @@ def final_theta(root: Path, curves: str, learner: str, digits: str = "2") -> str
 def aggregate(root: Path, table: str, where: str, column: str, stat: str, spec: str = "") -> str:
     """``stat`` (mean, min, max) of ``column`` over the rows of ``results/<table>`` (a CSV)
     whose fields match ``where`` (``field=value;field=value``), formatted by ``spec``."""
-    want = dict(pair.split("=", 1) for pair in where.split(";"))
+    want = _where(where)
     with open(root / "results" / table, newline="") as f:
         values = [
             float(r[column])
@@ -313,7 +312,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     root = Path.cwd()
     if "--root" in args:
         at = args.index("--root")
-        root = Path(args[at + 1]) if at + 1 < len(args) else Path()
+        root = Path(args[at + 1]) if at + 1 < len(args) else Path(os.devnull)  # no folder
         del args[at : at + 2]
     paths = [Path(a) for a in args if a != "--fill"]
     if not paths or not (root / "results").is_dir():
