@@ -79,6 +79,13 @@ def _view(study, code: str, after=None):
     )
 
 
+def _closed(study, code: str, view) -> None:
+    """Wait until the server has seen ``view``'s tab close: a reload before that is told "your
+    page is open in another tab", and a test that reads the participant's view would find the
+    closed one (its controls no longer on any page)."""
+    drive.wait_for(lambda: study.participant_views().get(code) is not view, "the tab closed")
+
+
 def _planned(page) -> bool:
     """The page shows its plan (its title is written after the plan is made)."""
     return hasattr(page, "title") and "Correction" in page.title.content
@@ -122,8 +129,9 @@ def test_a_trial_page_speaks_to_a_participant_and_requires_what_the_study_needs(
         assert "First state" not in page.title.content
     # A reload on the same server: straight back to the trial (no code again), the stated
     # preference on its sliders as the log has it.
+    _closed(study, "P1", view)
     with _tab(link) as tab:
-        view = _view(study, "P1")
+        view = _view(study, "P1", after=view)
         page = drive.wait_for(lambda: view.page, "the trial's page again", timeout=120)
         drive.wait_for(lambda: _planned(page), "the plan on the page", timeout=120)
         assert "code" not in view.controls
@@ -163,8 +171,9 @@ def test_a_questionnaire_stores_only_what_was_given_and_shows_it_back_first(stud
         draft = study.drafts[("P1", "C.questions")]
         drive.wait_for(lambda: len(draft) == 2, "two answers received")
     # A reload on the same server: straight back, the two answers kept, the rest not.
+    _closed(study, "P1", view)
     with _tab(link) as tab:
-        view = _view(study, "P1")
+        view = _view(study, "P1", after=view)
         drive.wait_for(lambda: view.controls.get("submit"), "the questionnaire again")
         assert [view.controls[i].value for i in items[:2]] == values[:2]
         for item, value in zip(items[2:], values[2:], strict=True):
