@@ -214,8 +214,9 @@ def test_a_push_during_the_motion_teaches_the_learner_and_is_logged(
 
 
 def test_a_relevance_aware_learner_shows_its_belief_in_the_correction(playwright_browser, tmp_path):
-    """KF-CR on the page: after a drag and a submit, the belief panel says how far the learner
-    believed the correction (β̂ and ρ), the same numbers the log's ``relevance`` event holds."""
+    """KF-CR on the page: after a drag and a submit, the status line says in words whether the
+    learner believed the correction, and the researcher's folder how far (β̂ and ρ), the same
+    numbers the log's ``relevance`` event holds."""
     log = StudyLog(tmp_path / "study.sqlite")
     session = Session.start(parse_study(STUDY, name="t"), log, learner="KF-CR", participant="r")
     server, page = serve(session, port=_free_port())
@@ -227,8 +228,10 @@ def test_a_relevance_aware_learner_shows_its_belief_in_the_correction(playwright
         drive.wait_for(lambda: page.submitted == 1, "the correction reaching the learner")
         (event,) = log.events(session.id, "relevance")
         shown = f"β̂ = {event['detail']['beta']:.2f}"
-        drive.wait_for(lambda: shown in tab.content(), "β̂ on the page")
-        assert shown in drive.status(tab)  # in the status line too, where the eye is
+        drive.wait_for(lambda: shown in page.belief_text.content, "β̂ in the researcher's folder")
+        said = "it fits what I know" if event["detail"]["beta"] >= 0.5 else "does not fit"
+        drive.wait_for(lambda: said in drive.status(tab), "the verdict in words")
+        assert "β̂" not in page.status.content  # no symbol where the person reads
         tab.screenshot(path=str(tmp_path / "relevance.png"))
     finally:
         tab.close()
@@ -266,7 +269,10 @@ def test_done_during_the_plans_animation_shows_the_deployment_and_the_page_stays
         drive.click(tab, "Done: deploy")
         drive.wait_for(lambda: "Session ended after 0 corrections" in drive.status(tab), "the end")
         text = drive.status(tab)
-        assert "Deployed in" in text and "risk-averse" in text and "close this tab" in text
+        assert "path I would take now" in text and "careful path" in text
+        assert "close this tab" in text and "γ" not in page.status.content
+        assert "Deployed in" in page.researcher_text.content  # the expert's folder
+        assert "risk-averse" in page.researcher_text.content
         assert page.finished.is_set() and not page.left.is_set()
         for label in ("Play the plan", "Skip this environment", "Done: deploy"):
             assert _button(tab, label).is_disabled()
@@ -324,7 +330,7 @@ def test_a_hand_catches_the_moving_handle_holds_past_the_end_and_done_waits(
         drive.wait_for(lambda: not _button(tab, "Done: deploy").is_disabled(), "Done at rest")
         drive.click(tab, "Done: deploy")
         drive.wait_for(lambda: "Session ended after" in drive.status(tab), "the end on the page")
-        assert "Deployed in" in drive.status(tab) and _still_served(url)
+        assert "path I would take now" in drive.status(tab) and _still_served(url)
         tab.screenshot(path=str(tmp_path / "physical-ended.png"))
     finally:
         tab.close()

@@ -739,6 +739,17 @@ def run_replay(args: argparse.Namespace) -> list[Path]:
         error = entry["estimate_error"]
         tail = "" if error is None else f", error {error:.3f} against the stated θ"
         print(f"{name}: θ̂ = {np.round(entry['theta'], 3).tolist()}{tail}", file=sys.stderr)
+    for entry in facts.get("learnt_features", []):
+        weight = entry["weight"]
+        said = "" if weight is None else f", final weight {weight:+.3f}"
+        said += "" if entry["sd"] is None else f" ± {entry['sd']:.3f}"
+        for true, q in entry["quality"].items():
+            said += f"; against {true}: Spearman {q['spearman']:.3f}, R² {q['r2']:.3f}"
+        print(
+            f"learnt feature {entry['feature']} (after correction {entry['after']}, from "
+            f"{entry['traces']} traces){said}",
+            file=sys.stderr,
+        )
     for name, score in facts.get("labelled", {}).items():
         if score["auc"] is None:  # one kind only: nothing to rank
             continue

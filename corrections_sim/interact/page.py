@@ -20,13 +20,27 @@ act on a plan the person no longer sees. After "Done" the page shows the deploym
 tab closes (:attr:`Page.finished`, :attr:`Page.left`); a reload shows it again.
 
 When the learner asks for feature traces (KF-CRX, :attr:`Session.wanted`), the page turns to
-teaching before the next plan: it shows the robot's reward over the table (what it knows) as
-a heat map; the person drags the cup to where what they mind is strongest (not recorded),
-presses "Start a trace here", drags it to where it is weakest (every handle position on the
-way is recorded; several drags make one trace) and presses "End the trace"; the cup's path
-becomes arm configurations by IK (the cup kept upright) and a logged trace. With all of them
-the feature is learnt, the heat map shows it, and the next plan is made over it. "I cannot
-show it" declines.
+teaching before the next plan, and its correction controls step aside. The person drags the cup
+to where what they mind is strongest (not recorded) and presses "Start a trace here"; the
+trace starts where the arm holds the cup, which is where the page shows it: Start is refused
+while a drag is being checked (the handle is not where the arm is) or after a drag the arm could
+not reach (the cup went back), and the page says why. They drag it to where it is weakest
+(every handle position of a drag the arm can follow is recorded, and the path so far is drawn;
+several drags make one trace) and press "End the trace", or "Cancel this trace". The cup's path
+becomes arm configurations by IK (the cup kept upright) and a logged trace. With all of them,
+or with at least :data:`~corrections_sim.interact.session.MIN_TRACES` when the person
+presses "Learn from the traces I gave", the feature is learnt and the next plan is made over
+it. "I cannot show it" declines; traces already given are set aside only after the person
+confirms it, and the page says how many. A trace cut short by a crash is named on return,
+the cup where it began.
+
+The heat map on the current environment's table shows what the robot wants now, the same way
+before and after learning: its reward θ̂·φ with the cup at each point (blue where it is higher,
+red where it is lower than zero), grey where the robot cannot tell it from zero (within two
+standard deviations, from its covariance). Once a feature is learnt, the map can show the
+feature's own shape instead (purple: strongest). A slider sets the height of the cup it is
+computed at. The estimates themselves (θ̂, σ, β̂, the deployment's γ) are in a folder for the
+researcher, closed at the start; the person's panel speaks in words.
 """
 
 from __future__ import annotations
@@ -39,7 +53,7 @@ import numpy as np
 
 from corrections_sim.interact.meshes import Poser, pieces
 from corrections_sim.interact.session import Deployment, Refused, Session
-from corrections_sim.planning.features import pose_feature_function
+from corrections_sim.planning.features import HUMAN_POSITION, pose_feature_function
 from corrections_sim.scene import geometry as g
 from corrections_sim.scene.robot import cup_inverse_kinematics, cup_pose
 from corrections_sim.scene.world import interpolate
@@ -63,6 +77,19 @@ MESH_MATERIAL = "toon5"
 MAP_GRID = (28, 18)
 MAP_HEIGHT = 0.25
 TRACE_STATES = 20
+#: The heat map's grey: a reward within this many standard deviations of zero (the robot
+#: cannot tell it from no preference), and the grey.
+MAP_SIGNIFICANCE = 2.0
+MAP_GREY = (200, 200, 200)
+#: What the heat map can show (the second once a feature is learnt).
+MAP_REWARD = "What the robot wants now"
+MAP_SHAPE = "What you showed it"
+MAP_OFF = "Nothing"
+#: How near (m) the teaching handle must be to the cup the arm holds for a trace to start
+#: there (farther: the page's last drag is still being checked).
+START_TOLERANCE = 0.01
+#: Where the person whose feature ``human`` is sits (drawn in a teaching session's scene).
+PERSON_RGB = (150, 150, 165)
 #: pyplot is not safe from two threads at once (several participants' pages on one server).
 _DRAWING = threading.Lock()
 #: The line a participant's page shows above the first correction until they have stated
@@ -75,27 +102,45 @@ SKIP_BLIND = "Skip: show me another scene"
 TRACE_STEP = 0.005
 
 
-def reward_map(env, theta: np.ndarray, names, rotation: np.ndarray) -> tuple[np.ndarray, ...]:
-    """(points (n, 3), values (n,)): θ·φ with the cup at each point of a grid over the table
-    of ``env``, ``MAP_HEIGHT`` above its top, the hand at ``rotation``."""
+def map_features(env, names, rotation: np.ndarray, height: float = MAP_HEIGHT):
+    """(points (n, 3), φ (k, n)): the features ``names`` with the cup at each point of a grid
+    over the table of ``env``, ``height`` above its top, the hand at ``rotation``."""
     hx, hy = g.TABLE_HALF_SIZE
     tx, ty = env.table
     xs = np.linspace(tx - hx, tx + hx, MAP_GRID[0])
     ys = np.linspace(ty - hy, ty + hy, MAP_GRID[1])
-    cups = np.array([(x, y, g.TABLE_TOP_Z + MAP_HEIGHT) for x in xs for y in ys])
+    cups = np.array([(x, y, g.TABLE_TOP_Z + height) for x in xs for y in ys])
     hands = cups - (rotation @ np.array(g.CUP_CENTER_IN_HAND))[None, :]
     f = pose_feature_function(tuple(names)).map(cups.shape[0])
     rots = np.tile(np.asarray(rotation, float).reshape(-1, order="F")[:, None], cups.shape[0])
     phi = np.asarray(f(rots.reshape(3, 3 * cups.shape[0], order="F"), hands.T, env.params()))
-    return cups, np.asarray(theta, float) @ phi
+    return cups, phi
 
 
-def heat_colours(values: np.ndarray) -> np.ndarray:
-    """RGB (n, 3) uint8 of ``values`` on viridis, scaled to their range."""
+def reward_colours(values: np.ndarray, sd: np.ndarray | None) -> tuple[np.ndarray, int]:
+    """(RGB (n, 3) uint8, how many points are grey): the reward ``values`` on a diverging
+    scale symmetric about zero (blue above, red below), grey where |value| is within
+    :data:`MAP_SIGNIFICANCE` of its standard deviation ``sd`` (n,) (None: none is grey)."""
     import matplotlib
 
+    values = np.asarray(values, float)
+    unsure = np.zeros(values.shape, bool) if sd is None else np.abs(values) <= MAP_SIGNIFICANCE * sd
+    told = np.abs(values[~unsure])
+    span = float(told.max()) if told.size and told.max() > 0 else 1.0
+    rgba = matplotlib.colormaps["RdBu"](0.5 + 0.5 * np.clip(values / span, -1.0, 1.0))
+    rgb = (255 * rgba[:, :3]).astype(np.uint8)
+    rgb[unsure] = MAP_GREY
+    return rgb, int(unsure.sum())
+
+
+def shape_colours(values: np.ndarray) -> np.ndarray:
+    """RGB (n, 3) uint8 of a feature's own ``values``: white at its lowest, purple at its
+    highest (a shape, not a reward: another scale than :func:`reward_colours`)."""
+    import matplotlib
+
+    values = np.asarray(values, float)
     span = float(np.ptp(values)) or 1.0
-    rgba = matplotlib.colormaps["viridis"]((values - values.min()) / span)
+    rgba = matplotlib.colormaps["Purples"](0.05 + 0.9 * (values - values.min()) / span)
     return (255 * rgba[:, :3]).astype(np.uint8)
 
 
@@ -220,8 +265,9 @@ def relevance_note(row: dict) -> str:
     if not row.get("relevance"):
         return ""
     beta = row["relevance"]["beta"]
-    verdict = "explained by my features" if beta >= 0.5 else "not explained by my features"
-    return f" (β̂ = {beta:.2f}: {verdict})"
+    if beta >= 0.5:
+        return " (it fits what I know: I learnt from it)"
+    return " (it does not fit what I know: I learnt little from it)"
 
 
 class Page:
@@ -288,10 +334,15 @@ class Page:
         self.teaching = False
         self.recording = False
         self.trace_points: list[np.ndarray] = []
+        self.drag_points: list[np.ndarray] = []  # the drag under way while recording
+        self.teach_refused = False  # the last teaching drag went out of reach
+        self.confirming = False  # "I cannot show it" with traces given: asked to confirm
+        self.learnt_name: str | None = None
         self.teach_q: np.ndarray | None = None
         self.trace_start_q: np.ndarray | None = None
         self.traces_taken = 0  # traces submitted through this page (tests wait on it)
         self.teach_moves = 0  # teaching drags handled (tests wait on it)
+        self.starts_refused = 0  # Start clicks refused (a script waits on it)
         self.teach_handle = None
         self.teach_env = None  # the environment the traces are given in
         server.initial_camera.position = CAMERA_POSITION
@@ -372,17 +423,8 @@ class Page:
         self.reset_button = gui.add_button("Reset the drag", disabled=True)
         self.skip_button = gui.add_button(SKIP_BLIND if self.blind else SKIP, disabled=True)
         self.done_button = self._add_done(gui)
-        # The teaching controls only where the learner may ask for traces.
-        self.teach_folder = gui.add_folder("Teach the robot (when it asks)", visible=s.teaches)
-        with self.teach_folder:
-            self.start_trace = gui.add_button("Start a trace here", disabled=True)
-            self.end_trace = gui.add_button("End the trace", disabled=True)
-            self.decline = gui.add_button("I cannot show it", disabled=True)
+        self._teach_folder(gui)
         self._add_belief_panel(gui)
-        self.start_trace.on_click(self._act(self.start_trace, self._start_trace))
-        self.end_trace.on_click(self._act(self.end_trace, self._end_trace, "learning"))
-        self.decline.on_click(self._act(self.decline, self._decline, "planning"))
-
         self.waypoint.on_update(lambda _: self._show_waypoint())
         self.play.on_click(lambda _: self._play())
         self.submit_button.on_click(self._act(self.submit_button, self._submit, "learning"))
@@ -410,7 +452,8 @@ class Page:
         else:
             title = "Your preference (before the first correction)"
             text = "How much do you want the cup near each thing? −2 far … +2 near."
-        with gui.add_folder(title):
+        self.preference_folder = gui.add_folder(title)
+        with self.preference_folder:
             gui.add_markdown(text)
             self.sliders = [
                 gui.add_slider(
@@ -465,8 +508,8 @@ class Page:
         "Done with this robot" once the trial has its minimum (hidden where the trial simply
         ends at its limit)."""
         label = "Done with this robot" if self.blind else "Done: deploy"
-        shown = self.limit is None or self.minimum < self.limit
-        return gui.add_button(label, disabled=True, visible=shown)
+        self._done_shown = self.limit is None or self.minimum < self.limit
+        return gui.add_button(label, disabled=True, visible=self._done_shown)
 
     def _add_texts(self, gui) -> None:
         """The title, the status line and the line that says where the cup is."""
@@ -486,6 +529,8 @@ class Page:
         if self.session.wanted > len(self.session.traces) and not self.session.physical:
             self._start_teaching()  # the physical page does not teach (not built)
             return
+        if self.teaching:  # a reload after the teaching's last action: not taught any more
+            self.teaching = self.recording = False
         self._say("Planning the robot's path…")
         self._new_proposal()
 
@@ -507,12 +552,18 @@ class Page:
         """θ̂ and its uncertainty: a picture and a table (see :meth:`_show_belief`); not on a
         participant's page (what the robot believes is the study's to analyse, not theirs to
         read)."""
-        self.belief_image = gui.add_image(
-            np.full((10, 10, 3), 255, np.uint8),
-            label="θ̂ and its uncertainty",
+        self.researcher_folder = gui.add_folder(
+            "For the researcher: the robot's estimates", expand_by_default=False,
             visible=not self.blind,
-        )
-        self.belief_text = gui.add_markdown("", visible=not self.blind)
+        )  # fmt: skip
+        with self.researcher_folder:
+            self.researcher_text = gui.add_markdown("", visible=not self.blind)
+            self.belief_image = gui.add_image(
+                np.full((10, 10, 3), 255, np.uint8),
+                label="θ̂ and its uncertainty",
+                visible=not self.blind,
+            )
+            self.belief_text = gui.add_markdown("", visible=not self.blind)
 
     def _say(self, text: str) -> None:
         self.last_message = text
@@ -545,10 +596,14 @@ class Page:
         first = ready and s.iteration == 0  # stated (again) until the first correction
         stated = self.stated is not None or not self.require_stated
         enough = s.iteration >= self.minimum or self.limit is None
+        given = len(s.traces)
         return [
             (self.start_trace, teach and not self.recording),
             (self.end_trace, teach and self.recording and len(self.trace_points) >= 2),
+            (self.cancel_trace, teach and self.recording),
+            (self.learn_now, teach and not self.recording and s.fewest_traces <= given < s.wanted),
             (self.decline, teach and not self.recording),
+            (self.set_aside, teach and not self.recording and self.confirming),
             (self.state_button, first),
             *((slider, first) for slider in self.sliders),
             (self.waypoint, ready),
@@ -629,15 +684,19 @@ class Page:
             )
         else:
             self.title.content = (
-                f"### Correction {k + 1}: environment {self.proposal.env.name}\n"
-                f"Learner **{s.learner}**, correction model **{s.correction_name}**. "
-                "Drag the arrows on the cup to move it at the chosen waypoint, then submit."
-                + self._ask_line()
+                f"### Correction {k + 1}\n"
+                "Drag the arrows on the cup to move it where you want it at the chosen point "
+                "of the path, then submit it." + self._ask_line()
+            )
+            self.researcher_text.content = (
+                f"Learner **{s.learner}**, correction model **{s.correction_name}**, "
+                f"environment **{self.proposal.env.name}**."
             )
         if self._clicked is not None:  # set before the title can reach a reader of the page
             self.last_submit = (self._clicked, time.perf_counter())
             self._clicked = None
         self._show_belief()
+        self._redraw_map()
         self._refresh()
         self._say("The robot's plan is the blue path. Move the cup where you want it.")
 
@@ -702,15 +761,15 @@ class Page:
         if s.last_relevance is not None:
             beta, rho = s.last_relevance["beta"], s.last_relevance["rho"]
             relevance = (
-                f"\n\nThe last correction is explained by my features with probability "
-                f"**β̂ = {beta:.2f}**"
-                + (f" (unexplained fraction ρ = {rho:.2f})" if rho is not None else "")
-                + "; I learnt from it in proportion."
+                f"\n\nThe last correction: relevant with probability **β̂ = {beta:.2f}**"
+                + ("" if rho is None else f", the fraction the features do not span ρ = {rho:.2f}")
+                + "; learnt from in proportion."
             )
         if b.person is not None and s.iteration > 0:  # relevance judged across corrections
             relevance += (
-                f"\n\nYour corrections so far: relevant about **{b.person.rate_mean:.0%}** of "
-                f"the time, leaving about **{b.person.spread:.2f}** of a move unexplained."
+                f"\n\nThe person's corrections so far: relevant at rate E[r] = "
+                f"**{b.person.rate_mean:.2f}**; a relevant one scattered by σ̂ = "
+                f"**{b.person.spread:.2f}** (feature units)."
             )
         self.belief_text.content = (
             f"After **{s.iteration}** {plural(s.iteration, 'correction')}:\n\n"
@@ -843,13 +902,74 @@ class Page:
 
     # --- teaching a feature ----------------------------------------------------------------
 
-    def _start_teaching(self) -> None:
-        """The learner asks for traces: the heat map of what it knows, the teaching handle
-        where the cup last was, the instructions."""
+    def _teach_folder(self, gui) -> None:
+        """The teaching controls, the heat map's controls and the person across the table:
+        only where the learner may ask for traces."""
         s = self.session
-        self.teaching, self.recording, self.trace_points = True, False, []
+        self.teach_folder = gui.add_folder("Teach the robot (when it asks)", visible=s.teaches)
+        with self.teach_folder:
+            self.start_trace = gui.add_button("Start a trace here", disabled=True)
+            self.end_trace = gui.add_button("End the trace", disabled=True)
+            self.cancel_trace = gui.add_button("Cancel this trace", disabled=True)
+            self.learn_now = gui.add_button("Learn from the traces I gave", disabled=True)
+            self.decline = gui.add_button("I cannot show it", disabled=True)
+            self.set_aside = gui.add_button("Set my traces aside", disabled=True, visible=False)
+        self.map_folder = gui.add_folder("Heat map on the table", visible=s.teaches)
+        with self.map_folder:
+            self.map_mode = gui.add_dropdown(
+                "Show", options=(MAP_REWARD, MAP_SHAPE, MAP_OFF), initial_value=MAP_REWARD
+            )
+            self.map_height = gui.add_slider(
+                "Cup height (m)", min=0.05, max=0.45, step=0.05, initial_value=MAP_HEIGHT
+            )
+            self.map_caption = gui.add_markdown("")
+        self.start_trace.on_click(self._act(self.start_trace, self._start_trace))
+        self.end_trace.on_click(self._act(self.end_trace, self._end_trace, "learning"))
+        self.cancel_trace.on_click(self._act(self.cancel_trace, self._cancel_trace))
+        self.learn_now.on_click(self._act(self.learn_now, self._learn_now, "learning"))
+        self.decline.on_click(self._act(self.decline, self._decline, "planning"))
+        self.set_aside.on_click(self._act(self.set_aside, self._set_aside, "planning"))
+        self.map_mode.on_update(lambda _: self._redraw_map())
+        self.map_height.on_update(lambda _: self._redraw_map())
+        if s.teaches:
+            self._add_person(self.client.scene)
+
+    def _add_person(self, scene) -> None:
+        """A figure where the person of the ``human`` feature sits, across the table."""
+        x, y, z = HUMAN_POSITION
+        scene.add_box(
+            "/person/body",
+            color=PERSON_RGB,
+            dimensions=(0.22, 0.42, 0.55),
+            position=(x + 0.05, y, z - 0.12),
+            material=MESH_MATERIAL,
+        )
+        scene.add_icosphere(
+            "/person/head",
+            radius=0.11,
+            color=PERSON_RGB,
+            position=(x + 0.05, y, z + 0.28),
+            material=MESH_MATERIAL,
+        )
+
+    def _start_teaching(self) -> None:
+        """The learner asks for traces: the correction controls step aside, the heat map of
+        what it wants now, the teaching handle where the cup last was (or where a trace a
+        crash cut short began), the instructions. A reload while recording goes on
+        recording (the trace so far is the page's)."""
+        s = self.session
         self.proposal = None
-        if self.teach_q is None:
+        going_on = self.teaching and self.recording and s.open_trace is not None
+        self.teaching = True
+        if not going_on:
+            self.recording, self.trace_points, self.drag_points = False, [], []
+        self.confirming = False
+        self.teach_refused = False
+        if s.lost_trace is not None and s.lost_trace.get("q") is not None:
+            self.teach_q = np.asarray(s.lost_trace["q"], float)
+        elif self.teach_q is None and s.traces:
+            self.teach_q = np.asarray(s.traces[-1][-1], float)  # where the last trace ended
+        elif self.teach_q is None:
             rows = s.log.corrections(s.id)
             last = rows[-1]["xi_h"] if rows else s.envs[0].q_start[None, :]
             self.teach_q = np.asarray(last[len(last) // 2], float)
@@ -860,38 +980,64 @@ class Page:
         if self.handle is not None:  # the correction's handle goes (an invisible one still
             self.handle.remove()  # takes the mouse)
             self.handle = None
-        self._draw_map(self.teach_env, "what I know: my reward θ̂·φ")
+        self._teaching_layout(True)
+        self._hide_paths()
         self._make_teach_handle()
-        left = s.wanted - len(s.traces)
+        self._draw_trace()
+        self._teach_title()
+        self._show_belief()
+        self._redraw_map()
+        self._refresh()
+        if going_on:
+            self._say("Still recording: drag the cup on, then press **End the trace**.")
+        elif s.lost_trace is not None:
+            self._say(
+                f"**Trace {s.lost_trace['index'] + 1} was cut short** when the robot's server "
+                "stopped, and was not kept. The cup is back where it began: press **Start a "
+                "trace here** to give it again. The traces before it are all kept."
+            )
+        else:
+            self._say("Put the cup where what you mind is strongest, then press Start a trace.")
+
+    def _teaching_layout(self, teaching: bool) -> None:
+        """While teaching, the correction's controls and the preference step aside, so the
+        teaching buttons are on the first screen; back after."""
+        for control in (
+            self.waypoint,
+            self.play,
+            self.submit_button,
+            self.reset_button,
+            self.skip_button,
+        ):
+            control.visible = not teaching
+        self.done_button.visible = not teaching and self._done_shown
+        self.preference_folder.visible = not teaching
+        self.where.visible = not teaching
+
+    def _hide_paths(self) -> None:
+        scene = self.client.scene
+        for name in ("/plan/path", "/correction/path", "/deploy/plain", "/deploy/averse"):
+            scene.add_spline_catmull_rom(name, np.zeros((2, 3)), visible=False)
+        scene.add_point_cloud("/plan/waypoints", np.zeros((1, 3)), colors=(0, 0, 0), visible=False)
+
+    def _teach_title(self) -> None:
+        s = self.session
+        given, left = len(s.traces), s.wanted - len(s.traces)
+        fewest = s.fewest_traces
+        stop = (
+            f" You may stop after {fewest} (**Learn from the traces I gave**): fewer traces "
+            "give me a rougher picture of what you mind."
+            if fewest < s.wanted
+            else ""
+        )
         self.title.content = (
             "### Teach me what you mind\n"
-            "Your corrections are not explained by what I know. Show me what you mind with "
-            f"**{left} {plural(left, 'trace')}**: drag the cup to where it matters most, press "
-            "**Start a trace here**, drag it to where it matters least (as many drags as you "
-            "like), press **End the trace**."
-        )
-        self._show_belief()
-        self._refresh()
-        self._say("The heat map over the table is what I know now (yellow: what I seek).")
-
-    def _draw_map(self, env, what: str, names=None, theta=None) -> None:
-        s = self.session
-        names = s.features if names is None else names
-        theta = s.belief.theta if theta is None else theta
-        rotation = cup_pose(self.teach_q)[0]
-        points, values = reward_map(env, theta, names, rotation)
-        flat = points.copy()
-        flat[:, 2] = g.TABLE_TOP_Z + 0.004  # drawn on the table top, out of the hand's way
-        self.client.scene.add_point_cloud(
-            "/teach/map",
-            flat,
-            colors=heat_colours(values),
-            point_size=0.034,
-            point_shape="square",
-        )
-        self.where.content = (
-            f"Heat map on the table (the cup {MAP_HEIGHT:.2f} m above it): {what}; "
-            f"from {values.min():+.3f} (dark) to {values.max():+.3f} (yellow)."
+            "Your corrections are not explained by what I know. You sit across the table from "
+            "me (the grey figure). Show me what you mind with "
+            f"**{s.wanted} {plural(s.wanted, 'trace')}** ({given} given, {left} to go): drag "
+            "the cup to where what you mind is strongest, press **Start a trace here**, drag "
+            "it to where it is weakest (as many drags as you like), press **End the trace**. "
+            "Start each trace somewhere else, high and low." + stop
         )
 
     def _cup_handle(self, name: str, cup: np.ndarray):
@@ -906,88 +1052,250 @@ class Page:
         self._pose_arm(self.teach_q)
 
     def _teach_moved(self, event) -> None:
-        """A teaching drag: while recording every position counts; where a drag ends the arm
-        follows (IK, the cup upright), or the cup goes back if the arm cannot reach it."""
+        """A teaching drag: while recording, the positions of a drag the arm can follow are
+        the trace's; where a drag ends the arm follows (IK, the cup upright), or the cup goes
+        back (and that drag's positions with it) if the arm cannot reach it."""
         with self._lock:
             if not self.teaching or self.client is None or self.teach_handle is None:
                 return
+            if event.target is not self.teach_handle:
+                return  # a late event of a handle this page has replaced
             position = np.array(self.teach_handle.position, float)
-            if self.recording and (
-                not self.trace_points
-                or np.linalg.norm(position - self.trace_points[-1]) >= TRACE_STEP
-            ):
-                self.trace_points.append(position)
+            if self.recording:
+                last = self.drag_points[-1] if self.drag_points else self.trace_points[-1]
+                if np.linalg.norm(position - last) >= TRACE_STEP:
+                    self.drag_points.append(position)
             if event.phase != "end":
                 return
-            self.teach_moves += 1
             q = cup_inverse_kinematics(position, cup_pose(self.teach_q)[0], self.teach_q)
             if q is None:
-                self._say("**Out of reach**: the cup went back. Try somewhere nearer.")
-                if self.recording and self.trace_points:
-                    self.trace_points.pop()
+                self.teach_refused = True
+                self.drag_points = []
+                self._say(
+                    "**Out of reach**: the arm cannot hold the cup there, so it went back. "
+                    "Try somewhere nearer."
+                )
                 self._make_teach_handle()
             else:
+                self.teach_refused = False
                 self.teach_q = q
                 self._pose_arm(q)
+                if self.recording:
+                    self.trace_points += self.drag_points
+                    if np.linalg.norm(position - self.trace_points[-1]) > 1e-9:
+                        self.trace_points.append(position)
+                    self.drag_points = []
+                    self._draw_trace()
+                    self._say("Recording: drag on, or press **End the trace** when it is done.")
+                else:
+                    self._say("The cup is here. Press **Start a trace here**, or move it again.")
+            self.teach_moves += 1
             self._refresh()
 
+    def _draw_trace(self) -> None:
+        """The trace recorded so far, as a line (hidden when there is none)."""
+        points = np.array(self.trace_points) if self.recording else np.zeros((0, 3))
+        shown = points.shape[0] >= 2
+        self.client.scene.add_spline_catmull_rom(
+            "/teach/trace",
+            points if shown else np.zeros((2, 3)),
+            thickness=4.0,
+            thickness_units="screen",
+            color=CORRECTION_RGB,
+            visible=shown,
+        )
+
     def _start_trace(self) -> None:
+        """Start where the arm holds the cup, if that is where the page shows it."""
+        s = self.session
+        cup = cup_pose(self.teach_q)[1]
+        shown = np.array(self.teach_handle.position, float)
+        if self.teach_refused:
+            self.starts_refused += 1
+            self._say(
+                "**Not started**: your last drag went where the arm cannot hold the cup, so the "
+                "cup went back. Move it to where you want the trace to begin, then press Start."
+            )
+            return
+        if np.linalg.norm(shown - cup) > START_TOLERANCE:
+            self.starts_refused += 1
+            self._say(
+                "**Not started yet**: I am still checking that the arm can hold the cup where "
+                "you put it. Press Start again in a moment."
+            )
+            return
+        try:
+            s.start_trace(
+                {"cup": cup.tolist(), "shown": shown.tolist(), "q": self.teach_q.tolist()}
+            )
+        except Refused as exc:
+            self._say(f"**Refused**: {exc}.")
+            return
         self.recording = True
         self.trace_start_q = self.teach_q.copy()
-        self.trace_points = [cup_pose(self.teach_q)[1]]
-        self._say("Recording: drag the cup to where what you mind matters least, then end it.")
+        self.trace_points, self.drag_points = [cup], []
+        self._draw_trace()
+        self._say(
+            "Recording: drag the cup to where what you mind is weakest. **End the trace** "
+            "works once the cup has moved; **Cancel this trace** drops it."
+        )
+
+    def _cancel_trace(self) -> None:
+        self.session.cancel_trace()
+        self.recording, self.trace_points, self.drag_points = False, [], []
+        self._draw_trace()
+        self._say("Trace cancelled; nothing of it was kept. Start another when you are ready.")
 
     def _end_trace(self) -> None:
         s = self.session
         points = resample_path(np.array(self.trace_points), TRACE_STATES)
-        configurations, q = [], self.trace_start_q
+        configurations, q = [self.trace_start_q], self.trace_start_q
         rotation = cup_pose(self.trace_start_q)[0]
-        for point in points:
+        for point in points[1:]:
             found = cup_inverse_kinematics(point, rotation, q)
             if found is not None:
                 configurations.append(found)
                 q = found
-        self.recording = False
         try:
             left = s.add_trace(np.array(configurations), {"cup_path": points.tolist()})
         except Refused as exc:
-            self.trace_points = []
-            self._say(f"**Refused**: {exc}. Start the trace again.")
+            self._say(f"**Not kept**: {exc}. Move the cup farther, or cancel the trace.")
             return
+        self.recording, self.trace_points, self.drag_points = False, [], []
+        self._draw_trace()
         self.traces_taken += 1
-        self.trace_points = []
         if left:
-            self._say(f"Trace {len(s.traces)} recorded; {left} more, please.")
-            self.title.content = self.title.content.split("\n")[0] + (
-                f"\n{left} more {plural(left, 'trace')}: from where it matters most to where it "
-                "matters least."
-            )
+            self._teach_title()
+            self._say(f"Trace {len(s.traces)} kept. {left} more, please, each from somewhere else.")
             return
-        self._say("Learning the feature from your traces…")
+        self._learn(stop=False)
+
+    def _learn_now(self) -> None:
+        self._learn(stop=True)
+
+    def _learn(self, *, stop: bool) -> None:
+        s = self.session
+        given = len(s.traces)
+        self._say(f"Learning what you mind from your {given} {plural(given, 'trace')}…")
         try:
-            name = s.learn_feature()
+            name = s.learn_feature(stop=stop)
         except Refused as exc:
             self._say(f"**Refused**: {exc}")
             return
-        self._finish_teaching(f"what I learnt from you: {name}")
+        self.learnt_name = name
+        self._finish_teaching(
+            f"Learnt from your {given} {plural(given, 'trace')}. The next plan takes it into "
+            "account; your corrections now teach me how much to avoid it."
+        )
 
-    def _finish_teaching(self, what: str) -> None:
-        s = self.session
-        self.teaching = False
+    def _finish_teaching(self, said: str) -> None:
+        self.teaching = self.recording = self.confirming = False
+        self.trace_points, self.drag_points = [], []
         if self.teach_handle is not None:
             self.teach_handle.remove()
             self.teach_handle = None
-        if s.belief.extra:
-            env = s.envs[int(s.last_env)]
-            self._draw_map(env, what, names=s.belief.extra[-1:], theta=np.ones(1))
+        self._draw_trace()
+        self.set_aside.visible = False
+        self._teaching_layout(False)
         self._new_proposal()
+        self._say(said)
 
     def _decline(self) -> None:
-        self.session.decline_traces()
-        self.client.scene.add_point_cloud(
-            "/teach/map", np.zeros((1, 3)), colors=(0, 0, 0), visible=False
+        """Nobody will teach: at once if no trace was given; else the page asks first."""
+        s = self.session
+        given = len(s.traces)
+        if given == 0:
+            s.decline_traces()
+            self._finish_teaching("Understood: I will not ask again. Back to correcting.")
+            return
+        self.confirming = True
+        self.set_aside.visible = True
+        learn = (
+            "**Learn from the traces I gave**"
+            if given >= s.fewest_traces
+            else f"give {s.fewest_traces - given} more and learn from them"
         )
-        self._finish_teaching("")
+        self._say(
+            f"You gave {given} {plural(given, 'trace')}. Press **Set my traces aside** to stop "
+            "teaching without them (they stay in the record; I do not learn from them and "
+            f"will not ask again), or {learn}, or go on teaching."
+        )
+
+    def _set_aside(self) -> None:
+        given = self.session.decline_traces()
+        self._finish_teaching(
+            f"Your {given} {plural(given, 'trace')} {'is' if given == 1 else 'are'} set aside "
+            "(kept in the record, not learnt from). I will not ask again. Back to correcting."
+        )
+
+    # --- the heat map ----------------------------------------------------------------------
+
+    def _map_env(self):
+        return self.proposal.env if self.proposal is not None else self.teach_env
+
+    def _redraw_map(self) -> None:
+        """The heat map as its controls say, on the current environment's table (see the
+        module): a reload, a resume, a new plan and a change of its controls redraw it."""
+        with self._lock:
+            if self.client is None or self.closed or not self.session.teaches:
+                return
+            env = self._map_env()
+            if env is None:
+                return
+            mode = self.map_mode.value
+            s = self.session
+            scene = self.client.scene
+            if mode == MAP_OFF or (mode == MAP_SHAPE and not s.belief.extra):
+                scene.add_point_cloud(
+                    "/teach/map", np.zeros((1, 3)), colors=(0, 0, 0), visible=False
+                )
+                self.map_caption.content = (
+                    "Nothing is learnt from you yet: there is no shape to show."
+                    if mode == MAP_SHAPE
+                    else "No heat map."
+                )
+                return
+            plan = None if self.proposal is None else self.proposal.plan.trajectory
+            q = self.teach_q if self.teaching or plan is None else plan[0]
+            if q is None:
+                return
+            rotation = cup_pose(q)[0]
+            height = float(self.map_height.value)
+            if mode == MAP_SHAPE:
+                points, phi = map_features(env, s.belief.extra[-1:], rotation, height)
+                colours = shape_colours(phi[0])
+                caption = (
+                    "**What you showed me**: purple where it is strongest (where your traces "
+                    "began), white where it is weakest. This is its shape, not yet what I do "
+                    "about it: how much I keep the cup from it, your next corrections teach me."
+                )
+            else:
+                points, phi = map_features(env, s.features, rotation, height)
+                values = s.belief.theta @ phi
+                sd = None
+                if s.has_covariance:
+                    sd = np.sqrt(np.maximum(np.einsum("in,ij,jn->n", phi, s.belief.cov, phi), 0))
+                colours, grey = reward_colours(values, sd)
+                unsure = (
+                    "Grey: where I cannot tell yet whether I want the cup there or not."
+                    if sd is not None
+                    else ""
+                )
+                if grey == values.size:
+                    unsure = "All grey: I cannot tell yet where I want the cup on this table."
+                caption = (
+                    "**What I want now**, with the cup at each point: blue where I would "
+                    "rather have it, red where I would rather not. " + unsure
+                )
+            flat = points.copy()
+            flat[:, 2] = g.TABLE_TOP_Z + 0.004  # drawn on the table top, out of the hand's way
+            self.map_cloud = scene.add_point_cloud(
+                "/teach/map", flat, colors=colours, point_size=0.034, point_shape="square"
+            )
+            self.map_caption.content = (
+                caption + f" Computed with the cup {height:.2f} m above the table; it changes "
+                "with height (the slider)."
+            )
 
     def _skip(self) -> None:
         if self.corrected is not None:
@@ -1036,18 +1344,25 @@ class Page:
             return "This trial is over. Thank you."
         done = f"Session ended after {s.iteration} {plural(s.iteration, 'correction')}."
         if deployment is None:
-            why = "no plan to deploy" if s.has_covariance else f"{s.learner} has no covariance"
+            why = (
+                "no plan to deploy"
+                if s.has_covariance
+                else "this robot keeps no measure of its uncertainty to be careful with"
+            )
             return f"**{done}** Nothing deployed ({why}). You may close this tab."
         f = s.features
 
         def phi(plan) -> str:
             return ", ".join(f"{n} {v:.2f}" for n, v in zip(f, plan.features, strict=True))
 
+        self.researcher_text.content = (
+            f"Deployed in {deployment.env.name}: the plain plan ξ*(θ̂) (Φ: "
+            f"{phi(deployment.plain)}); the risk-averse plan of eq. (A4), γ = "
+            f"{np.round(deployment.gamma, 2).tolist()} (Φ: {phi(deployment.averse)})."
+        )
         return (
-            f"**{done}** Deployed in {deployment.env.name}: blue, the plain plan ξ*(θ̂) "
-            f"(Φ: {phi(deployment.plain)}); green, the risk-averse plan of eq. (A4), "
-            f"γ = {np.round(deployment.gamma, 2).tolist()} (Φ: {phi(deployment.averse)}). "
-            "You may close this tab."
+            f"**{done}** Blue: the path I would take now. Green: a more careful path, which "
+            "keeps away from what I am still unsure of. You may close this tab."
         )
 
     def _show_end(self) -> None:

@@ -152,6 +152,8 @@ def replay(
                     full, paper, failed = evaluate(mine, target, envs, belief.theta)
                     rec |= {"regret": full, "regret_paper": paper, "regret_failures": failed}
             rec["update_skipped"] = skipped
+            # The learnt features' names, in the order of θ̂'s entries after the study's.
+            rec["learnt_features"] = ";".join(belief.extra)
             rec |= belief_columns(belief, step, stated, cls.has_covariance)
             if t > 0 and (t - 1) in labels:  # what the person was asked for
                 rec["relevant"] = float(labels[t - 1]["label"])
@@ -217,6 +219,7 @@ def replay(
         "log_tolerance": LOG_TOLERANCE,
         "same_machine": same_machine(log, session_id),
         "labelled": labelled_scores(records, order),
+        "learnt_features": learnt_features(log, session_id, settings, records, row.learner),
         "final": {
             name: {
                 "theta": [r[f"theta_{i}"] for i in range(k)],
@@ -228,6 +231,53 @@ def replay(
         },
     }
     return replayed, result, facts
+
+
+def learnt_features(
+    log: StudyLog, session_id: int, settings: FigureSettings, records: Sequence[dict], learner: str
+) -> list[dict]:
+    """Each feature the session learnt: its name, after how many corrections, from how many
+    traces, in which environment; the session's learner's final weight on it with its sd; and
+    where the log names the person's truth (a ``truth`` event: a scripted person's features
+    and weights), its quality against each true feature the study lacks
+    (:func:`~corrections_sim.planning.learnt.quality`: Spearman's ρ and R², FERL's measure)."""
+    from corrections_sim.planning.features import FEATURES
+    from corrections_sim.planning.learnt import quality
+
+    truth = log.events(session_id, "truth")
+    truths = []
+    if truth:
+        detail = truth[0]["detail"]
+        truths = [
+            f
+            for f, w in zip(detail["features"], detail["theta"], strict=True)
+            if w != 0 and f not in settings.features
+        ]
+    last = next((r for r in reversed(records) if r["learner"] == learner), None)
+    k = settings.study.k
+    out = []
+    for i, event in enumerate(log.events(session_id, "learnt")):
+        detail = event["detail"]
+        entry = {
+            "feature": detail["feature"],
+            "after": int(event["iteration"]),
+            "traces": int(detail["traces"]),
+            "env_index": int(detail["env_index"]),
+            "weight": None,
+            "sd": None,
+        }
+        j = k + i
+        if last is not None and f"theta_{j}" in last:
+            entry["weight"] = last[f"theta_{j}"]
+            cov = last.get(f"cov_{j}{j}")
+            entry["sd"] = None if cov is None else float(np.sqrt(max(cov, 0.0)))
+        env = settings.envs()[entry["env_index"]]
+        entry["quality"] = {}
+        for true in truths if detail["feature"] in FEATURES else ():
+            q = quality(detail["feature"], true, env)
+            entry["quality"][true] = {"spearman": q.spearman, "r2": q.r2, "n": q.n}
+        out.append(entry)
+    return out
 
 
 def _teaching(log: StudyLog, session_id: int) -> dict[int, dict]:

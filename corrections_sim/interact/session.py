@@ -26,10 +26,20 @@ anew, the arm joining the new plan where it is.
 
 A learner that learns the feature it lacks (KF-CRX, :mod:`corrections_sim.planning.learnt`)
 may ask, after a correction, for feature traces (:attr:`Session.wanted`): the person moves
-the cup from where the feature they mind is high to where it is low, each trace logged as a
-``trace`` event (:meth:`Session.add_trace`); with enough, :meth:`Session.learn_feature` trains
-the feature, logs it (a ``learnt`` event: its name, network and weights) and the robot plans
-over it from then on. :meth:`Session.decline_traces` tells the learner nobody will teach.
+the cup from where the feature they mind is high to where it is low. A trace's start is logged
+(``trace_start``, :meth:`Session.start_trace`), then the trace itself (``trace``,
+:meth:`Session.add_trace`) or its cancellation (``trace_cancelled``). With all that were asked
+for, or at least :data:`MIN_TRACES` when the person stops early (a ``traces`` event with
+``enough``), :meth:`Session.learn_feature` trains the feature, logs it (a ``learnt`` event: its
+name, network and weights) and the robot plans over it from then on.
+:meth:`Session.decline_traces` tells the learner nobody will teach; traces already given stay
+in the log, set aside (the event says how many).
+
+No trace the person gave is lost to a crash. Training is a function of the logged traces and
+the seed, so a session resumed with every trace logged but no ``learnt`` event (killed during
+the training) learns the feature then, the same one; a trace started and never ended (killed
+while recording) is logged as lost (``trace_lost``), and :attr:`Session.lost_trace` tells the
+page where it began, to say so.
 
 The environment draws are stateless functions of (seed, draw index), and the learners' own
 generator of (seed, iteration), so a session resumed from its log (:meth:`Session.resume`)
@@ -65,6 +75,9 @@ from corrections_sim.scene.world import CollisionChecker
 from corrections_sim.study.schema import parse_study
 from corrections_sim.study.settings import FigureSettings
 
+#: The fewest feature traces a person may stop teaching after (fewer than the learner asks
+#: for give a rougher feature; one trace ranks only the states along one path).
+MIN_TRACES = 3
 #: Consecutive draws whose plan fails before a session gives up.
 MAX_FAILED_DRAWS = 20
 #: How far a θ̂ recomputed from the log (``--resume``, and ``replay`` of a session planned
@@ -231,6 +244,10 @@ class Session:
         #: feature traces the learner asks for now (0: none), and those given so far
         self.wanted = 0
         self.traces: list[np.ndarray] = []
+        #: the trace being recorded (its ``trace_start`` event's detail), else None; and
+        #: the one a crash cut short, found when the session resumed (the page says so)
+        self.open_trace: dict | None = None
+        self.lost_trace: dict | None = None
         #: the environment of the last correction (where traces are given)
         self.last_env: int | None = None
         # Sessions served side by side in one process (a study's participants) share one:
@@ -365,23 +382,35 @@ class Session:
         )
         asked = log.events(session_id, "asks")
         session._set_asks(asked[0]["detail"] if asked else None)
-        teach = [e for e in log.events(session_id) if e["kind"] in ("trace", "traces", "learnt")]
+        teach = [e for e in log.events(session_id) if e["kind"] in TEACH_EVENTS]
         session._replay(log.corrections(session_id), log.events(session_id, "skip"), teach)
+        if session.open_trace is not None:  # killed while a trace was being recorded
+            session.lost_trace, session.open_trace = session.open_trace, None
+            log.add_event(session_id, session.iteration, "trace_lost", session.lost_trace)
         # Where the session goes on (a resume on another processor is exact to LOG_TOLERANCE).
         log.add_event(session_id, session.iteration, "machine", provenance.machine())
         return session
 
     def _replay_teaching(self, events: list[dict]) -> None:
         """The traces given after a correction, and the feature learnt from them (retrained:
-        the same traces, the same seed give the logged weights, checked)."""
+        the same traces, the same seed give the logged weights, checked). Traces all logged
+        without a ``learnt`` event (a kill during the training): the feature is learnt now."""
+        learnt = False
         for event in events:
-            detail = event["detail"]
-            if event["kind"] == "trace":
+            kind, detail = event["kind"], event["detail"]
+            if kind == "trace_start":
+                self.open_trace = detail
+            elif kind in ("trace_cancelled", "trace_lost"):
+                self.open_trace = None
+            elif kind == "trace":
+                self.open_trace = None
                 self.traces.append(np.asarray(detail["states"], float))
-            elif event["kind"] == "traces" and detail.get("declined"):
+            elif kind == "traces" and detail.get("declined"):
                 self.belief = _asked(self.belief)
-                self.wanted, self.traces = 0, []
-            elif event["kind"] == "learnt":
+                self.wanted, self.traces, self.open_trace = 0, [], None
+            elif kind == "traces" and "enough" in detail:
+                self.wanted = int(detail["enough"])  # the person stopped there
+            elif kind == "learnt":
                 belief, facts = self.agent.grow(
                     self.belief,
                     self.envs[int(detail["env_index"])],
@@ -397,6 +426,10 @@ class Session:
                     )
                 self._grown(belief)
                 self.wanted, self.traces = 0, []
+                learnt = True
+        if not learnt and self.wanted and len(self.traces) >= self.wanted:
+            self._grow(self.traces)  # logged now: the kill came before it was
+            self.wanted, self.traces = 0, []
 
     def _replay(self, rows: list[dict], skips: list[dict], teach: list[dict] = ()) -> None:
         """Repeat the session's steps (each draw's choice and plan, each update) as they were
@@ -709,11 +742,44 @@ class Session:
         """Whether the learner now asks for feature traces (after each correction)."""
         wants = getattr(self.agent, "wants_traces", None)
         self.wanted = 0 if wants is None else int(wants(self.belief, self.iteration))
-        self.traces = []
+        self.traces, self.open_trace = [], None
+
+    def start_trace(self, detail: Mapping) -> None:
+        """The person starts a trace (``detail``: where, e.g. the cup and the arm's q), logged
+        as a ``trace_start`` event before anything is recorded, so a crash mid-trace is known.
+
+        Raises:
+            Refused: none is asked for, or a trace is already being recorded.
+        """
+        with self._lock:
+            self._check_open()
+            if self.wanted <= len(self.traces):
+                raise Refused("trace: the robot asks for no (more) traces now")
+            if self.open_trace is not None:
+                raise Refused("trace: one is being recorded; end or cancel it first")
+            self.open_trace = {"index": len(self.traces), **dict(detail)}
+            self.lost_trace = None
+            self.log.add_event(self.id, self.iteration, "trace_start", self.open_trace)
+
+    def cancel_trace(self) -> None:
+        """The trace being recorded is dropped (logged as ``trace_cancelled``).
+
+        Raises:
+            Refused: no trace is being recorded.
+        """
+        with self._lock:
+            self._check_open()
+            if self.open_trace is None:
+                raise Refused("cancel: no trace is being recorded")
+            self.log.add_event(
+                self.id, self.iteration, "trace_cancelled", {"index": len(self.traces)}
+            )
+            self.open_trace = None
 
     def add_trace(self, configurations, detail: Mapping | None = None) -> int:
         """One feature trace, arm configurations (n, 7) from high to low, logged as a
-        ``trace`` event; returns how many are still wanted.
+        ``trace`` event (it ends the trace :meth:`start_trace` began, if one did); returns
+        how many are still wanted.
 
         Raises:
             Refused: none is asked for, or the trace is malformed (fewer than two states,
@@ -736,21 +802,38 @@ class Session:
                 {"index": len(self.traces), "states": trace.tolist(), **dict(detail or {})},
             )
             self.traces.append(trace)
+            self.open_trace = None
             return self.wanted - len(self.traces)
 
-    def learn_feature(self) -> str:
-        """Learn the feature from the traces given (all that were asked for), log it as a
-        ``learnt`` event and plan over it from now on; returns its name.
+    @property
+    def fewest_traces(self) -> int:
+        """How many traces the person must give before they may stop and have the robot learn
+        from those (:data:`MIN_TRACES`, or all asked for if fewer)."""
+        return min(MIN_TRACES, self.wanted)
+
+    def learn_feature(self, *, stop: bool = False) -> str:
+        """Learn the feature from the traces given, log it as a ``learnt`` event and plan
+        over it from now on; returns its name. ``stop``: the person stops before giving all
+        that were asked for (at least :attr:`fewest_traces`), logged first as a ``traces``
+        event with ``enough``.
 
         Raises:
-            Refused: fewer traces than asked for, or traces that rank nothing.
+            Refused: fewer traces than asked for (or with ``stop``, than the fewest), a trace
+                being recorded, or traces that rank nothing.
         """
         with self._lock:
             self._check_open()
-            if not self.wanted or len(self.traces) < self.wanted:
-                raise Refused(
-                    f"learn: {len(self.traces)} of {self.wanted} traces given; give them all"
+            given = len(self.traces)
+            if self.open_trace is not None:
+                raise Refused("learn: a trace is being recorded; end or cancel it first")
+            if not self.wanted or given < (self.fewest_traces if stop else self.wanted):
+                need = "at least " + str(self.fewest_traces) if stop else "them all"
+                raise Refused(f"learn: {given} of {self.wanted} traces given; give {need}")
+            if given < self.wanted:
+                self.log.add_event(
+                    self.id, self.iteration, "traces", {"enough": given, "asked": self.wanted}
                 )
+                self.wanted = given
             try:
                 name = self._grow(self.traces)
             except ValueError as exc:
@@ -758,15 +841,23 @@ class Session:
             self.wanted, self.traces = 0, []
             return name
 
-    def decline_traces(self) -> None:
-        """Nobody will teach: the learner is told so (it does not ask again); logged."""
+    def decline_traces(self) -> int:
+        """Nobody will teach: the learner is told so (it does not ask again); logged, with how
+        many traces were given and are set aside (they stay in the log, not learnt from).
+        Returns that number."""
         with self._lock:
             self._check_open()
             if not self.wanted:
                 raise Refused("decline: the robot asks for no traces now")
-            self.log.add_event(self.id, self.iteration, "traces", {"declined": True})
+            given = len(self.traces)
+            if self.open_trace is not None:
+                self.cancel_trace()
+            self.log.add_event(
+                self.id, self.iteration, "traces", {"declined": True, "set_aside": given}
+            )
             self.belief = _asked(self.belief)
             self.wanted, self.traces = 0, []
+            return given
 
     def _grow(self, traces: list[np.ndarray]) -> str:
         env = self.envs[int(self.last_env)]
@@ -843,6 +934,10 @@ class Session:
             self.log.end_session(self.id)
             self.ended = True
             return deployment
+
+
+#: The events of teaching a feature, in the order a resume replays them.
+TEACH_EVENTS = ("trace_start", "trace_cancelled", "trace_lost", "trace", "traces", "learnt")
 
 
 def teach_rng(seed: int, iteration: int) -> np.random.Generator:

@@ -15,6 +15,14 @@ place drawn around (0.35, ±0.3, 0.2) m), one arrow at a time, "End the trace". 
 trace the page learns the feature and plans over it; the script makes ``--after`` more
 corrections and ends the session. Everything random flows from ``--seed``.
 
+With ``--hurried`` the person presses Start within 0.2 s of their last drag, and half the
+time first drags the cup where the arm cannot hold it (the page must refuse those Starts: a
+trace begins only where the page shows the cup). The person's truth is logged (a ``truth``
+event), so a replay reports the learnt feature's quality against `human`;
+:func:`report` gives, from the log alone, each trace's start against where the page showed
+the cup at Start, the learnt feature's Spearman ρ against `human`, and the plans' closest
+approach to the person before and after the teaching.
+
 The session replays (``python -m corrections_sim.run replay LOG``): KF-CRX retrains the
 feature from the logged traces. Needs the ``dev`` extra and a chromium (see
 :mod:`~corrections_sim.interact.drive`).
@@ -23,8 +31,10 @@ feature from the logged traces. Needs the ``dev`` extra and a chromium (see
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
@@ -32,10 +42,11 @@ import numpy as np
 from corrections_sim.interact import drive
 from corrections_sim.interact.labelled import NOTHING, WAYPOINT_BOX, Hand, _skip, arrow
 from corrections_sim.interact.log import StudyLog
-from corrections_sim.interact.page import CAMERA_FOV, CAMERA_LOOK_AT, CAMERA_POSITION
+from corrections_sim.interact.page import CAMERA_FOV, CAMERA_LOOK_AT, CAMERA_POSITION, cup_path
 from corrections_sim.interact.server import serve
 from corrections_sim.interact.session import Session
 from corrections_sim.people.physical import worst_cup_waypoint
+from corrections_sim.planning.features import HUMAN_POSITION
 from corrections_sim.planning.planner import PlannerConfig, shared_planner
 from corrections_sim.planning.plans import PlanBook
 from corrections_sim.scene.robot import cup_pose
@@ -92,10 +103,24 @@ def _correct(session, page, hand, rng) -> bool | None:
     return True
 
 
-def _move_teach_handle(page, hand, target: np.ndarray) -> None:
+#: Where a hurried person first drags the cup, past a high place: beyond the arm's reach.
+BEYOND = np.array([0.45, 0.0, 0.3])
+
+
+def _move_teach_handle(page, hand, target: np.ndarray, *, hurried: bool = False) -> None:
     """Drag the teaching handle toward ``target`` (world), one arrow at a time in a random
-    order (a drag the arm cannot follow puts the cup back: the hand goes on)."""
-    for a in hand.rng.permutation(3):
+    order (a drag the arm cannot follow puts the cup back: the hand goes on). ``hurried``:
+    the last arrow's drag is not waited for (the hand goes straight on)."""
+    axes = list(hand.rng.permutation(3))
+    for n, a in enumerate(axes):
+        if hurried and n == len(axes) - 1:
+            position = np.array(page.teach_handle.position, float)
+            step = float(target[a] - position[a])
+            grab = arrow(position, int(a))
+            seen = np.linalg.norm(hand.pixel(grab) - hand.pixel(position)) >= SHORT
+            if abs(step) >= 0.01 and seen:
+                hand.drag(grab, grab + step * np.eye(3)[a])
+            return
         position = np.array(page.teach_handle.position, float)
         step = float(target[a] - position[a])
         if abs(step) < 0.01:
@@ -125,18 +150,55 @@ def _reset_view(page) -> None:
     camera.fov = CAMERA_FOV
 
 
-def _teach_one(session, page, hand, rng) -> None:
-    """One trace: to a high place, start, to a low place, end."""
+def _settled(page) -> bool:
+    """The page has handled every drag it was sent (the handle is where the arm holds the
+    cup, or was put back) and runs no action."""
+    if page._action.locked() or page.teach_handle is None:
+        return False
+    with page._lock:
+        cup = cup_pose(page.teach_q)[1]
+        return np.linalg.norm(np.array(page.teach_handle.position, float) - cup) < 1e-3
+
+
+def _start(page, hand, rng, high, *, hurried: bool) -> int:
+    """Press Start until the trace starts (a hurried person within 0.2 s of the last drag,
+    first dragging out of reach half the time); returns the Starts the page refused."""
+    if hurried and rng.random() < 0.5:
+        _move_teach_handle(page, hand, high + BEYOND, hurried=True)
+    else:
+        _move_teach_handle(page, hand, high, hurried=hurried)
+    refused = 0
+    for _ in range(8):
+        if hurried:
+            time.sleep(float(rng.uniform(0.0, 0.2)))
+        else:
+            drive.wait_for(lambda: _settled(page), "the cup placed")
+        before = page.starts_refused
+        drive.click(hand.tab, "Start a trace here")
+        drive.wait_for(
+            lambda n=before: page.recording or page.starts_refused > n, "Start's answer", 60
+        )
+        if page.recording:
+            return refused
+        refused += 1
+        drive.wait_for(lambda: _settled(page), "the cup settled", 60)
+        if page.teach_refused:  # it went back: put it somewhere the arm can hold it
+            _move_teach_handle(page, hand, high, hurried=hurried)
+    raise RuntimeError("eight Starts refused in a row")
+
+
+def _teach_one(session, page, hand, rng, *, hurried: bool = False, shot=None) -> int:
+    """One trace: to a high place, start, to a low place, end; the Starts refused."""
     drive.wait_for(
         lambda: page.teach_handle is not None and not page._action.locked(), "the teaching page"
     )
     high = HIGH + rng.normal(0.0, STRAY, 3)
     low = LOW * np.array([1.0, rng.choice([-1.0, 1.0]), 1.0]) + rng.normal(0.0, STRAY, 3)
-    _move_teach_handle(page, hand, high)
-    drive.click(hand.tab, "Start a trace here")
-    drive.wait_for(lambda: page.recording, "the recording")
+    refused = _start(page, hand, rng, high, hurried=hurried)
     _move_teach_handle(page, hand, low)
     drive.wait_for(lambda: not page.end_trace.disabled, "a trace to end")
+    if shot is not None:
+        shot()
     taken = page.traces_taken
     drive.click(hand.tab, "End the trace")
     drive.wait_for(  # taken (or refused), and the learning done when it was the last
@@ -144,6 +206,7 @@ def _teach_one(session, page, hand, rng) -> None:
         "the trace reaching the server",
         120,
     )
+    return refused
 
 
 def run(
@@ -155,9 +218,12 @@ def run(
     params: dict | None = None,
     most: int = 12,
     browser=None,
+    hurried: bool = False,
+    shots: Path | None = None,
 ) -> int:
     """A session of ``db`` corrected and taught through the page; its id. ``params`` are
-    KF-CRX's (e.g. fewer traces); ``most`` corrections at most before it must have asked."""
+    KF-CRX's (e.g. fewer traces); ``most`` corrections at most before it must have asked;
+    ``hurried``: see the module; ``shots``: a folder for a screenshot of every step."""
     if browser is None:
         from playwright.sync_api import sync_playwright
 
@@ -166,7 +232,7 @@ def run(
             try:
                 return run(
                     db, after=after, seed=seed, port=port, params=params, most=most,
-                    browser=browser,
+                    browser=browser, hurried=hurried, shots=shots,
                 )  # fmt: skip
             finally:
                 browser.close()
@@ -179,6 +245,8 @@ def run(
         session = Session.start(
             settings, log, learner="KF-CRX", params=params, participant="scripted-teacher"
         )
+        truth = {"features": list(PERSON_FEATURES), "theta": list(PERSON_THETA)}
+        log.add_event(session.id, -1, "truth", truth | {"hurried": hurried})
         server, page = serve(session, port=port)
         try:
             tab = drive.open_page(browser, f"http://127.0.0.1:{port}")
@@ -186,13 +254,33 @@ def run(
             drive.wait_for(lambda: page.proposal is not None, "the first plan")
             taught_at = None
             skips = 0
+
+            def shot(name: str) -> None:
+                if shots is not None:
+                    shots.mkdir(parents=True, exist_ok=True)
+                    drive.wait_for(lambda: not page._action.locked(), "the page at rest", 120)
+                    tab.screenshot(path=str(shots / f"{name}.png"))
+
+            shot("0-first-plan")
             while taught_at is None or session.iteration < taught_at + after:
                 if page.teaching:
+                    shot("1-asked-to-teach")
                     while page.teaching:
-                        _teach_one(session, page, hand, rng)
-                        print(f"trace {len(session.traces)}/{session.wanted}", file=sys.stderr)
+                        first = len(session.traces) == 0
+                        refused = _teach_one(
+                            session, page, hand, rng, hurried=hurried,
+                            shot=(lambda: shot("2-recording-a-trace")) if first else None,
+                        )  # fmt: skip
+                        print(
+                            f"trace {len(session.traces)}/{session.wanted} "
+                            f"({refused} Starts refused)",
+                            file=sys.stderr,
+                        )
+                        if len(session.traces) == 1:
+                            shot("3-one-trace-kept")
                     taught_at = session.iteration
                     drive.wait_for(lambda: page.proposal is not None, "the plan over it", 180)
+                    shot("4-plan-over-the-learnt-feature")
                     continue
                 if taught_at is None and session.iteration >= most:
                     raise RuntimeError(f"{most} corrections and the robot never asked")
@@ -203,11 +291,59 @@ def run(
                     if skips > 40:
                         raise RuntimeError("40 environments skipped: nothing to correct")
                     _skip(tab, page, session, False)
-            session.finish()
+            drive.click(tab, "Done: deploy")
+            drive.wait_for(page.finished.is_set, "the end", 180)
+            shot("5-the-end")
             tab.close()
         finally:
             server.stop()
         return session.id
+
+
+def report(log: StudyLog, session_id: int) -> dict:
+    """From the log alone: each trace's start against where the page showed the cup when
+    Start was taken (m), the learnt feature's quality against `human` (Spearman's ρ, R²), and
+    the plans' closest approach of the cup to the person (m) before and after the teaching."""
+    from corrections_sim.interact.session import settings_from_log
+    from corrections_sim.planning.features import FEATURES
+    from corrections_sim.planning.learnt import quality
+
+    events = log.events(session_id)
+    starts = [e["detail"] for e in events if e["kind"] == "trace_start"]
+    taken = {}
+    for e in events:  # the start each kept trace began with (the last one before it)
+        if e["kind"] == "trace_start":
+            pending = e["detail"]
+        elif e["kind"] == "trace":
+            taken[e["detail"]["index"]] = (pending, e["detail"])
+    gaps = [
+        float(np.linalg.norm(cup_pose(np.array(t["states"][0]))[1] - np.array(st["shown"])))
+        for st, t in taken.values()
+    ]
+    learnt = [e for e in events if e["kind"] == "learnt"]
+    rows = log.corrections(session_id)
+    person = np.array(HUMAN_POSITION)
+
+    def closest(row) -> float:
+        return float(np.min(np.linalg.norm(cup_path(row["xi_robot"]) - person, axis=1)))
+
+    out: dict = {
+        "traces": len(taken),
+        "starts": len(starts),
+        "start_gap_max_m": max(gaps, default=None),
+        "starts_within_1cm": sum(g <= 0.01 for g in gaps),
+    }
+    if learnt:
+        after = int(learnt[0]["iteration"])
+        detail = learnt[0]["detail"]
+        settings = settings_from_log(log.session(session_id).settings)
+        if detail["feature"] in FEATURES:
+            q = quality(detail["feature"], "human", settings.envs()[int(detail["env_index"])])
+            out["spearman_vs_human"], out["r2_vs_human"] = q.spearman, q.r2
+        out["feature"] = detail["feature"]
+        out["closest_before_m"] = [round(closest(r), 3) for r in rows if r["iteration"] < after]
+        out["closest_after_m"] = [round(closest(r), 3) for r in rows if r["iteration"] >= after]
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -218,13 +354,20 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--after", type=int, default=3, help="corrections after the teaching")
     p.add_argument("--seed", type=int, default=39)
     p.add_argument("--port", type=int, default=8094)
+    p.add_argument("--hurried", action="store_true", help="Start within 0.2 s of a drag")
+    p.add_argument("--shots", type=Path, help="a folder for a screenshot of every step")
     args = p.parse_args(argv)
     if args.after < 1:
         print(f"error: --after {args.after}: at least 1", file=sys.stderr)
         return 2
     args.db.parent.mkdir(parents=True, exist_ok=True)
-    session_id = run(args.db, after=args.after, seed=args.seed, port=args.port)
+    session_id = run(
+        args.db, after=args.after, seed=args.seed, port=args.port, hurried=args.hurried,
+        shots=args.shots,
+    )  # fmt: skip
     print(f"session {session_id} of {args.db}: corrected, taught, corrected")
+    with StudyLog(args.db) as log:
+        print(json.dumps(report(log, session_id), indent=1))
     return 0
 
 
