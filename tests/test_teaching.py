@@ -188,3 +188,26 @@ def test_i_cannot_show_it_sets_the_given_traces_aside_and_says_how_many(
         _, result, facts = replay(log, session.id, ["KF-CRX"], regret=False)
         assert facts["max_gap_to_log"] == 0.0
         assert all("theta_2" not in r for r in result.records)
+
+
+def test_replay_names_the_learnt_feature_its_weight_and_its_quality_against_the_truth(
+    settings, unkilled, tmp_path
+):
+    with StudyLog(tmp_path / "t.sqlite") as log:
+        session = _asking(settings, log)
+        log.add_event(session.id, -1, "truth", {"features": ["laptop", "table", "human"],
+                                                 "theta": [0.0, 0.0, -5.0]})  # fmt: skip
+        _give(session, unkilled["traces"])
+        name = session.learn_feature()
+        simulate(session, make_user("biased"), (1.0, -1.0), 1)
+        _, result, facts = replay(log, session.id, ["KF-CRX"], regret=False)
+    (learnt,) = facts["learnt_features"]
+    assert learnt["feature"] == name and learnt["after"] == 1 and learnt["traces"] == 4
+    last = [r for r in result.records if r["learner"] == "KF-CRX"][-1]
+    assert learnt["weight"] == last["theta_2"] and learnt["sd"] > 0
+    with StudyLog(tmp_path / "t.sqlite") as log:
+        assert learnt["logged_weight"] == log.corrections(session.id)[-1]["theta_after"][2]
+    assert last["learnt_features"] == name  # curves.csv names it
+    assert result.records[0]["learnt_features"] == ""  # not before it was learnt
+    q = learnt["quality"]["human"]
+    assert -1.0 <= q["spearman"] <= 1.0 and q["n"] > 1000

@@ -743,6 +743,8 @@ def run_replay(args: argparse.Namespace) -> list[Path]:
         weight = entry["weight"]
         said = "" if weight is None else f", final weight {weight:+.3f}"
         said += "" if entry["sd"] is None else f" ± {entry['sd']:.3f}"
+        if entry.get("logged_weight") is not None:
+            said += f" (the session logged {entry['logged_weight']:+.3f})"
         for true, q in entry["quality"].items():
             said += f"; against {true}: Spearman {q['spearman']:.3f}, R² {q['r2']:.3f}"
         print(

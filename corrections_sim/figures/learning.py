@@ -225,8 +225,7 @@ register(
 register(
     LearningStudy(
         "fig5",
-        "the paper's fig. 5: every learner of experiments/fig5.toml, laptop known, table "
-        "uncertain",
+        "the paper's fig. 5: every learner of experiments/fig5.toml, laptop known, table uncertain",
         EXPERIMENTS_DIR / "fig5.toml",
     )
 )

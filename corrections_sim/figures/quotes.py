@@ -117,7 +117,7 @@ def _one(records: list[dict], want: dict[str, str], what: str) -> dict:
 
 
 def _difference(stat: dict, digits: int, interval: bool = True) -> str:
-    """"+0.130 [0.120, 0.139]": a signed mean and its 95% interval, with the page's minus."""
+    """ "+0.130 [0.120, 0.139]": a signed mean and its 95% interval, with the page's minus."""
     text = f"{stat['mean']:+.{digits}f}"
     if interval:
         text += f" [{stat['ci95'][0]:.{digits}f}, {stat['ci95'][1]:.{digits}f}]"

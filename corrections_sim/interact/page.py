@@ -888,8 +888,13 @@ class Page:
             return
         if self.session.wanted:
             self._start_teaching()
-        else:
-            self._new_proposal()
+            self.submitted += 1
+            self._say(
+                f"Correction {row['iteration'] + 1} recorded{relevance_note(row)}. Before the "
+                "next plan, I need your help (above)."
+            )
+            return
+        self._new_proposal()
         self.submitted += 1
         if self.blind:
             self._say(f"Correction {row['iteration'] + 1} recorded. Here is the next plan.")
@@ -906,7 +911,9 @@ class Page:
         """The teaching controls, the heat map's controls and the person across the table:
         only where the learner may ask for traces."""
         s = self.session
-        self.teach_folder = gui.add_folder("Teach the robot (when it asks)", visible=s.teaches)
+        # Shown while the robot asks (it asks once): a folder of disabled buttons before and
+        # after would only push the rest down.
+        self.teach_folder = gui.add_folder("Teach the robot", visible=False)
         with self.teach_folder:
             self.start_trace = gui.add_button("Start a trace here", disabled=True)
             self.end_trace = gui.add_button("End the trace", disabled=True)
@@ -940,16 +947,18 @@ class Page:
         scene.add_box(
             "/person/body",
             color=PERSON_RGB,
-            dimensions=(0.22, 0.42, 0.55),
-            position=(x + 0.05, y, z - 0.12),
+            dimensions=(0.16, 0.36, 0.5),
+            position=(x + 0.08, y, z - 0.1),
             material=MESH_MATERIAL,
+            opacity=0.55,
         )
         scene.add_icosphere(
             "/person/head",
-            radius=0.11,
+            radius=0.085,
             color=PERSON_RGB,
-            position=(x + 0.05, y, z + 0.28),
+            position=(x + 0.08, y, z + 0.24),
             material=MESH_MATERIAL,
+            opacity=0.55,
         )
 
     def _start_teaching(self) -> None:
@@ -1013,6 +1022,7 @@ class Page:
         self.done_button.visible = not teaching and self._done_shown
         self.preference_folder.visible = not teaching
         self.where.visible = not teaching
+        self.teach_folder.visible = teaching
 
     def _hide_paths(self) -> None:
         scene = self.client.scene
@@ -1185,7 +1195,8 @@ class Page:
         self.learnt_name = name
         self._finish_teaching(
             f"Learnt from your {given} {plural(given, 'trace')}. The next plan takes it into "
-            "account; your corrections now teach me how much to avoid it."
+            "account; your corrections now teach me how much to avoid it. To see what I "
+            f"learnt, choose **{MAP_SHAPE}** under the heat map."
         )
 
     def _finish_teaching(self, said: str) -> None:

@@ -237,7 +237,8 @@ def learnt_features(
     log: StudyLog, session_id: int, settings: FigureSettings, records: Sequence[dict], learner: str
 ) -> list[dict]:
     """Each feature the session learnt: its name, after how many corrections, from how many
-    traces, in which environment; the session's learner's final weight on it with its sd; and
+    traces, in which environment; its weight as the session logged it last and the replayed
+    session learner's final weight with its sd; and
     where the log names the person's truth (a ``truth`` event: a scripted person's features
     and weights), its quality against each true feature the study lacks
     (:func:`~corrections_sim.planning.learnt.quality`: Spearman's ρ and R², FERL's measure)."""
@@ -267,6 +268,9 @@ def learnt_features(
             "sd": None,
         }
         j = k + i
+        logged = log.corrections(session_id)[-1]["theta_after"]
+        # The session's own weight on it, as logged (a replay that plans cold may differ).
+        entry["logged_weight"] = float(logged[j]) if len(logged) > j else None
         if last is not None and f"theta_{j}" in last:
             entry["weight"] = last[f"theta_{j}"]
             cov = last.get(f"cov_{j}{j}")

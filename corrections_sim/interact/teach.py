@@ -1,7 +1,7 @@
 """A person who minds what the robot lacks corrects it at the page, then teaches it the
 feature when it asks: scripted, with the mouse, in chromium (issue 39).
 
-    python -m corrections_sim.interact.teach --db results/interact/teach.sqlite
+    python -m corrections_sim.interact.teach --db results/interact/teach.sqlite --hurried
 
 A session of fig. 4's study (the robot knows laptop and table) with KF-CRX is served; a
 headless chromium opens its page. The scripted person minds only the coffee coming close to
@@ -42,7 +42,14 @@ import numpy as np
 from corrections_sim.interact import drive
 from corrections_sim.interact.labelled import NOTHING, WAYPOINT_BOX, Hand, _skip, arrow
 from corrections_sim.interact.log import StudyLog
-from corrections_sim.interact.page import CAMERA_FOV, CAMERA_LOOK_AT, CAMERA_POSITION, cup_path
+from corrections_sim.interact.page import (
+    CAMERA_FOV,
+    CAMERA_LOOK_AT,
+    CAMERA_POSITION,
+    MAP_REWARD,
+    MAP_SHAPE,
+    cup_path,
+)
 from corrections_sim.interact.server import serve
 from corrections_sim.interact.session import Session
 from corrections_sim.people.physical import worst_cup_waypoint
@@ -160,7 +167,7 @@ def _settled(page) -> bool:
         return np.linalg.norm(np.array(page.teach_handle.position, float) - cup) < 1e-3
 
 
-def _start(page, hand, rng, high, *, hurried: bool) -> int:
+def _start(page, hand, rng, high, *, hurried: bool, shot=None) -> int:
     """Press Start until the trace starts (a hurried person within 0.2 s of the last drag,
     first dragging out of reach half the time); returns the Starts the page refused."""
     if hurried and rng.random() < 0.5:
@@ -181,20 +188,25 @@ def _start(page, hand, rng, high, *, hurried: bool) -> int:
         if page.recording:
             return refused
         refused += 1
+        if shot is not None:
+            shot("1a-start-refused")
+            shot = None
         drive.wait_for(lambda: _settled(page), "the cup settled", 60)
         if page.teach_refused:  # it went back: put it somewhere the arm can hold it
             _move_teach_handle(page, hand, high, hurried=hurried)
     raise RuntimeError("eight Starts refused in a row")
 
 
-def _teach_one(session, page, hand, rng, *, hurried: bool = False, shot=None) -> int:
+def _teach_one(
+    session, page, hand, rng, *, hurried: bool = False, shot=None, shot_refused=None
+) -> int:
     """One trace: to a high place, start, to a low place, end; the Starts refused."""
     drive.wait_for(
         lambda: page.teach_handle is not None and not page._action.locked(), "the teaching page"
     )
     high = HIGH + rng.normal(0.0, STRAY, 3)
     low = LOW * np.array([1.0, rng.choice([-1.0, 1.0]), 1.0]) + rng.normal(0.0, STRAY, 3)
-    refused = _start(page, hand, rng, high, hurried=hurried)
+    refused = _start(page, hand, rng, high, hurried=hurried, shot=shot_refused)
     _move_teach_handle(page, hand, low)
     drive.wait_for(lambda: not page.end_trace.disabled, "a trace to end")
     if shot is not None:
@@ -262,6 +274,7 @@ def run(
                     tab.screenshot(path=str(shots / f"{name}.png"))
 
             shot("0-first-plan")
+            refusal_shot = False
             while taught_at is None or session.iteration < taught_at + after:
                 if page.teaching:
                     shot("1-asked-to-teach")
@@ -270,7 +283,9 @@ def run(
                         refused = _teach_one(
                             session, page, hand, rng, hurried=hurried,
                             shot=(lambda: shot("2-recording-a-trace")) if first else None,
+                            shot_refused=None if refusal_shot else shot,
                         )  # fmt: skip
+                        refusal_shot = refusal_shot or refused > 0
                         print(
                             f"trace {len(session.traces)}/{session.wanted} "
                             f"({refused} Starts refused)",
@@ -281,6 +296,12 @@ def run(
                     taught_at = session.iteration
                     drive.wait_for(lambda: page.proposal is not None, "the plan over it", 180)
                     shot("4-plan-over-the-learnt-feature")
+                    if shots is not None:  # the other heat map, for the pictures only
+                        page.map_mode.value = MAP_SHAPE
+                        page._redraw_map()
+                        shot("4a-what-you-showed-it")
+                        page.map_mode.value = MAP_REWARD
+                        page._redraw_map()
                     continue
                 if taught_at is None and session.iteration >= most:
                     raise RuntimeError(f"{most} corrections and the robot never asked")
@@ -367,7 +388,10 @@ def main(argv: list[str] | None = None) -> int:
     )  # fmt: skip
     print(f"session {session_id} of {args.db}: corrected, taught, corrected")
     with StudyLog(args.db) as log:
-        print(json.dumps(report(log, session_id), indent=1))
+        text = json.dumps(report(log, session_id), indent=1) + "\n"
+    path = args.db.with_name(args.db.stem + "-report.json")
+    path.write_text(text)
+    print(text + f"(written to {path})")
     return 0
 
 
