@@ -358,9 +358,11 @@ def test_a_scripted_hand_makes_labelled_drags_through_the_page(playwright_browse
 
 
 def test_a_scripted_person_teaches_a_feature_through_the_page(playwright_browser, tmp_path):
-    """interact.teach: KF-CRX asks after the first correction (here), the page turns to
-    teaching, two traces are dragged with the mouse and logged, the feature is learnt and
-    logged, the next plan is over it, and the session replays to the logged θ̂."""
+    """interact.teach, hurried (Start within 0.2 s of a drag, sometimes after a drag out of
+    reach): KF-CRX asks after the first correction (here), the page turns to teaching, two
+    traces are dragged with the mouse and logged, each starting where the page showed the cup,
+    the feature is learnt and logged, the next plan is over it, and the session replays to the
+    logged θ̂."""
     from corrections_sim.interact import teach
     from corrections_sim.interact.replay import replay
     from corrections_sim.interact.session import teach_rng
@@ -369,8 +371,9 @@ def test_a_scripted_person_teaches_a_feature_through_the_page(playwright_browser
     db = tmp_path / "teach.sqlite"
     params = {"expand_traces": 2, "expand_after": 1, "expand_below": 0.99}
     session_id = teach.run(
-        db, after=1, params=params, most=3, port=_free_port(), browser=playwright_browser
-    )
+        db, after=1, params=params, most=3, port=_free_port(), browser=playwright_browser,
+        hurried=True,
+    )  # fmt: skip
     with StudyLog(db) as log:
         traces = log.events(session_id, "trace")
         learnt = log.events(session_id, "learnt")
@@ -380,6 +383,8 @@ def test_a_scripted_person_teaches_a_feature_through_the_page(playwright_browser
         assert rows[-1]["theta_after"].shape == (3,)  # planned and learnt over laptop, table, it
         seed = log.session(session_id).seed
         _, result, _ = replay(log, session_id, ["KF-CRX"], regret=False)
+        said = teach.report(log, session_id)
+    assert said["traces"] == 2 and said["starts_within_1cm"] == 2
     # The logged traces retrain to the logged feature (the name is a digest of the weights),
     # as --resume and replay retrain it; the replay learns over it too.
     detail = learnt[0]["detail"]
