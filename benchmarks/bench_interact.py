@@ -102,12 +102,16 @@ def bench_learner(browser, log: StudyLog, learner: str, corrections: int, shot: 
                         f"environments in a row (session {session.id}: its refused events and "
                         "skips are in the log)"
                     )
-                title = f"Correction {session.iteration + 1}: environment"
+                draws = session.draws
                 drive.click(tab, "Skip this environment")
-                drive.wait_for(lambda t=title: t in drive.status(tab), "the next plan")
+                drive.wait_for(
+                    lambda d=draws: session.draws > d and not page._action.locked(),
+                    "the next plan",
+                )
                 continue
             in_a_row = 0
-            nxt = f"Correction {session.iteration + 2}:"
+            # The status line the page writes once the next plan is on it.
+            nxt = f"Correction {session.iteration + 1} recorded"
             # A plain mouse click on the button, as a person's (Playwright's click() would
             # first wait for the element to be stable over animation frames).
             button = tab.get_by_role("button", name="Submit correction").bounding_box()
