@@ -157,6 +157,30 @@ def _reset_view(page) -> None:
     camera.fov = CAMERA_FOV
 
 
+#: The teaching buttons a person must see without scrolling.
+TEACH_BUTTONS = (
+    "Start a trace here",
+    "End the trace",
+    "Cancel this trace",
+    "Learn from the traces I gave",
+    "I cannot show it",
+)
+
+
+def below_the_fold(tab, labels=TEACH_BUTTONS) -> list[str]:
+    """The buttons among ``labels`` that are not within the tab's first screen (its
+    viewport, not scrolled), waited for until the page lays them out."""
+    height = tab.viewport_size["height"]
+    out = []
+    for label in labels:
+        button = tab.get_by_role("button", name=label, exact=True)
+        button.wait_for(state="visible", timeout=30_000)
+        box = button.bounding_box()
+        if box is None or box["y"] < 0 or box["y"] + box["height"] > height:
+            out.append(label)
+    return out
+
+
 def _settled(page) -> bool:
     """The page has handled every drag it was sent (the handle is where the arm holds the
     cup, or was put back) and runs no action."""
@@ -278,6 +302,9 @@ def run(
             while taught_at is None or session.iteration < taught_at + after:
                 if page.teaching:
                     shot("1-asked-to-teach")
+                    hidden = below_the_fold(tab)
+                    if hidden:  # this person does not scroll: the page failed them
+                        raise RuntimeError(f"below the first screen: {', '.join(hidden)}")
                     while page.teaching:
                         first = len(session.traces) == 0
                         refused = _teach_one(
