@@ -23,17 +23,20 @@ from corrections_sim.study.schema import parse_study
 
 @pytest.fixture
 def served(tmp_path):
-    """A function (physical=False, speed=1.0) -> (session, page, url) on a fresh server."""
+    """A function (physical=False, speed=1.0, session=None) -> (session, page, url) on a fresh
+    server: ``session`` served (its log closed after the test), else a new KF-C or physical
+    one."""
     made = []
 
-    def make(*, physical: bool = False, speed: float = 1.0):
-        log = StudyLog(tmp_path / f"s{len(made)}.sqlite")
-        if physical:
-            session = physical_session(log, "p")
-        else:
-            session = Session.start(parse_study(STUDY, name="t"), log, learner="KF-C")
+    def make(*, physical: bool = False, speed: float = 1.0, session=None):
+        if session is None:
+            log = StudyLog(tmp_path / f"s{len(made)}.sqlite")
+            if physical:
+                session = physical_session(log, "p")
+            else:
+                session = Session.start(parse_study(STUDY, name="t"), log, learner="KF-C")
         server, page = serve(session, port=_free_port(), speed=speed)
-        made.append((server, log))
+        made.append((server, session.log))
         return session, page, f"http://127.0.0.1:{server.get_port()}"
 
     yield make

@@ -13,12 +13,11 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from test_interact_browser import _free_port
+from test_interact_page import served  # noqa: F401 (a fixture, used by name)
 
 from corrections_sim.interact import drive
 from corrections_sim.interact.log import StudyLog
 from corrections_sim.interact.page import MAP_GREY, MAP_SHAPE, reward_colours
-from corrections_sim.interact.server import serve
 from corrections_sim.interact.session import MIN_TRACES, Session, simulate
 from corrections_sim.people.users import make_user
 from corrections_sim.scene import geometry as g
@@ -38,26 +37,21 @@ SYMBOLS = ("θ", "β", "ρ", "ξ", "γ", "Φ", "φ", "σ", "eq. (")
 
 
 @pytest.fixture
-def teaching(tmp_path):
-    """A function () -> (session, page, url): a KF-CRX session one correction in, asking for
-    four traces, served; its log and server closed after the test."""
-    made = []
+def teaching(served, tmp_path):  # noqa: F811 (the imported fixture, by name)
+    """A function (session=None) -> (session, page, url): ``session`` served, else a KF-CRX
+    session one correction in, asking for four traces; its log and server closed after the
+    test (``served``'s)."""
 
     def make(session=None):
         if session is None:
-            log = StudyLog(tmp_path / f"t{len(made)}.sqlite")
+            log = StudyLog(tmp_path / "teach.sqlite")
             session = Session.start(
                 parse_study(STUDY, name="teach"), log, learner="KF-CRX", params=PARAMS
             )
             simulate(session, make_user("biased"), (1.0, -1.0), 1)
-        server, page = serve(session, port=_free_port())
-        made.append((server, session.log))
-        return session, page, f"http://127.0.0.1:{server.get_port()}"
+        return served(session=session)
 
-    yield make
-    for server, log in made:
-        server.stop()
-        log.close()
+    return make
 
 
 def _ready(page) -> None:

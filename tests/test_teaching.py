@@ -211,3 +211,23 @@ def test_replay_names_the_learnt_feature_its_weight_and_its_quality_against_the_
     assert result.records[0]["learnt_features"] == ""  # not before it was learnt
     q = learnt["quality"]["human"]
     assert -1.0 <= q["spearman"] <= 1.0 and q["n"] > 1000
+
+
+def test_the_committed_teaching_report_is_what_its_log_says():
+    """``results/interact/teach-report.json`` recomputed from the committed log alone, in a
+    process that never saw the session (the learnt feature registered from its logged
+    weights); floats to 1e-6 (another processor rounds otherwise)."""
+    import json
+    from pathlib import Path
+
+    from corrections_sim.interact.teach import report
+
+    root = Path(__file__).resolve().parents[1] / "results" / "interact"
+    committed = json.loads((root / "teach-report.json").read_text())
+    with StudyLog(root / "teach.sqlite") as log:
+        again = json.loads(json.dumps(report(log, 1)))
+    assert again.keys() == committed.keys()
+    for key, value in committed.items():
+        assert again[key] == (
+            pytest.approx(value, rel=1e-6, abs=1e-9) if key != "feature" else value
+        )

@@ -337,7 +337,6 @@ class Page:
         self.drag_points: list[np.ndarray] = []  # the drag under way while recording
         self.teach_refused = False  # the last teaching drag went out of reach
         self.confirming = False  # "I cannot show it" with traces given: asked to confirm
-        self.learnt_name: str | None = None
         self.teach_q: np.ndarray | None = None
         self.trace_start_q: np.ndarray | None = None
         self.traces_taken = 0  # traces submitted through this page (tests wait on it)
@@ -1188,11 +1187,10 @@ class Page:
         given = len(s.traces)
         self._say(f"Learning what you mind from your {given} {plural(given, 'trace')}…")
         try:
-            name = s.learn_feature(stop=stop)
+            s.learn_feature(stop=stop)
         except Refused as exc:
             self._say(f"**Refused**: {exc}")
             return
-        self.learnt_name = name
         self._finish_teaching(
             f"Learnt from your {given} {plural(given, 'trace')}. The next plan takes it into "
             "account; your corrections now teach me how much to avoid it. To see what I "

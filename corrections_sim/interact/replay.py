@@ -242,8 +242,7 @@ def learnt_features(
     where the log names the person's truth (a ``truth`` event: a scripted person's features
     and weights), its quality against each true feature the study lacks
     (:func:`~corrections_sim.planning.learnt.quality`: Spearman's ρ and R², FERL's measure)."""
-    from corrections_sim.planning.features import FEATURES
-    from corrections_sim.planning.learnt import quality
+    from corrections_sim.planning.learnt import quality, register_logged
 
     truth = log.events(session_id, "truth")
     truths = []
@@ -256,6 +255,9 @@ def learnt_features(
         ]
     last = next((r for r in reversed(records) if r["learner"] == learner), None)
     k = settings.study.k
+    envs = settings.envs()
+    # The session's own weights, as logged last (a replay that plans cold may differ).
+    logged = log.corrections(session_id)[-1]["theta_after"]
     out = []
     for i, event in enumerate(log.events(session_id, "learnt")):
         detail = event["detail"]
@@ -268,17 +270,15 @@ def learnt_features(
             "sd": None,
         }
         j = k + i
-        logged = log.corrections(session_id)[-1]["theta_after"]
-        # The session's own weight on it, as logged (a replay that plans cold may differ).
         entry["logged_weight"] = float(logged[j]) if len(logged) > j else None
         if last is not None and f"theta_{j}" in last:
             entry["weight"] = last[f"theta_{j}"]
             cov = last.get(f"cov_{j}{j}")
             entry["sd"] = None if cov is None else float(np.sqrt(max(cov, 0.0)))
-        env = settings.envs()[entry["env_index"]]
+        env = envs[entry["env_index"]]
         entry["quality"] = {}
-        for true in truths if detail["feature"] in FEATURES else ():
-            q = quality(detail["feature"], true, env)
+        for true in truths:
+            q = quality(register_logged(detail), true, env)
             entry["quality"][true] = {"spearman": q.spearman, "r2": q.r2, "n": q.n}
         out.append(entry)
     return out

@@ -936,7 +936,7 @@ class Session:
             return deployment
 
 
-#: The events of teaching a feature, in the order a resume replays them.
+#: The kinds of event a resume reads to replay the teaching of a feature (in the log's order).
 TEACH_EVENTS = ("trace_start", "trace_cancelled", "trace_lost", "trace", "traces", "learnt")
 
 

@@ -353,20 +353,23 @@ def report(log: StudyLog, session_id: int) -> dict:
     Start was taken (m), the learnt feature's quality against `human` (Spearman's ρ, R²), and
     the plans' closest approach of the cup to the person (m) before and after the teaching."""
     from corrections_sim.interact.session import settings_from_log
-    from corrections_sim.planning.features import FEATURES
-    from corrections_sim.planning.learnt import quality
+    from corrections_sim.planning.learnt import quality, register_logged
 
     events = log.events(session_id)
     starts = [e["detail"] for e in events if e["kind"] == "trace_start"]
-    taken = {}
-    for e in events:  # the start each kept trace began with (the last one before it)
-        if e["kind"] == "trace_start":
+    taken, pending = {}, None
+    for e in events:  # the start each kept trace began with (a log older than the page's
+        if e["kind"] == "trace_start":  # starts has none)
             pending = e["detail"]
+        elif e["kind"] in ("trace_cancelled", "trace_lost"):
+            pending = None
         elif e["kind"] == "trace":
             taken[e["detail"]["index"]] = (pending, e["detail"])
+            pending = None
     gaps = [
         float(np.linalg.norm(cup_pose(np.array(t["states"][0]))[1] - np.array(st["shown"])))
         for st, t in taken.values()
+        if st is not None and "shown" in st
     ]
     learnt = [e for e in events if e["kind"] == "learnt"]
     rows = log.corrections(session_id)
@@ -385,9 +388,8 @@ def report(log: StudyLog, session_id: int) -> dict:
         after = int(learnt[0]["iteration"])
         detail = learnt[0]["detail"]
         settings = settings_from_log(log.session(session_id).settings)
-        if detail["feature"] in FEATURES:
-            q = quality(detail["feature"], "human", settings.envs()[int(detail["env_index"])])
-            out["spearman_vs_human"], out["r2_vs_human"] = q.spearman, q.r2
+        q = quality(register_logged(detail), "human", settings.envs()[int(detail["env_index"])])
+        out["spearman_vs_human"], out["r2_vs_human"] = q.spearman, q.r2
         out["feature"] = detail["feature"]
         out["closest_before_m"] = [round(closest(r), 3) for r in rows if r["iteration"] < after]
         out["closest_after_m"] = [round(closest(r), 3) for r in rows if r["iteration"] >= after]

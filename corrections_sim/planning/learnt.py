@@ -30,7 +30,7 @@ import hashlib
 import inspect
 import json
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -460,15 +460,26 @@ def prepare_slot(config, network: Network):
 def register(learnt: Learnt) -> str:
     """Register ``learnt`` as a feature under its name (again: a no-op when it is the same
     feature); refused in one line when the name is another feature's."""
-    mine = learnt.feature()
-    have = feats.FEATURES.get(learnt.name)
+    return _register(learnt.name, learnt.feature())
+
+
+def register_logged(detail: Mapping) -> str:
+    """Register the feature a session's ``learnt`` event names, from the network and weights
+    it logged (what the session planned with), as :func:`register` does; its name."""
+    network = Network(tuple(detail["inputs"]), tuple(detail["hidden"]))
+    feature = feats.LearntFeature(network, np.asarray(detail["weights"], float))
+    return _register(str(detail["feature"]), feature)
+
+
+def _register(name: str, mine: feats.LearntFeature) -> str:
+    have = feats.FEATURES.get(name)
     if have is not None:
         same = isinstance(have, feats.LearntFeature) and have.source() == mine.source()
         if not same:
-            raise ValueError(f"learnt feature {learnt.name!r}: the name is a registered feature's")
-        return learnt.name
-    feats.FEATURES.register(learnt.name, mine)
-    return learnt.name
+            raise ValueError(f"learnt feature {name!r}: the name is a registered feature's")
+        return name
+    feats.FEATURES.register(name, mine)
+    return name
 
 
 def load(path: Path | str) -> Learnt:
