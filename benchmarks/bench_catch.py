@@ -79,7 +79,9 @@ def catch(tab, page, tries: int, *, stop_at: int | None = None) -> tuple[int, in
             if stop_at is not None and caught >= stop_at:
                 break
             before = page.grabs
-            drive.reach_and_grab(tab, drive.handle_arrow(page.handle.position))
+            # Aimed through the tab's camera: a miss that moved orbits the view.
+            point = drive.handle_arrow(page.handle.position)
+            drive.reach_and_grab(tab, point, camera=page.client.camera)
             tried += 1
             try:
                 drive.wait_for(lambda b=before: page.grabs > b, "the grab", timeout=3)

@@ -105,16 +105,32 @@ def push_cup(tab, cup, pixels_up: float, *, steps: int = 12, hold: float = 0.5) 
     tab.mouse.up()
 
 
-def reach_and_grab(
-    tab, point, *, reach: float = 0.3, pull: float = 12.0, hold: float = 0.1
-) -> tuple[float, float]:
-    """As a hand does it: move the pointer to the screen point of world ``point`` (3,) in
-    ``reach`` seconds, from 150 pixels down and to the left of it, press, pull ``pull``
-    pixels up (a press becomes a grab only once it moves), hold ``hold`` s, let go. Returns
-    the pixel pressed."""
+def on_screen(tab, point, camera=None) -> tuple[float, float]:
+    """The page's pixel of world ``point`` (3,) in the canvas, seen from ``camera`` (a viser
+    client's camera: the view the person has now) or, without one, from the page's initial
+    view. A press that misses the handle and moves orbits the view, so a script that goes on
+    after a miss must aim through the client's camera."""
     box = tab.locator("canvas").first.bounding_box()
-    x, y = project(point, box["width"], box["height"])
-    target = (box["x"] + x, box["y"] + y)
+    view = {}
+    if camera is not None:
+        view = dict(
+            position=camera.position,
+            look_at=camera.look_at,
+            up=camera.up_direction,
+            fov=camera.fov,
+        )
+    x, y = project(point, box["width"], box["height"], **view)
+    return box["x"] + x, box["y"] + y
+
+
+def reach_and_grab(
+    tab, point, *, camera=None, reach: float = 0.3, pull: float = 12.0, hold: float = 0.1
+) -> tuple[float, float]:
+    """As a hand does it: move the pointer to the screen point of world ``point`` (3,) (seen
+    from ``camera``, see :func:`on_screen`) in ``reach`` seconds, from 150 pixels down and to
+    the left of it, press, pull ``pull`` pixels up (a press becomes a grab only once it
+    moves), hold ``hold`` s, let go. Returns the pixel pressed."""
+    target = on_screen(tab, point, camera)
     start = (target[0] - 120.0, target[1] + 90.0)
     tab.mouse.move(*start)
     steps = 10
