@@ -174,3 +174,36 @@ def test_ctrl_c_on_a_dask_cluster(command):
         c = command([*ARGV, "--scheduler", cluster.scheduler_address])
         c.wait_for(lambda: c.finished_runs() >= 1, "finished run")
         c.check_stopped(c.interrupt())
+
+
+def test_a_dask_connection_closed_under_a_pending_future_logs_no_traceback():
+    """What tornado logged once in CI on Ctrl-C with a Dask cluster (a CommClosedError raised
+    from a StreamClosedError, in a callback of the client's loop) is dropped; any other error
+    it logs is kept."""
+    import logging
+
+    from distributed.comm.core import CommClosedError
+    from tornado.iostream import StreamClosedError
+
+    from corrections_sim.cli.executors import ClosedConnections
+
+    def logged(exc: BaseException) -> logging.LogRecord:
+        try:
+            raise exc
+        except BaseException:
+            info = sys.exc_info()
+        return logging.LogRecord("tornado.application", logging.ERROR, __file__, 1,
+                                 "Exception in callback %r", ("cascade",), info)  # fmt: skip
+
+    try:
+        try:
+            raise StreamClosedError()
+        except StreamClosedError as closed:
+            raise CommClosedError("in <TCP (closed) ConnectionPool.gather>") from closed
+    except CommClosedError as exc:
+        chained = exc
+    quiet = ClosedConnections()
+    assert not quiet.filter(logged(chained))
+    assert not quiet.filter(logged(StreamClosedError()))
+    assert quiet.filter(logged(ValueError("a real error")))
+    assert quiet.filter(logging.LogRecord("tornado.application", 40, "", 1, "no exc", (), None))

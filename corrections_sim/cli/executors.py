@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import logging
 import os
 import re
 import signal
@@ -157,6 +158,35 @@ def check_scheduler_address(address: str) -> str:
     return address
 
 
+#: The exceptions of a Dask connection closed under a pending future, by name (so that this
+#: module does not import tornado or distributed unless a cluster is used).
+_CLOSED = {"CommClosedError", "StreamClosedError"}
+
+
+class ClosedConnections(logging.Filter):
+    """Drops what tornado logs when a Dask connection closes under a pending future: on
+    Ctrl-C (the client closes with this command's tasks still out) it printed a traceback
+    before the command's one-line "interrupted:" (seen once in a CI run of the suite). The
+    command says what happened in its own words; a connection lost while the runs go on still
+    fails their futures, which the command reports."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        exc = record.exc_info[1] if record.exc_info else None
+        while exc is not None:
+            if type(exc).__name__ in _CLOSED:
+                return False
+            exc = exc.__cause__ or exc.__context__
+        return True
+
+
+def _quiet_closed_connections() -> None:
+    """Install :class:`ClosedConnections` on tornado's callback logger, once per process
+    (its callbacks may run after the client is closed, so it stays)."""
+    logger = logging.getLogger("tornado.application")
+    if not any(isinstance(f, ClosedConnections) for f in logger.filters):
+        logger.addFilter(ClosedConnections())
+
+
 @contextlib.contextmanager
 def dask_executor(address: str, timeout_s: float) -> Iterator[tuple[Executor, int]]:
     """An executor on the Dask cluster at ``address`` and its number of workers.
@@ -168,6 +198,7 @@ def dask_executor(address: str, timeout_s: float) -> Iterator[tuple[Executor, in
     from distributed import Client
 
     check_scheduler_address(address)
+    _quiet_closed_connections()
     try:
         client = Client(address, timeout=f"{timeout_s}s", set_as_default=False)
     except (OSError, TimeoutError, ValueError) as exc:
