@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.restarts import random_restarts, relative_gap
 from corrections_sim.planning.features import feature_counts
 from corrections_sim.planning.planner import (
     SOLVERS,
@@ -34,8 +35,6 @@ from corrections_sim.scene.robot import N_ARM_JOINTS, joint_limits
 
 THETA_RANGE = (-1.5, 1.5)
 WARM_THETA_STEP = 0.05  # std of the θ perturbation a warm start comes from
-RESTART_BUMP_STD = 0.4  # rad, std of each sine coefficient of a random restart
-RESTART_MODES = 3  # sine modes per joint in a random restart's perturbation
 
 
 @dataclass(frozen=True)
@@ -66,26 +65,6 @@ def make_problems(
     return [Problem(t, int(i)) for t, i in zip(thetas, indices, strict=True)]
 
 
-def random_restarts(
-    env: Environment, n_waypoints: int, count: int, rng: np.random.Generator
-) -> list[np.ndarray]:
-    """The straight joint-space line, then ``count - 1`` smooth random bends of it.
-
-    A bend adds Σ_m a_m sin(mπs) per joint (s ∈ [0, 1] along the path, m = 1..RESTART_MODES,
-    a_m ~ N(0, (RESTART_BUMP_STD/m)²)), so start and goal stay fixed; clipped to the limits.
-    """
-    s = np.linspace(0.0, 1.0, n_waypoints)[:, None]  # (T, 1)
-    line = (1 - s) * env.q_start + s * env.q_goal  # (T, 7)
-    lo, hi = joint_limits()
-    modes = np.arange(1, RESTART_MODES + 1)
-    out = [line]
-    for _ in range(count - 1):
-        coeffs = rng.normal(0.0, RESTART_BUMP_STD / modes[:, None], (RESTART_MODES, N_ARM_JOINTS))
-        bend = np.sin(np.pi * s * modes) @ coeffs  # (T, 7)
-        out.append(np.clip(line + bend, lo, hi))
-    return out
-
-
 def timed(solve: Callable[[], Plan]) -> tuple[Outcome, Plan | None]:
     """Run one solve, timing it and classifying its failure instead of raising."""
     t0 = time.perf_counter()
@@ -105,11 +84,6 @@ def percentiles(values: Sequence[float]) -> tuple[float, float]:
     if v.size == 0:
         return float("nan"), float("nan")
     return float(np.median(v)), float(np.percentile(v, 95))
-
-
-def relative_gap(best: float, value: float) -> float:
-    """(best − value)/|best|: how much worse ``value`` is than ``best`` (< 0 if better)."""
-    return (best - value) / abs(best)
 
 
 @dataclass(frozen=True)

@@ -63,10 +63,9 @@ def local_optima(problems: int = 150, restarts: int = 10, seed: int = 0) -> list
     ``bench planner``), and the particle's reward compared with the best. A plan more than 1%
     below the best puts the particle's likelihood on a trajectory the person would not
     think optimal."""
-    from benchmarks.bench import random_restarts, relative_gap
+    from benchmarks.restarts import random_restarts, relative_gap
     from corrections_sim.planning.planner import PlanningError, shared_planner
     from corrections_sim.planning.plans import PlanBook
-    from corrections_sim.study import loop
 
     solved: list[tuple[np.ndarray, object, float]] = []
 
@@ -80,12 +79,7 @@ def local_optima(problems: int = 150, restarts: int = 10, seed: int = 0) -> list
 
     settings = load_settings("fig4", quick=False, overrides={"runs": 1, "learners": ["PF-C"]})
     shared = runner.prepare(settings)
-    original = loop.PlanBook
-    loop.PlanBook = Recording
-    try:
-        runner.run_one(settings, shared, "PF-C", 0)
-    finally:
-        loop.PlanBook = original
+    runner.run_one(settings, shared, "PF-C", 0, plan_book=Recording)
     rng = np.random.default_rng(seed)
     picks = rng.choice(len(solved), size=min(problems, len(solved)), replace=False)
     planner = shared_planner(settings.planner_config())

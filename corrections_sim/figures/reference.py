@@ -401,11 +401,6 @@ def _particles_against_grid(cloud, thetas, weights, mean, cov) -> dict:
     }
 
 
-def final_summary(records: list[dict], *, resamples: int = 2000) -> dict:
-    """:func:`summary_at` the last iteration."""
-    return summary_at(records, max(r["iteration"] for r in records), resamples=resamples)
-
-
 def summary_at(records: list[dict], iteration: int, *, resamples: int = 2000) -> dict:
     """At ``iteration``, over runs: NEES / reference NEES as the ratio of the means with
     a 95% bootstrap interval over runs (seeded, so the same records give the same interval),

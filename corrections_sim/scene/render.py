@@ -17,7 +17,6 @@ import atexit  # noqa: E402
 import functools  # noqa: E402
 from collections.abc import Sequence  # noqa: E402
 from dataclasses import dataclass  # noqa: E402
-from pathlib import Path  # noqa: E402
 
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
@@ -245,16 +244,3 @@ def render_scene(
     image = np.empty((height, width, 3), dtype=np.uint8)
     mujoco.mjr_readPixels(image, None, viewport, offscreen.mjr)
     return np.flipud(image).copy()
-
-
-def save_png(path: str | Path, image: np.ndarray) -> Path:
-    """Write an RGB image (H, W, 3) uint8 to ``path`` as PNG; returns the path."""
-    from PIL import Image
-
-    image = np.asarray(image)
-    if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
-        raise ValueError(f"image: expected (H, W, 3) uint8, got {image.shape} {image.dtype}")
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(image).save(path)
-    return path

@@ -67,6 +67,7 @@ def run_learner(
     rng: np.random.Generator,
     alphas: np.ndarray | None = None,
     known: PlanEntries | None = None,
+    plan_book: type[PlanBook] = PlanBook,
 ) -> RunResult:
     """One run of ``learner`` (a name in :data:`LEARNERS`) for ``settings.iterations``
     corrections.
@@ -77,12 +78,14 @@ def run_learner(
             uses them or not, so learners on one stream see the same ones) and the user's noise.
         known: plans solved before the run (see :class:`PlanBook`); the results are the same
             with or without them, only the solve count differs.
+        plan_book: the class that memoizes the run's plans (a benchmark passes a subclass
+            that records what it solves).
     """
     cls = LEARNERS[learner]
     if cls.needs_rates() and alphas is None:
         raise ValueError(f"alphas: {learner} needs a learning rate per iteration")
     agent = settings.learners[learner]
-    book = PlanBook(planner, known, warm_start=settings.warm_start)
+    book = plan_book(planner, known, warm_start=settings.warm_start)
     names = planner.config.features
     # A learner that learns features (belief.extra) plans over more: one book per feature list.
     books = {names: book}
@@ -91,7 +94,7 @@ def run_learner(
         mine = names + tuple(b.extra)
         if mine not in books:
             config = replace(planner.config, features=mine)
-            books[mine] = PlanBook(shared_planner(config), warm_start=settings.warm_start)
+            books[mine] = plan_book(shared_planner(config), warm_start=settings.warm_start)
         return books[mine]
 
     def teach(n: int, env: Environment, current: tuple[str, ...]) -> list[np.ndarray] | None:

@@ -75,9 +75,15 @@ def prepare(settings: FigureSettings) -> Shared:
 
 
 def run_one(
-    settings: FigureSettings, shared: Shared, learner: str, run: int, alphas=None
+    settings: FigureSettings,
+    shared: Shared,
+    learner: str,
+    run: int,
+    alphas=None,
+    plan_book: type[PlanBook] = PlanBook,
 ) -> RunResult:
-    """One (learner, run); safe to call in a worker process."""
+    """One (learner, run); safe to call in a worker process. ``plan_book``: see
+    :func:`~corrections_sim.study.loop.run_learner`."""
     load_plugins(settings.plugins)
     s = settings.study
     seq = np.random.SeedSequence([s.seed, LEARNERS[learner].stream, run])
@@ -92,6 +98,7 @@ def run_one(
         np.random.default_rng(seq),
         alphas=alphas,
         known=shared.prior,
+        plan_book=plan_book,
     )
 
 
