@@ -215,7 +215,9 @@ def test_a_motion_with_no_push_puts_the_handle_back_on_the_cup(served):
         np.testing.assert_allclose(page.handle.position, rest)
         _click(page, "play")
         drive.wait_for(lambda: page.motion is not None, "the motion")
-        drive.wait_for(lambda: not page._in_motion, "the motion's end", timeout=30)
+        # The motion's thread ends after it has set the buttons back (``_in_motion`` is
+        # cleared first, under the page's lock: a check right after it raced the buttons).
+        drive.wait_for(lambda: not page._runner.is_alive(), "the motion's end", timeout=30)
         assert "No push was felt" in page.last_message and page.where.content == ""
         np.testing.assert_allclose(page.handle.position, page.motion.cup(), atol=1e-9)
         assert session.log.corrections(session.id) == []
