@@ -93,10 +93,7 @@ def frame_rate(tab, seconds: float = 2.0) -> float:
 def push_cup(tab, cup, pixels_up: float, *, steps: int = 12, hold: float = 0.5) -> None:
     """Grab the handle's vertical arrow at the cup's position ``cup`` (3,) now, drag it
     ``pixels_up`` pixels up in ``steps`` moves, hold ``hold`` s, let go."""
-    box = tab.locator("canvas").first.bounding_box()
-    point = np.asarray(cup, float) + 0.7 * HANDLE_SCALE * np.eye(3)[2]
-    x, y = project(point, box["width"], box["height"])
-    start = (box["x"] + x, box["y"] + y)
+    start = on_screen(tab, handle_arrow(cup))
     tab.mouse.move(*start)
     tab.mouse.down()
     for i in range(1, steps + 1):

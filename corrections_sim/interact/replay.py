@@ -277,8 +277,9 @@ def learnt_features(
             entry["sd"] = None if cov is None else float(np.sqrt(max(cov, 0.0)))
         env = envs[entry["env_index"]]
         entry["quality"] = {}
+        name = register_logged(detail) if truths else None
         for true in truths:
-            q = quality(register_logged(detail), true, env)
+            q = quality(name, true, env)
             entry["quality"][true] = {"spearman": q.spearman, "r2": q.r2, "n": q.n}
         out.append(entry)
     return out
