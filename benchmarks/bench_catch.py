@@ -22,11 +22,11 @@ from pathlib import Path
 
 from scipy import stats
 
-from corrections_sim.interact import drive
-from corrections_sim.interact.log import StudyLog
-from corrections_sim.interact.server import serve
-from corrections_sim.interact.session import Session
+from corrections_sim.pages.server import serve
+from corrections_sim.session.log import StudyLog
+from corrections_sim.session.session import Session
 from corrections_sim.study.schema import parse_study
+from scripted_people import drive
 
 STUDY = {
     "environments": ["s0-t0-l1", "s0-t0-l2", "s1-t1-l0", "s2-t0-l1"],

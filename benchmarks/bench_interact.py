@@ -21,11 +21,11 @@ from pathlib import Path
 import numpy as np
 
 from corrections_sim.figures.presets import EXPERIMENTS_DIR
-from corrections_sim.interact import drive
-from corrections_sim.interact.log import StudyLog
-from corrections_sim.interact.server import serve
-from corrections_sim.interact.session import Session
+from corrections_sim.pages.server import serve
+from corrections_sim.session.log import StudyLog
+from corrections_sim.session.session import Session
 from corrections_sim.study.schema import load_study
+from scripted_people import drive
 
 STATED = (1.0, -1.0)
 #: Environments in a row the scripted person may fail to correct (each skipped) before the

@@ -125,11 +125,11 @@ def run_page_bench(speed: float = 0.25, pushes: int = 2, screenshot=None, db=Non
 
     from playwright.sync_api import sync_playwright
 
-    from corrections_sim.interact import drive
-    from corrections_sim.interact.log import StudyLog
-    from corrections_sim.interact.server import serve
-    from corrections_sim.interact.session import Session
+    from corrections_sim.pages.server import serve
+    from corrections_sim.session.log import StudyLog
+    from corrections_sim.session.session import Session
     from corrections_sim.study.schema import parse_study
+    from scripted_people import drive
 
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

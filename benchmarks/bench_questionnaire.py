@@ -6,7 +6,7 @@ latest message (``client/src/WebsocketUtils.ts``), so of six TLX sliders set wit
 a Submit clicked in the same moment, the server may see only the first slider and the click.
 The study page therefore never writes on Submit: it shows what it received (refusing while a
 required item is missing) and writes only what the participant confirms
-(:mod:`corrections_sim.interact.study_page`).
+(:mod:`corrections_sim.pages.study`).
 
 Here a scripted participant in chromium (the system's, through Playwright) answers the raw
 NASA-TLX ``--problems`` times (default 20), each time on a new participant's page: the six
@@ -32,13 +32,13 @@ from pathlib import Path
 
 import numpy as np
 
-from corrections_sim.interact import drive
-from corrections_sim.interact.cohort import open_run
-from corrections_sim.interact.server import open_server
-from corrections_sim.interact.session import simulate
-from corrections_sim.interact.study_page import StudyServer
+from corrections_sim.pages.server import open_server
+from corrections_sim.pages.study import StudyServer
 from corrections_sim.people.users import make_user
-from corrections_sim.study.protocol import TLX_SCALES
+from corrections_sim.session.simulate import simulate
+from corrections_sim.userstudy.cohort import open_run
+from corrections_sim.userstudy.protocol import TLX_SCALES
+from scripted_people import drive
 
 STUDY = """environments = ["s0-t0-l1", "s0-t0-l2"]
 theta_star = [1.0, -1.0]

@@ -30,11 +30,11 @@ from pathlib import Path
 import msgspec
 import numpy as np
 
-from corrections_sim.interact import drive
-from corrections_sim.interact.cohort import open_run
-from corrections_sim.interact.server import open_server
-from corrections_sim.interact.study_page import StudyServer
+from corrections_sim.pages.server import open_server
+from corrections_sim.pages.study import StudyServer
 from corrections_sim.scene.robot import cup_pose
+from corrections_sim.userstudy.cohort import open_run
+from scripted_people import drive
 
 PROTOCOL = """description = "bench: {n} at once"
 study = "fig4"

@@ -186,10 +186,11 @@ def test_a_session_with_an_iterated_or_particle_learner_resumes_exactly(tmp_path
     """The page's session: the belief after three corrections (the particles and the past
     re-read) comes back byte for byte on resume, and replay (which plans cold, as this
     session does) reproduces the log exactly."""
-    from corrections_sim.interact.log import StudyLog
-    from corrections_sim.interact.replay import replay
-    from corrections_sim.interact.session import Session, simulate
     from corrections_sim.people.users import make_user
+    from corrections_sim.session.log import StudyLog
+    from corrections_sim.session.replay import replay
+    from corrections_sim.session.session import Session
+    from corrections_sim.session.simulate import simulate
     from corrections_sim.study.schema import parse_study
 
     settings = parse_study(

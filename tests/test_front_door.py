@@ -141,8 +141,8 @@ def test_help_lines_name_registered_learners_and_the_true_defaults():
     """A list of learners in any command's --help names registered learners only, and
     replay's stated default is the one it uses."""
     from corrections_sim.cli.main import _COMMAND_HELP, catalogue
-    from corrections_sim.interact.replay import DEFAULT_LEARNERS
     from corrections_sim.learning.base import LEARNERS
+    from corrections_sim.session.replay import DEFAULT_LEARNERS
 
     assert ",".join(DEFAULT_LEARNERS) in _COMMAND_HELP[("replay", "learners")]
     texts = [*_COMMAND_HELP.values(), *(a.help or "" for a in catalogue()._actions)]

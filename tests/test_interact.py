@@ -8,11 +8,12 @@ import sqlite3
 import numpy as np
 import pytest
 
-from corrections_sim.interact.log import SCHEMA_VERSION, LogError, StudyLog
-from corrections_sim.interact.replay import replay
-from corrections_sim.interact.session import LOG_TOLERANCE, Refused, Session, simulate
 from corrections_sim.people.users import make_user
 from corrections_sim.scene.geometry import TABLE_TOP_Z
+from corrections_sim.session.log import SCHEMA_VERSION, LogError, StudyLog
+from corrections_sim.session.replay import replay
+from corrections_sim.session.session import LOG_TOLERANCE, Refused, Session
+from corrections_sim.session.simulate import simulate
 from corrections_sim.study.schema import parse_study
 
 ENVIRONMENTS = ["s0-t0-l1", "s0-t0-l2", "s1-t1-l0", "s2-t0-l1"]

@@ -20,11 +20,11 @@ import numpy as np
 import pytest
 
 from benchmarks.bench_catch import STUDY, catch, physical_session
-from corrections_sim.interact import drive
-from corrections_sim.interact.log import StudyLog
-from corrections_sim.interact.server import serve
-from corrections_sim.interact.session import Session
+from corrections_sim.pages.server import serve
+from corrections_sim.session.log import StudyLog
+from corrections_sim.session.session import Session
 from corrections_sim.study.schema import parse_study
+from scripted_people import drive
 
 pytestmark = pytest.mark.browser
 
@@ -364,9 +364,9 @@ def test_a_hand_catches_the_moving_handle_holds_past_the_end_and_done_waits(
 
 
 def test_a_scripted_hand_makes_labelled_drags_through_the_page(playwright_browser, tmp_path):
-    """interact.labelled: the page asks for each kind in turn, the scripted hand drags with
+    """scripted_people.labelled: the page asks for each kind in turn, the scripted hand drags with
     the mouse, and every correction is logged with the label it was asked for."""
-    from corrections_sim.interact import labelled
+    from scripted_people import labelled
 
     db = tmp_path / "labelled.sqlite"
     port = _free_port()
@@ -383,15 +383,15 @@ def test_a_scripted_hand_makes_labelled_drags_through_the_page(playwright_browse
 
 
 def test_a_scripted_person_teaches_a_feature_through_the_page(playwright_browser, tmp_path):
-    """interact.teach, hurried (Start within 0.2 s of a drag, sometimes after a drag out of
+    """scripted_people.teach, hurried (Start within 0.2 s of a drag, sometimes after a drag out of
     reach): KF-CRX asks after the first correction (here), the page turns to teaching, two
     traces are dragged with the mouse and logged, each starting where the page showed the cup,
     the feature is learnt and logged, the next plan is over it, and the session replays to the
     logged θ̂."""
-    from corrections_sim.interact import teach
-    from corrections_sim.interact.replay import replay
-    from corrections_sim.interact.session import teach_rng
     from corrections_sim.planning.learnt import learn
+    from corrections_sim.session.replay import replay
+    from corrections_sim.session.session import teach_rng
+    from scripted_people import teach
 
     db = tmp_path / "teach.sqlite"
     params = {"expand_traces": 2, "expand_after": 1, "expand_below": 0.99}

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 from test_cli_input import _main, _one_line
 
-from corrections_sim.interact.log import StudyLog
+from corrections_sim.session.log import StudyLog
 
 STUDY_TOML = """environments = ["s0-t0-l1", "s0-t0-l2", "s1-t1-l0", "s2-t0-l1"]
 theta_star = [1.0, -1.0]
@@ -60,7 +60,7 @@ def test_an_unusable_host_is_refused_in_one_line_within_seconds(tmp_path, capsys
 
 def test_a_host_that_never_answers_is_given_up_on(monkeypatch):
     """A resolver that hangs (a machine with no name server) is waited for RESOLVE_TIMEOUT."""
-    from corrections_sim.interact import server
+    from corrections_sim.pages import server
 
     monkeypatch.setattr(server.socket, "getaddrinfo", lambda *a, **k: time.sleep(30))
     start = time.monotonic()

@@ -14,11 +14,11 @@ import pytest
 from test_interact_browser import STUDY, _free_port
 
 from benchmarks.bench_catch import physical_session
-from corrections_sim.interact import drive
-from corrections_sim.interact.log import StudyLog
-from corrections_sim.interact.server import serve
-from corrections_sim.interact.session import Session
+from corrections_sim.pages.server import serve
+from corrections_sim.session.log import StudyLog
+from corrections_sim.session.session import Session
 from corrections_sim.study.schema import parse_study
+from scripted_people import drive
 
 
 @pytest.fixture

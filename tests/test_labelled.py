@@ -11,16 +11,16 @@ import pytest
 from test_cli_input import _main, _one_line
 
 from corrections_sim.figures import relevance_fit
-from corrections_sim.interact import relevance_page
-from corrections_sim.interact.log import LogError, StudyLog
-from corrections_sim.interact.page import ask_text
-from corrections_sim.interact.replay import replay
-from corrections_sim.interact.session import Session, make_asks
 from corrections_sim.learning.base import make_learner
 from corrections_sim.learning.relevance import load_fit
 from corrections_sim.metrics import expected_calibration_error, roc_auc, roc_auc_interval
+from corrections_sim.pages.page import ask_text
 from corrections_sim.people.physical import worst_cup_waypoint
 from corrections_sim.scene.robot import cup_pose
+from corrections_sim.session import relevance_scores
+from corrections_sim.session.log import LogError, StudyLog
+from corrections_sim.session.replay import replay
+from corrections_sim.session.session import Session, make_asks
 from corrections_sim.study.schema import parse_study
 
 STUDY = {
@@ -257,7 +257,7 @@ def test_scores_are_per_mode_and_together():
         for mode in ("drag", "physical")
         for lab, b in ((1, 0.9), (1, 0.8), (0, 0.1), (0, 0.85))
     ]
-    table = relevance_page.scores(rows)
+    table = relevance_scores.scores(rows)
     assert set(table) == {"drag", "physical", "both"}
     assert table["drag"]["KF-CR"]["auc"] == pytest.approx(0.75)
     assert table["both"]["KF-CR"]["toward"] == 4

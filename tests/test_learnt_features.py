@@ -171,10 +171,11 @@ def test_a_session_asks_for_traces_learns_the_feature_logs_resumes_and_replays(t
     ``expand_below`` 0.99), the person gives them, the feature is learnt and logged, the robot
     plans over it; resumed from the log it retrains to the same feature and θ̂; replayed,
     KF-CRX learns it again and KF-C is not asked."""
-    from corrections_sim.interact.log import StudyLog
-    from corrections_sim.interact.replay import replay
-    from corrections_sim.interact.session import Refused, Session, simulate
     from corrections_sim.people.users import make_user
+    from corrections_sim.session.log import StudyLog
+    from corrections_sim.session.replay import replay
+    from corrections_sim.session.session import Refused, Session
+    from corrections_sim.session.simulate import simulate
     from corrections_sim.study.schema import parse_study
 
     settings = parse_study(

@@ -320,8 +320,9 @@ def test_the_learners_part_of_theta_star_must_be_the_persons():
 
 
 def test_a_simulated_session_refuses_a_person_with_own_features(tmp_path):
-    from corrections_sim.interact.log import StudyLog
-    from corrections_sim.interact.session import Session, simulate
+    from corrections_sim.session.log import StudyLog
+    from corrections_sim.session.session import Session
+    from corrections_sim.session.simulate import simulate
 
     settings = schema.parse_study({**BASE, "environments": ["s0-t0-l1", "s1-t1-l0"]})
     with StudyLog(tmp_path / "s.sqlite") as log:

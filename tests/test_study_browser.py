@@ -17,11 +17,11 @@ import msgspec
 import pytest
 import viser
 
-from corrections_sim.interact import drive
-from corrections_sim.interact.cohort import open_run
-from corrections_sim.interact.log import StudyLog
-from corrections_sim.interact.server import open_server
-from corrections_sim.interact.study_page import StudyServer
+from corrections_sim.pages.server import open_server
+from corrections_sim.pages.study import StudyServer
+from corrections_sim.session.log import StudyLog
+from corrections_sim.userstudy.cohort import open_run
+from scripted_people import drive
 
 pytestmark = pytest.mark.browser
 
@@ -356,7 +356,7 @@ def test_the_experimenters_page_enrolls_and_withdraws(study):
 
 
 def test_a_physical_condition_shows_the_physical_page_blind_to_the_learner(tmp_path):
-    from corrections_sim.interact.physical_page import PhysicalPage
+    from corrections_sim.pages.physical import PhysicalPage
 
     (tmp_path / "small.toml").write_text(STUDY)
     protocol = tmp_path / "protocol.toml"

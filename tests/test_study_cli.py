@@ -82,7 +82,7 @@ def test_an_option_of_another_command_is_one_line(argv, words, capsys):
 
 
 def test_the_study_commands_refuse_bad_input_in_one_line_and_write_nothing(tmp_path, capsys):
-    from corrections_sim.interact.cohort import open_run
+    from corrections_sim.userstudy.cohort import open_run
 
     protocol = tmp_path / "protocol.toml"
     protocol.write_text('study = "fig4"\n[[conditions]]\nname = "A"\nlearner = "KF-X"\n')
@@ -119,7 +119,7 @@ def _main(argv) -> int:
 
 
 def cli_log(db):
-    from corrections_sim.interact.log import StudyLog
+    from corrections_sim.session.log import StudyLog
 
     return StudyLog(db)
 
@@ -136,7 +136,7 @@ def _numbers(value, path=""):
 
 
 def test_the_committed_pilot_analyses_to_its_committed_numbers(tmp_path):
-    from corrections_sim.interact.study_report import analyze
+    from corrections_sim.userstudy.report import analyze
 
     committed = ROOT / "results" / "pilot"
     analyze(committed / "study.sqlite", tmp_path)

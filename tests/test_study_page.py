@@ -11,11 +11,11 @@ import msgspec
 import numpy as np
 import pytest
 
-from corrections_sim.interact import drive
-from corrections_sim.interact.cohort import open_run
-from corrections_sim.interact.server import open_server
-from corrections_sim.interact.study_page import StudyServer
-from corrections_sim.study.protocol import TLX_SCALES
+from corrections_sim.pages.server import open_server
+from corrections_sim.pages.study import StudyServer
+from corrections_sim.userstudy.cohort import open_run
+from corrections_sim.userstudy.protocol import TLX_SCALES
+from scripted_people import drive
 
 STUDY = """environments = ["s0-t0-l1", "s0-t0-l2", "s1-t1-l0"]
 theta_star = [1.0, -1.0]
@@ -193,7 +193,7 @@ def test_a_questionnaire_stores_only_what_was_given_and_shows_it_back_first(stud
 
 
 def test_an_experimenters_link_of_an_earlier_server_says_so(study, monkeypatch):
-    from corrections_sim.interact import study_page
+    from corrections_sim.pages import study as study_page
 
     said = []
 

@@ -15,14 +15,15 @@ import numpy as np
 import pytest
 from test_interact_page import served  # noqa: F401 (a fixture, used by name)
 
-from corrections_sim.interact import drive
-from corrections_sim.interact.log import StudyLog
-from corrections_sim.interact.page import MAP_GREY, MAP_SHAPE, reward_colours
-from corrections_sim.interact.session import MIN_TRACES, Session, simulate
+from corrections_sim.pages.page import MAP_GREY, MAP_SHAPE, reward_colours
 from corrections_sim.people.users import make_user
 from corrections_sim.scene import geometry as g
 from corrections_sim.scene.robot import cup_pose
+from corrections_sim.session.log import StudyLog
+from corrections_sim.session.session import MIN_TRACES, Session
+from corrections_sim.session.simulate import simulate
 from corrections_sim.study.schema import parse_study
+from scripted_people import drive
 
 STUDY = {
     "environments": ["s0-t0-l1", "s0-t0-l2", "s1-t1-l0"],

@@ -10,11 +10,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from corrections_sim.interact.log import StudyLog
-from corrections_sim.interact.replay import replay
-from corrections_sim.interact.session import MIN_TRACES, Refused, Session, simulate
 from corrections_sim.people.teacher import Teacher
 from corrections_sim.people.users import make_user
+from corrections_sim.session.log import StudyLog
+from corrections_sim.session.replay import replay
+from corrections_sim.session.session import MIN_TRACES, Refused, Session
+from corrections_sim.session.simulate import simulate
 from corrections_sim.study.schema import parse_study
 
 PARAMS = {"expand_traces": 4, "expand_after": 1, "expand_below": 0.99}
@@ -220,7 +221,7 @@ def test_the_committed_teaching_report_is_what_its_log_says():
     import json
     from pathlib import Path
 
-    from corrections_sim.interact.teach import report
+    from scripted_people.teach import report
 
     root = Path(__file__).resolve().parents[1] / "results" / "interact"
     committed = json.loads((root / "teach-report.json").read_text())

@@ -13,18 +13,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from corrections_sim.interact.cohort import open_run, power_table, simulate_cohort
-from corrections_sim.interact.log import StudyError, StudyLog
-from corrections_sim.interact.participant import StudyRun, simulate_participant
-from corrections_sim.interact.study_report import analyze, protocol_of, tidy
-from corrections_sim.study import user_study
-from corrections_sim.study.protocol import (
+from corrections_sim.session.log import StudyError, StudyLog
+from corrections_sim.userstudy import statistics
+from corrections_sim.userstudy.cohort import open_run, power_table, simulate_cohort
+from corrections_sim.userstudy.participant import StudyRun, simulate_participant
+from corrections_sim.userstudy.protocol import (
     TLX_SCALES,
     balance,
     latin_square,
     load_protocol,
     parse_protocol,
 )
+from corrections_sim.userstudy.report import analyze, protocol_of, tidy
 
 #: A short protocol: a practice of one correction, two conditions of two corrections each.
 SHORT = """
@@ -244,8 +244,8 @@ def test_a_simulated_participant_goes_through_and_a_crash_resumes_at_the_same_st
     person, _ = run.enroll("P01")
     person.proceed("welcome")
     session = person.session("practice")
-    from corrections_sim.interact.session import simulate
     from corrections_sim.people.users import make_user
+    from corrections_sim.session.simulate import simulate
 
     simulate(session, make_user("noisy", {"noise": 0.5}), [1.0, -1.0], 1)
     person.finish_trial("practice")
@@ -340,7 +340,7 @@ def test_a_cohort_analysed_says_it_is_simulated_and_leaves_out_the_withdrawn(sho
     # its effect is the paired difference.
     with StudyLog(db) as log:
         rows = tidy(log)["trials"]
-    mixed = user_study.mixed_model(rows, "mean_regret", ["C", "CL"])
+    mixed = statistics.mixed_model(rows, "mean_regret", ["C", "CL"])
     assert mixed["effects"][0]["estimate"] == pytest.approx(entry["paired"][0]["mean"], abs=1e-6)
     # Deleted on request: nothing of theirs is left but the emptied code.
     with StudyLog(db) as log:
@@ -372,7 +372,7 @@ def test_the_mixed_model_t_interval_covers_a_known_effect_at_its_level():
     rng = np.random.default_rng(7)
     covered = []
     for _ in range(300):
-        fit = user_study.mixed_model(synthetic(rng, 12, 0.4), "y", ["A", "B"])
+        fit = statistics.mixed_model(synthetic(rng, 12, 0.4), "y", ["A", "B"])
         effect = fit["effects"][0]
         assert effect["df"] == 12 * 2 - 12 - 2
         covered.append(effect["lo"] <= 0.4 <= effect["hi"])
@@ -397,14 +397,14 @@ def test_the_paired_comparison_is_each_participants_difference():
         for p, (a, b) in enumerate([(1.0, 2.0), (2.0, 2.5), (0.0, 1.5)])
         for c, y in (("A", a), ("B", b))
     ]
-    (pair,) = user_study.paired(rows, "y", ["A", "B"])
+    (pair,) = statistics.paired(rows, "y", ["A", "B"])
     assert pair["mean"] == pytest.approx(1.0) and pair["n"] == 3
     assert pair["d_z"] == pytest.approx(1.0 / np.std([1.0, 0.5, 1.5], ddof=1))
 
 
 def test_simulated_participants_are_deterministic_functions_of_their_index(short, tmp_path):
     protocol = load_protocol(short)
-    from corrections_sim.interact.participant import draw_simulated
+    from corrections_sim.userstudy.participant import draw_simulated
 
     a = [draw_simulated(protocol, i, 2)["theta_star"] for i in range(3)]
     b = [draw_simulated(protocol, i, 2)["theta_star"] for i in range(3)]
@@ -423,8 +423,8 @@ def test_codes_are_read_without_regard_to_case(short, tmp_path):
 def _to_questions(run, code: str, corrections: int | None = None):
     """``code`` enrolled and through the welcome, the practice and their first robot's trial
     (``corrections`` of it: all by default, then finished) by a simulated user."""
-    from corrections_sim.interact.session import simulate
     from corrections_sim.people.users import make_user
+    from corrections_sim.session.simulate import simulate
 
     user = make_user("noisy", {"noise": 0.5})
     person, _ = run.enroll(code)
@@ -481,8 +481,8 @@ def test_an_optional_item_left_blank_is_missing_and_every_answer_keeps_its_quest
         if current.kind == "instructions":
             person.proceed(current.key)
         elif current.kind == "trial":
-            from corrections_sim.interact.session import simulate
             from corrections_sim.people.users import make_user
+            from corrections_sim.session.simulate import simulate
 
             session = person.session(current.key)
             simulate(session, make_user("noisy", {"noise": 0.5}), [1.0, -1.0], 2)
@@ -503,8 +503,8 @@ def test_a_person_is_not_simulated(short, tmp_path):
 
 
 def test_an_aborted_trial_starts_over_and_its_session_leaves_the_analysis(short, tmp_path):
-    from corrections_sim.interact.session import simulate
     from corrections_sim.people.users import make_user
+    from corrections_sim.session.simulate import simulate
 
     db = tmp_path / "study.sqlite"
     run = open_run(short, db)
@@ -582,7 +582,7 @@ def _trial(code, condition, period, regret, error=0.3):
 
 
 def test_two_people_get_a_descriptive_report_with_the_end_preference_mapped_to_conditions():
-    from corrections_sim.interact.study_report import analyse, compared, report, strict_json
+    from corrections_sim.userstudy.report import analyse, compared, report, strict_json
 
     protocol = parse_protocol(
         values(
@@ -623,12 +623,12 @@ def test_two_people_get_a_descriptive_report_with_the_end_preference_mapped_to_c
 
 
 def test_a_saturated_model_is_no_result_and_the_report_says_why():
-    from corrections_sim.interact.study_report import analyse, report
+    from corrections_sim.userstudy.report import analyse, report
 
     protocol = parse_protocol(values(min_participants=2))
     trials = [_trial("P1", "C", 1, 1.0), _trial("P1", "CL", 2, 4.0)]
     trials += [_trial("P2", "CL", 1, 2.0), _trial("P2", "C", 2, 1.5)]
-    fit = user_study.mixed_model(trials, "mean_regret", ["C", "CL"])
+    fit = statistics.mixed_model(trials, "mean_regret", ["C", "CL"])
     assert not fit["reported"] and fit["why"].startswith("saturated")
     tables = _tables(protocol, trials)
     md = report(tables, analyse(tables), Path("study.sqlite"))
@@ -652,19 +652,19 @@ def test_a_singular_fit_is_no_result():
                     "y": d if c == "B" else -d,
                 }
             )
-    fit = user_study.mixed_model(rows, "y", ["A", "B"])
+    fit = statistics.mixed_model(rows, "y", ["A", "B"])
     assert not fit["reported"] and fit["why"].startswith("singular")
 
 
 def test_an_interval_on_a_bounded_scale_stays_on_it():
-    plain = user_study.mean_ci([7, 7, 6])
-    bounded = user_study.mean_ci([7, 7, 6], bounds=(1.0, 7.0))
+    plain = statistics.mean_ci([7, 7, 6])
+    bounded = statistics.mean_ci([7, 7, 6], bounds=(1.0, 7.0))
     assert plain["hi"] > 7 and 1 <= bounded["lo"] < bounded["mean"] < bounded["hi"] <= 7
-    positive = user_study.mean_ci([0.1, 0.02, 3.0], bounds=(0.0, None))
-    assert user_study.mean_ci([0.1, 0.02, 3.0])["lo"] < 0 < positive["lo"]
-    difference = user_study.mean_ci([6, 6, -6], bounds=user_study.difference_bounds((1, 7)))
+    positive = statistics.mean_ci([0.1, 0.02, 3.0], bounds=(0.0, None))
+    assert statistics.mean_ci([0.1, 0.02, 3.0])["lo"] < 0 < positive["lo"]
+    difference = statistics.mean_ci([6, 6, -6], bounds=statistics.difference_bounds((1, 7)))
     assert -6 <= difference["lo"] and difference["hi"] <= 6
-    assert user_study.mean_ci([7, 7, 7], bounds=(1.0, 7.0))["hi"] == 7
+    assert statistics.mean_ci([7, 7, 7], bounds=(1.0, 7.0))["hi"] == 7
 
 
 def test_analyze_makes_no_folder_for_a_log_it_cannot_read(tmp_path):

@@ -456,7 +456,7 @@ def _interact_settings(args: argparse.Namespace):
 def _physical_learner(settings, learner: str, args: argparse.Namespace) -> dict | None:
     """A physical session's learner: the study's, with the ``physical`` model of a push where
     it takes a model and none was set (``--set learners.NAME.model=...``)."""
-    from corrections_sim.interact.session import physical_learner
+    from corrections_sim.session.session import physical_learner
 
     given = any(item.startswith(f"learners.{learner}.model") for item in args.set or ())
     return physical_learner(settings, learner, model_set=given)
@@ -478,7 +478,7 @@ AFTER_DONE = 600.0
 def _check_interact_options(args: argparse.Namespace) -> None:
     """What can be refused before anything is opened or written (no database file, no
     session row, no server)."""
-    from corrections_sim.interact.log import check_participant
+    from corrections_sim.session.log import check_participant
 
     if args.participant is not None:
         try:
@@ -499,8 +499,8 @@ def _check_interact_options(args: argparse.Namespace) -> None:
         db = _db(args)
         if not db.is_file():
             raise UsageError(f"--db {db}: no such file; --resume reads the session's log")
-        from corrections_sim.interact.log import LogError, StudyLog
-        from corrections_sim.interact.server import serving
+        from corrections_sim.pages.server import serving
+        from corrections_sim.session.log import LogError, StudyLog
 
         try:
             with StudyLog(db) as log:
@@ -544,13 +544,13 @@ def _session_speed(log, session, given: float | None) -> float:
 def run_interact(args: argparse.Namespace) -> list[Path]:
     """A session of corrections: in a browser page (prints its URL; ends with "Done" or
     Ctrl-C, every confirmed correction already logged), or headless by a simulated user."""
-    from corrections_sim.interact.log import LogError, StudyLog
+    from corrections_sim.session.log import LogError, StudyLog
 
     _check_interact_options(args)
     plan = None if args.resume is not None else _session_plan(args)
     server = None
     if not args.headless:
-        from corrections_sim.interact.server import AddressError, open_server
+        from corrections_sim.pages.server import AddressError, open_server
 
         # Before the log is touched: a busy port or an unusable host writes nothing.
         try:
@@ -575,7 +575,7 @@ def run_interact(args: argparse.Namespace) -> list[Path]:
         return _serve_session(args, server, session, log, db, speed)
     except BaseException:
         if server is not None:
-            from corrections_sim.interact.server import stop
+            from corrections_sim.pages.server import stop
 
             stop(server)
         raise
@@ -584,7 +584,7 @@ def run_interact(args: argparse.Namespace) -> list[Path]:
 def _session_plan(args: argparse.Namespace) -> dict:
     """What a new session is started with (Session.start's arguments), checked before the
     server or the log is opened: a bad study file, learner, model or option writes nothing."""
-    from corrections_sim.interact.session import Session
+    from corrections_sim.session.session import Session
 
     settings = _interact_settings(args)
     corrector = "person"
@@ -611,7 +611,7 @@ def _session_plan(args: argparse.Namespace) -> dict:
     participant = args.participant or ("simulated" if args.headless else "anonymous")
     plan |= {"participant": participant, "corrector": corrector}
     if args.labelled:
-        from corrections_sim.interact.session import make_asks
+        from corrections_sim.session.session import make_asks
 
         preference = args.theta_star
         if preference is not None and len(preference) != settings.study.k:
@@ -624,7 +624,7 @@ def _session_plan(args: argparse.Namespace) -> dict:
 
 
 def _open_session(args: argparse.Namespace, log, plan: dict | None):
-    from corrections_sim.interact.session import Session
+    from corrections_sim.session.session import Session
 
     if args.resume is not None:
         return Session.resume(log, args.resume)
@@ -633,7 +633,7 @@ def _open_session(args: argparse.Namespace, log, plan: dict | None):
 
 def _run_headless(args: argparse.Namespace, session, db: Path) -> list[Path]:
     """The study's simulated user corrects the session, --iterations times, and ends it."""
-    from corrections_sim.interact.session import simulate
+    from corrections_sim.session.simulate import simulate
 
     s = session.settings.study
     count = args.iterations or s.iterations
@@ -651,7 +651,7 @@ def _run_headless(args: argparse.Namespace, session, db: Path) -> list[Path]:
 def _serve_session(args, server, session, log, db: Path, speed: float) -> list[Path]:
     """The page of ``session`` on ``server`` until "Done" and its tab closing (at most
     :data:`AFTER_DONE` s later), or an interrupt."""
-    from corrections_sim.interact.server import show, stop
+    from corrections_sim.pages.server import show, stop
 
     try:
         page = show(server, session, speed=speed)
@@ -706,8 +706,8 @@ def _learner_sets(items) -> dict[str, dict]:
 def run_replay(args: argparse.Namespace) -> list[Path]:
     """A logged session replayed through learners, written as a study (curves.csv, the
     plot, summary.json) in OUT/replay-<session>/."""
-    from corrections_sim.interact.log import LogError, StudyLog
-    from corrections_sim.interact.replay import replay, write
+    from corrections_sim.session.log import LogError, StudyLog
+    from corrections_sim.session.replay import replay, write
 
     if not args.study_file:
         raise UsageError("replay: give the database, e.g. replay results/interact/study.sqlite")

@@ -7,8 +7,8 @@
     python -m corrections_sim.run power experiments/protocol.toml --pool 2400
 
 The edges only: reading options, opening the log and the server, workers, printing; the
-study itself is :mod:`corrections_sim.interact.participant`, its analysis
-:mod:`corrections_sim.interact.study_report` and :mod:`corrections_sim.interact.cohort`.
+study itself is :mod:`corrections_sim.userstudy.participant`, its analysis
+:mod:`corrections_sim.userstudy.report` and :mod:`corrections_sim.userstudy.cohort`.
 """
 
 from __future__ import annotations
@@ -41,8 +41,8 @@ def _protocol_path(args: argparse.Namespace) -> Path:
 
 
 def _open(args: argparse.Namespace, db: Path):
-    from corrections_sim.interact.cohort import open_run
-    from corrections_sim.interact.log import LogError
+    from corrections_sim.session.log import LogError
+    from corrections_sim.userstudy.cohort import open_run
 
     try:
         return open_run(_protocol_path(args), db)
@@ -51,7 +51,7 @@ def _open(args: argparse.Namespace, db: Path):
 
 
 def _codes(text: str | None) -> list[str]:
-    from corrections_sim.interact.log import check_participant
+    from corrections_sim.session.log import check_participant
 
     codes = [c.strip() for c in (text or "").split(",") if c.strip()]
     try:
@@ -62,9 +62,9 @@ def _codes(text: str | None) -> list[str]:
 
 def run_serve_study(args: argparse.Namespace) -> list[Path]:
     """Serve a protocol to several participants at once until Ctrl-C."""
-    from corrections_sim.interact.log import StudyError
-    from corrections_sim.interact.server import AddressError, open_server, stop
-    from corrections_sim.interact.study_page import StudyServer
+    from corrections_sim.pages.server import AddressError, open_server, stop
+    from corrections_sim.pages.study import StudyServer
+    from corrections_sim.session.log import StudyError
 
     db = Path(args.db) if args.db else STUDY_DB
     codes = _codes(args.enroll)
@@ -111,8 +111,8 @@ def run_serve_study(args: argparse.Namespace) -> list[Path]:
 
 def run_study_status(args: argparse.Namespace) -> list[Path]:
     """Who is where in a study log (it may be served meanwhile)."""
-    from corrections_sim.interact.log import LogError, StudyLog
-    from corrections_sim.interact.study_report import protocol_of
+    from corrections_sim.session.log import LogError, StudyLog
+    from corrections_sim.userstudy.report import protocol_of
 
     db = Path(args.db) if args.db else STUDY_DB
     if not db.is_file():
@@ -137,8 +137,8 @@ def run_study_status(args: argparse.Namespace) -> list[Path]:
 
 def run_analyze(args: argparse.Namespace) -> list[Path]:
     """Tidy CSVs, the mixed model, paired comparisons, plots and a report of a study log."""
-    from corrections_sim.interact.log import LogError
-    from corrections_sim.interact.study_report import analyze
+    from corrections_sim.session.log import LogError
+    from corrections_sim.userstudy.report import analyze
 
     if not args.study_file:
         raise UsageError("analyze: give the study log, e.g. analyze results/study/study.sqlite")
@@ -152,8 +152,8 @@ def run_analyze(args: argparse.Namespace) -> list[Path]:
 
 def run_pilot(args: argparse.Namespace) -> list[Path]:
     """N simulated participants through the protocol into a log, then its analysis."""
-    from corrections_sim.interact.cohort import simulate_cohort
-    from corrections_sim.interact.study_report import analyze
+    from corrections_sim.userstudy.cohort import simulate_cohort
+    from corrections_sim.userstudy.report import analyze
 
     out = Path(args.out) if args.out else Path("results") / "pilot"
     db = Path(args.db) if args.db else out / "study.sqlite"
@@ -180,7 +180,7 @@ def run_power(args: argparse.Namespace) -> list[Path]:
     """A pool of simulated participants (sharded over workers), cut into studies of each
     size; the power and the CIs' coverage at each."""
     from corrections_sim.cli.executors import process_pool
-    from corrections_sim.interact.cohort import (
+    from corrections_sim.userstudy.cohort import (
         load,
         pool_trials,
         power_markdown,
@@ -188,7 +188,7 @@ def run_power(args: argparse.Namespace) -> list[Path]:
         shards,
         simulate_shard,
     )
-    from corrections_sim.study.protocol import OUTCOMES
+    from corrections_sim.userstudy.protocol import OUTCOMES
 
     protocol_path = _protocol_path(args)
     out = Path(args.out) if args.out else Path("results") / "power"

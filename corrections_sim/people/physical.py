@@ -283,7 +283,7 @@ class PushedMotion:
     at the cup for each look; the robot finds the push in what it senses and, once the push is
     over (:attr:`released`), knows where it was held (:meth:`deformation`); a replanned rest of
     the motion is played with :meth:`switch`. The simulated person (:func:`PhysicalUser.perform`)
-    and the page's person (:mod:`corrections_sim.interact`) drive the same object.
+    and the page's person (:mod:`corrections_sim.pages`) drive the same object.
 
     Args:
         robot: the plan ξ_R (T, 7).

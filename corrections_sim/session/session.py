@@ -1,9 +1,9 @@
 """A correction session: the robot plans, a person (or a simulated user) corrects, a learner
 updates, and every confirmed correction is logged before anything else happens.
 
-The same :class:`Session` serves the browser page (:mod:`corrections_sim.interact.page`), a
-simulated user run headless (:func:`simulate`) and ``--resume``, so a logged human session and
-a simulated one compare line by line. Iteration t:
+The same :class:`Session` serves the browser page (:mod:`corrections_sim.pages.page`), a
+simulated user run headless (:func:`~corrections_sim.session.simulate.simulate`) and
+``--resume``, so a logged human session and a simulated one compare line by line. Iteration t:
 
 1. :meth:`Session.proposal` — the learner chooses Eᵗ (the seeded random draw, or its own choice,
    e.g. eq. (A1) for AL) and the robot plans ξᵗ = ξ*(θ̂ᵗ, Eᵗ). A draw whose plan fails is
@@ -60,11 +60,9 @@ import numpy as np
 
 from corrections_sim import components, provenance
 from corrections_sim.calibration import nis
-from corrections_sim.interact.log import ASK_KINDS, StudyLog, check_participant, now
 from corrections_sim.learning.base import LEARNERS, Learner, LearnerContext, make_learner
 from corrections_sim.people.corrections import CORRECTIONS, CorrectionModel
 from corrections_sim.people.physical import PushedMotion
-from corrections_sim.people.users import Situation, User
 from corrections_sim.planning.features import feature_counts
 from corrections_sim.planning.planner import Plan, Planner, PlanningError, shared_planner
 from corrections_sim.planning.plans import PlanBook
@@ -72,6 +70,7 @@ from corrections_sim.planning.risk import plan_a4
 from corrections_sim.scene.environments import Environment
 from corrections_sim.scene.robot import cup_inverse_kinematics, cup_pose
 from corrections_sim.scene.world import CollisionChecker
+from corrections_sim.session.log import ASK_KINDS, StudyLog, check_participant, now
 from corrections_sim.study.schema import parse_study
 from corrections_sim.study.settings import FigureSettings
 
@@ -976,69 +975,3 @@ def settings_from_log(recorded: Mapping) -> FigureSettings:
     values = dict(recorded)
     values.pop("plugins", None)  # plug-ins are loaded by their files (see the session's study)
     return parse_study(values, name="interact")
-
-
-def simulate(session: Session, user: User, theta_star, corrections: int) -> list[dict]:
-    """``corrections`` corrections of ``session`` by the simulated ``user`` whose preference is
-    ``theta_star``, through the same steps as a person's (the user's noise from its own
-    seeded generator); returns the logged rows."""
-    if session.settings.user_features:
-        raise ValueError(
-            "user_features: a simulated session plans the person over the robot's features; "
-            "a person with features of their own is simulated in a study (run study FILE)"
-        )
-    theta_star = np.asarray(theta_star, dtype=float)
-    session.state(theta_star)
-    rng = np.random.default_rng(np.random.SeedSequence([session.seed, 22]))
-    # The user's plans stay out of the session's history, over the study's features.
-    own = PlanBook(shared_planner(session.settings.planner_config()))
-    rows = []
-    while len(rows) < corrections:
-        pending = session.proposal()
-        try:
-            intended = own.plan(theta_star, pending.env).trajectory
-        except PlanningError as exc:
-            session.skip(f"the user's plan failed: {str(exc).splitlines()[0]}")
-            continue
-        situation = Situation(
-            robot=pending.plan.trajectory,
-            intended=intended,
-            env=pending.env,
-            features=session.settings.features,
-            theta_star=theta_star,
-        )
-        if user.during_motion:
-            rows.append(_simulate_push(session, user, situation, rng))
-            continue
-        outcome = user.perform(situation, rng)  # one draw for the trajectory and its features
-        corrected = outcome.corrected
-        if corrected is None:  # a user that shows noisy features: the trajectory it shows
-            corrected = user.correct(situation, rng)
-        drag = {"simulated": True}
-        if outcome.relevant is not None:
-            drag["relevant"] = bool(outcome.relevant)
-        # Φ over the learner's features when it has learnt more (a noiseless user's Φ_h is
-        # Φ(ξ_h) itself; a user with feature noise is simulated before any expansion).
-        phi_h = None if session.belief.extra else outcome.phi_h
-        rows.append(session.submit(corrected, drag=drag, phi_h=phi_h))
-    return rows
-
-
-def _simulate_push(session: Session, user: User, situation: Situation, rng) -> dict:
-    """One push of a simulated physical ``user`` through the session's steps: the motion, the
-    push, the update and its log row, and the rest replanned from where the arm is."""
-    if not session.physical:
-        raise ValueError(
-            f"user: the physical user pushes the moving arm; start the session with "
-            f"--mode physical (its correction model is {session.correction_name})"
-        )
-    rows = []
-
-    def replan(deformed, q_now, t_now):
-        rows.append(session.submit(deformed, drag={"simulated": True, "released_at": t_now}))
-        return session.replan(q_now, t_now, rows[-1]["iteration"])
-
-    outcome = user.perform(situation, rng, replan)
-    if not rows:  # no push found: the deformation is none, learnt after the motion
-        rows.append(session.submit(outcome.deformed, drag={"simulated": True}))
-    return rows[0]

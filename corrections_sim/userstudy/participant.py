@@ -1,7 +1,7 @@
 """A participant's way through a protocol: the state machine the study page and the
 simulated cohort share.
 
-:class:`StudyRun` holds a protocol (:mod:`corrections_sim.study.protocol`) and its study log;
+:class:`StudyRun` holds a protocol (:mod:`corrections_sim.userstudy.protocol`) and its study log;
 it enrolls participants (a code, the next index, a link secret whose SHA-256 alone is logged)
 and finds them again by code or by link. :class:`Participant` knows where one participant is:
 the first step of their protocol that has not finished, read from the log each time, so a
@@ -18,12 +18,12 @@ crash, a reload or a closed tab resumes exactly there. A step moves on only thro
   first kept);
 * :meth:`Participant.leave` — the participant withdraws from their own page.
 
-Nothing here draws or plans by itself: a trial is a :class:`~corrections_sim.interact.session.
+Nothing here draws or plans by itself: a trial is a :class:`~corrections_sim.session.session.
 Session` like any other, so a study's trials replay and resume like single sessions.
 
 :func:`simulate_participant` takes a simulated participant (θ* drawn from the protocol's
 population) through the very same steps headless: the trials by the study's simulated user
-(:func:`~corrections_sim.interact.session.simulate`), the questionnaires answered from the
+(:func:`~corrections_sim.session.simulate.simulate`), the questionnaires answered from the
 protocol's response model of what they experienced. Their rows say they are simulated.
 """
 
@@ -40,19 +40,20 @@ from typing import Any
 
 import numpy as np
 
-from corrections_sim.interact.log import StudyError, StudyLog, check_participant, now
-from corrections_sim.interact.session import Session, physical_learner, simulate
 from corrections_sim.people.users import make_user
 from corrections_sim.planning.planner import PlanningError, shared_planner
 from corrections_sim.planning.plans import PlanBook
-from corrections_sim.study.protocol import (
+from corrections_sim.session.log import StudyError, StudyLog, check_participant, now
+from corrections_sim.session.session import Session, physical_learner
+from corrections_sim.session.simulate import simulate
+from corrections_sim.study.settings import FigureSettings
+from corrections_sim.userstudy.protocol import (
     Protocol,
     Step,
     design_fingerprint,
     likert_value,
     tlx_value,
 )
-from corrections_sim.study.settings import FigureSettings
 
 
 def token_hash(token: str) -> str:
@@ -107,7 +108,7 @@ def check_conditions(protocol: Protocol, settings_of: Mapping[str, FigureSetting
 
 def adopt_protocol(log: StudyLog, protocol: Protocol) -> None:
     """Tie ``log`` to ``protocol`` (a new log) or check that it is tied to the same design
-    (:func:`~corrections_sim.study.protocol.design_fingerprint`): a protocol whose prose was
+    (:func:`~corrections_sim.userstudy.protocol.design_fingerprint`): a protocol whose prose was
     corrected is adopted, the earlier wording kept in ``meta`` (``protocol_versions``).
 
     Raises:
@@ -552,7 +553,7 @@ def simulated_answers(
     protocol: Protocol, step: Step, felt: dict, rng, by_order: tuple[dict, ...] = ()
 ) -> dict:
     """A simulated questionnaire from the protocol's response model (see
-    :class:`~corrections_sim.study.protocol.Response`); text items say they are simulated.
+    :class:`~corrections_sim.userstudy.protocol.Response`); text items say they are simulated.
     An item that compares the robots answers from ``by_order`` (what the participant
     experienced with each condition, in the order they met them): the measure is the second
     one's minus the first one's."""

@@ -2,7 +2,7 @@
 analysis of many simulated studies.
 
 Every simulated participant goes through the protocol's state machine
-(:func:`~corrections_sim.interact.participant.simulate_participant`) into a study log, as a
+(:func:`~corrections_sim.userstudy.participant.simulate_participant`) into a study log, as a
 person at the page would; participant i's θ*, noise and answers are functions of (the
 protocol's seed, i), so a pool split over workers (each into its own shard log) gives the
 same participants as one process.
@@ -10,7 +10,7 @@ same participants as one process.
 **Power.** A pool of P simulated participants is cut, for each study size N, into ⌊P/N⌋
 disjoint studies of consecutive indices (so each study sees the Latin square's rows equally
 when N is a multiple of its size); each study is analysed as ``run analyze`` analyses a log
-(:func:`corrections_sim.study.user_study.mixed_model` on its trials), and the power at N is
+(:func:`corrections_sim.userstudy.statistics.mixed_model` on its trials), and the power at N is
 the share of studies whose condition effect has p < 0.05. The population's difference is the
 mean paired difference over the whole pool (its standard error is reported); the coverage at
 N is the share of studies whose 95% interval holds it.
@@ -26,15 +26,16 @@ from pathlib import Path
 import numpy as np
 
 from corrections_sim.figures.presets import EXPERIMENTS_DIR
-from corrections_sim.interact.log import StudyLog
-from corrections_sim.interact.participant import (
+from corrections_sim.session.log import StudyLog
+from corrections_sim.study import schema
+from corrections_sim.study.settings import FigureSettings
+from corrections_sim.userstudy import statistics
+from corrections_sim.userstudy.participant import (
     StudyRun,
     check_conditions,
     simulate_participant,
 )
-from corrections_sim.study import schema, user_study
-from corrections_sim.study.protocol import Protocol, load_protocol
-from corrections_sim.study.settings import FigureSettings
+from corrections_sim.userstudy.protocol import Protocol, load_protocol
 
 
 def study_source(protocol: Protocol, base: Path | None) -> Path:
@@ -141,7 +142,7 @@ def shards(folder: Path, participants: int) -> list[tuple[Path, int, int]]:
 
 def pool_trials(dbs: Sequence[Path], outcome: str = "final_error") -> list[dict]:
     """The finished trials of every participant in the shard logs (tidy rows; no regret)."""
-    from corrections_sim.interact.study_report import tidy
+    from corrections_sim.userstudy.report import tidy
 
     rows = []
     for db in dbs:
@@ -164,7 +165,7 @@ def power_table(
     for t in trials:
         by_index.setdefault(int(t["index"]), []).append(t)
     indices = sorted(by_index)
-    pool = user_study.paired(trials, outcome, conditions)[0]
+    pool = statistics.paired(trials, outcome, conditions)[0]
     truth = pool["mean"]
     out = {
         "outcome": outcome,
@@ -180,14 +181,14 @@ def power_table(
         significant, covered, covered_z, estimates = [], [], [], []
         for s in range(studies):
             rows = [t for i in indices[s * n : (s + 1) * n] for t in by_index[i]]
-            fit = user_study.mixed_model(rows, outcome, conditions)
+            fit = statistics.mixed_model(rows, outcome, conditions)
             effect = fit["effects"][0]
             significant.append(effect["p"] < alpha)
             covered.append(effect["lo"] <= truth <= effect["hi"])
             covered_z.append(effect["z_lo"] <= truth <= effect["z_hi"])
             estimates.append(effect["estimate"])
-        power = user_study.power_summary(significant)
-        coverage = user_study.power_summary(covered)
+        power = statistics.power_summary(significant)
+        coverage = statistics.power_summary(covered)
         out["sizes"].append(
             {
                 "participants": n,
@@ -203,7 +204,7 @@ def power_table(
             }
         )
     measured = [s for s in out["sizes"] if s["studies"] > 0]
-    out["n_for_80"] = user_study.needed(
+    out["n_for_80"] = statistics.needed(
         [s["participants"] for s in measured], [s["power"] for s in measured]
     )
     return out

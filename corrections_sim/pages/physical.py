@@ -9,7 +9,7 @@ viewer perturbs a body), pulling the cup through a spring of ``stiffness`` N/m w
 capped at ``force_cap`` N and drawn as a red line from the cup; the arm yields under
 impedance. When the robot finds the push over, the session learns from the deformation and
 logs the push before the page changes
-(:meth:`~corrections_sim.interact.session.Session.submit_push`), the rest of the motion is
+(:meth:`~corrections_sim.session.session.Session.submit_push`), the rest of the motion is
 replanned from where the arm is and played, and the page shows the deformed path (orange) and
 the new one (green). A person still holding on when the motion ends has pushed: the end is the
 release. When the motion ends the next plan is shown.
@@ -31,7 +31,7 @@ import time
 
 import numpy as np
 
-from corrections_sim.interact.page import (
+from corrections_sim.pages.page import (
     CORRECTION_RGB,
     HANDLE_SCALE,
     PLAN_RGB,
@@ -41,9 +41,9 @@ from corrections_sim.interact.page import (
     draw_path,
     relevance_note,
 )
-from corrections_sim.interact.session import Refused, Session
 from corrections_sim.people.physical import spring_force
 from corrections_sim.scene.robot import cup_pose
+from corrections_sim.session.session import Refused, Session
 
 #: Arm poses sent to the page per second of real time during a motion (a little over 30, so
 #: that at least 30 arrive whatever the rounding of the looks).

@@ -7,7 +7,7 @@ into one folder:
   finished trial: its condition, period, final error, mean regret, seconds per correction),
   ``answers.csv`` (one row per answered item);
 * ``summary.json`` — per-condition means with CIs, the mixed model of each outcome
-  (:func:`corrections_sim.study.user_study.mixed_model`), paired comparisons;
+  (:func:`corrections_sim.userstudy.statistics.mixed_model`), paired comparisons;
 * ``participants.png`` (each participant's line over the conditions), ``conditions.png``
   (condition means with 95% CIs), ``questionnaires.png`` (the answers' distributions);
 * ``report.md`` tying them together.
@@ -18,7 +18,7 @@ every trial outcome, and a trial without a stated preference has no error or reg
 A log with simulated participants says so at the top of the report and in ``summary.json``:
 their answers come from a stated response model, not from people.
 
-**What the report refuses to say** (:mod:`corrections_sim.study.user_study`): below the
+**What the report refuses to say** (:mod:`corrections_sim.userstudy.statistics`): below the
 protocol's ``min_participants`` it is descriptive only (means, spreads, each person's values;
 no interval, test or model); a saturated or singular mixed model is not reported (the report
 says why and shows the paired comparison); intervals of bounded scales stay on their scale;
@@ -37,11 +37,11 @@ from pathlib import Path
 
 import numpy as np
 
-from corrections_sim.interact.log import StudyLog
-from corrections_sim.interact.participant import experienced
-from corrections_sim.interact.session import settings_from_log
-from corrections_sim.study import user_study
-from corrections_sim.study.protocol import TLX_SCALES, Protocol, parse_protocol
+from corrections_sim.session.log import StudyLog
+from corrections_sim.session.session import settings_from_log
+from corrections_sim.userstudy import statistics
+from corrections_sim.userstudy.participant import experienced
+from corrections_sim.userstudy.protocol import TLX_SCALES, Protocol, parse_protocol
 
 #: The outcomes of a trial the analysis models (``mean_regret`` needs the planner, see
 #: :func:`tidy`; ``seconds`` is left out for simulated participants, whose seconds are CPU's).
@@ -56,7 +56,7 @@ def protocol_of(log: StudyLog) -> Protocol:
     return parse_protocol(json.loads(text), strict=False)
 
 
-def outcome_bounds(name: str, protocol: Protocol) -> user_study.Bounds:
+def outcome_bounds(name: str, protocol: Protocol) -> statistics.Bounds:
     """The scale of an outcome: errors and seconds are >= 0, a Likert item 1…points, the raw
     TLX 0…100; the regret of a plan is unbounded (a local optimum can make it negative)."""
     if name in ("final_error", "seconds"):
@@ -66,7 +66,7 @@ def outcome_bounds(name: str, protocol: Protocol) -> user_study.Bounds:
     for q in (*protocol.after_condition, *protocol.at_end):
         if q.id == name and q.kind == "likert":
             return (1.0, float(q.points))
-    return user_study.UNBOUNDED
+    return statistics.UNBOUNDED
 
 
 def _error(theta, reference) -> float:
@@ -286,8 +286,8 @@ def analyse(tables: dict) -> dict:
         *((o, answer_rows) for o in answer_names),
     ]:
         bounds = outcome_bounds(name, protocol)
-        summary = user_study.condition_summary(rows, name, conditions, bounds)
-        pairs = user_study.paired(rows, name, conditions, bounds)
+        summary = statistics.condition_summary(rows, name, conditions, bounds)
+        pairs = statistics.paired(rows, name, conditions, bounds)
         entry: dict = {"bounds": list(bounds), "summary": summary, "paired": pairs}
         if descriptive:
             for row in (*summary, *pairs):
@@ -296,7 +296,7 @@ def analyse(tables: dict) -> dict:
             entry["mixed"] = {"reported": False, "why": "descriptive only (too few participants)"}
         else:
             try:
-                entry["mixed"] = user_study.mixed_model(rows, name, conditions)
+                entry["mixed"] = statistics.mixed_model(rows, name, conditions)
             except ValueError as exc:
                 entry["mixed"] = {"reported": False, "why": str(exc)}
             _flag_beyond_scale(entry["mixed"], bounds)
@@ -305,10 +305,10 @@ def analyse(tables: dict) -> dict:
     return out
 
 
-def _flag_beyond_scale(mixed: dict, bounds: user_study.Bounds) -> None:
+def _flag_beyond_scale(mixed: dict, bounds: statistics.Bounds) -> None:
     """A reported effect whose interval runs past the largest difference the scale allows
     says nothing the scale can hold: not reported."""
-    low, high = user_study.difference_bounds(bounds)
+    low, high = statistics.difference_bounds(bounds)
     if not mixed.get("reported") or low is None:
         return
     for e in mixed["effects"]:
@@ -337,8 +337,8 @@ def compare_summary(rows: list[dict], protocol: Protocol, descriptive: bool) -> 
             "toward": toward,
             "preferred": counts,
             "neither": sum(r["preferred"] == "" for r in mine),
-            **user_study.mean_ci([r["score"] for r in mine], bounds=(-reach, reach)),
-            "sign_test_p": user_study.sign_test(counts[names[1]], counts[names[0]]),
+            **statistics.mean_ci([r["score"] for r in mine], bounds=(-reach, reach)),
+            "sign_test_p": statistics.sign_test(counts[names[1]], counts[names[0]]),
         }
         if descriptive:
             for key in ("lo", "hi", "sign_test_p"):

@@ -1,5 +1,5 @@
 """A study's server: several participants at once on one viser server, each through their own
-protocol (:mod:`corrections_sim.interact.participant`), and the experimenter's view.
+protocol (:mod:`corrections_sim.userstudy.participant`), and the experimenter's view.
 
 **Who gets in.** Each browser connection is judged by the path of its websocket, which the
 link sets (``?websocket=ws://HOST:PORT/p/SECRET``: viser's client connects to the server
@@ -55,11 +55,11 @@ import secrets
 import threading
 from collections.abc import Callable
 
-from corrections_sim.interact.log import StudyError
-from corrections_sim.interact.page import plural
-from corrections_sim.interact.participant import Participant, StudyRun, check_answers
-from corrections_sim.interact.server import configure, make_page
-from corrections_sim.study.protocol import TLX_ANCHORS, TLX_TEXT, TLX_TITLES, Question, Step
+from corrections_sim.pages.page import plural
+from corrections_sim.pages.server import configure, make_page
+from corrections_sim.session.log import StudyError
+from corrections_sim.userstudy.participant import Participant, StudyRun, check_answers
+from corrections_sim.userstudy.protocol import TLX_ANCHORS, TLX_TEXT, TLX_TITLES, Question, Step
 
 #: The placeholder of a Likert choice not yet made.
 UNANSWERED = "(choose)"

@@ -18,9 +18,9 @@ import socket
 import threading
 from pathlib import Path
 
-from corrections_sim.interact.page import Page
-from corrections_sim.interact.physical_page import PhysicalPage
-from corrections_sim.interact.session import Session
+from corrections_sim.pages.page import Page
+from corrections_sim.pages.physical import PhysicalPage
+from corrections_sim.session.session import Session
 
 #: Seconds a host name may take to resolve (a machine without a name server would otherwise
 #: wait for the resolver's own timeouts, or for ever).

@@ -1,6 +1,6 @@
 """The browser page (viser): the person sees ξᵗ, drags a waypoint's cup, submits.
 
-The thin edge over :class:`corrections_sim.interact.session.Session`: it draws the scene and
+The thin edge over :class:`corrections_sim.session.session.Session`: it draws the scene and
 the plan, turns a handle's drag into :meth:`Session.drag`, and buttons into
 :meth:`Session.submit`, :meth:`Session.skip`, :meth:`Session.finish`. Nothing here learns or
 logs by itself.
@@ -28,7 +28,7 @@ not reach (the cup went back), and the page says why. They drag it to where it i
 (every handle position of a drag the arm can follow is recorded, and the path so far is drawn;
 several drags make one trace) and press "End the trace", or "Cancel this trace". The cup's path
 becomes arm configurations by IK (the cup kept upright) and a logged trace. With all of them,
-or with at least :data:`~corrections_sim.interact.session.MIN_TRACES` when the person
+or with at least :data:`~corrections_sim.session.session.MIN_TRACES` when the person
 presses "Learn from the traces I gave", the feature is learnt and the next plan is made over
 it. "I cannot show it" declines; traces already given are set aside only after the person
 confirms it, and the page says how many. A trace cut short by a crash is named on return,
@@ -51,12 +51,12 @@ from collections.abc import Callable, Mapping
 
 import numpy as np
 
-from corrections_sim.interact.meshes import Poser, pieces
-from corrections_sim.interact.session import Deployment, Refused, Session
+from corrections_sim.pages.meshes import Poser, pieces
 from corrections_sim.planning.features import HUMAN_POSITION, pose_feature_function
 from corrections_sim.scene import geometry as g
 from corrections_sim.scene.robot import cup_inverse_kinematics, cup_pose
 from corrections_sim.scene.world import interpolate
+from corrections_sim.session.session import Deployment, Refused, Session
 
 #: Where the page's camera starts: beyond the table's far corner, looking back at the robot.
 CAMERA_POSITION = (1.55, -1.05, 1.05)

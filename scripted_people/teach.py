@@ -1,14 +1,14 @@
 """A person who minds what the robot lacks corrects it at the page, then teaches it the
 feature when it asks: scripted, with the mouse, in chromium (issue 39).
 
-    python -m corrections_sim.interact.teach --db results/interact/teach.sqlite --hurried
+    python -m scripted_people.teach --db results/interact/teach.sqlite --hurried
 
 A session of fig. 4's study (the robot knows laptop and table) with KF-CRX is served; a
 headless chromium opens its page. The scripted person minds only the coffee coming close to
 them (`human`, θ* = −5 over laptop, table, human): each correction drags the cup at the
 waypoint where their own plan's cup is farthest from the robot's, ``reach`` of the way there
 (drawn per correction), one arrow at a time with the hand's noise of
-:mod:`~corrections_sim.interact.labelled`. When the robot asks for traces (the page turns to
+:mod:`~scripted_people.labelled`. When the robot asks for traces (the page turns to
 teaching), each trace is: the cup dragged near the person (where `human` is high: a place
 drawn around (0.72, 0, 0.38) m), "Start a trace here", the cup dragged away from them (a
 place drawn around (0.35, ±0.3, 0.2) m), one arrow at a time, "End the trace". After the last
@@ -25,7 +25,7 @@ approach to the person before and after the teaching.
 
 The session replays (``python -m corrections_sim.run replay LOG``): KF-CRX retrains the
 feature from the logged traces. Needs the ``dev`` extra and a chromium (see
-:mod:`~corrections_sim.interact.drive`).
+:mod:`~scripted_people.drive`).
 """
 
 from __future__ import annotations
@@ -39,10 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from corrections_sim.interact import drive
-from corrections_sim.interact.labelled import NOTHING, WAYPOINT_BOX, Hand, _skip, arrow
-from corrections_sim.interact.log import StudyLog
-from corrections_sim.interact.page import (
+from corrections_sim.pages.page import (
     CAMERA_FOV,
     CAMERA_LOOK_AT,
     CAMERA_POSITION,
@@ -50,13 +47,16 @@ from corrections_sim.interact.page import (
     MAP_SHAPE,
     cup_path,
 )
-from corrections_sim.interact.server import serve
-from corrections_sim.interact.session import Session
+from corrections_sim.pages.server import serve
 from corrections_sim.people.physical import worst_cup_waypoint
 from corrections_sim.planning.features import HUMAN_POSITION
 from corrections_sim.planning.planner import PlannerConfig, shared_planner
 from corrections_sim.planning.plans import PlanBook
 from corrections_sim.scene.robot import cup_pose
+from corrections_sim.session.log import StudyLog
+from corrections_sim.session.session import Session
+from scripted_people import drive
+from scripted_people.labelled import NOTHING, WAYPOINT_BOX, Hand, arrow, skip
 
 #: The person: what they weigh, over which features.
 PERSON_FEATURES = ("laptop", "table", "human")
@@ -338,7 +338,7 @@ def run(
                     skips += 1
                     if skips > 40:
                         raise RuntimeError("40 environments skipped: nothing to correct")
-                    _skip(tab, page, session, False)
+                    skip(tab, page, session, False)
             drive.click(tab, "Done: deploy")
             drive.wait_for(page.finished.is_set, "the end", 180)
             shot("5-the-end")
@@ -352,8 +352,8 @@ def report(log: StudyLog, session_id: int) -> dict:
     """From the log alone: each trace's start against where the page showed the cup when
     Start was taken (m), the learnt feature's quality against `human` (Spearman's ρ, R²), and
     the plans' closest approach of the cup to the person (m) before and after the teaching."""
-    from corrections_sim.interact.session import settings_from_log
     from corrections_sim.planning.learnt import quality, register_logged
+    from corrections_sim.session.session import settings_from_log
 
     events = log.events(session_id)
     starts = [e["detail"] for e in events if e["kind"] == "trace_start"]
@@ -398,7 +398,7 @@ def report(log: StudyLog, session_id: int) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(
-        prog="python -m corrections_sim.interact.teach", description=__doc__.split("\n\n")[0]
+        prog="python -m scripted_people.teach", description=__doc__.split("\n\n")[0]
     )
     p.add_argument("--db", type=Path, required=True)
     p.add_argument("--after", type=int, default=3, help="corrections after the teaching")

@@ -1,12 +1,12 @@
 """Relevance scored on corrections made through the page (issue 38): every labelled
 correction of a log replayed through the relevance-aware learners.
 
-    python -m corrections_sim.interact.relevance_page results/interact/labelled.sqlite
+    python -m corrections_sim.session.relevance_scores results/interact/labelled.sqlite
 
-A labelled session (``python -m corrections_sim.interact.labelled``, or ``run interact
+A labelled session (``python -m scripted_people.labelled``, or ``run interact
 --labelled N`` with a person) asked its person, correction by correction, for a correction
 toward a stated preference (label 1) or a nudge for no reason (label 0). Each such session of
-the log is replayed (:func:`~corrections_sim.interact.replay.replay`) through KF-CR and PP-R
+the log is replayed (:func:`~corrections_sim.session.replay.replay`) through KF-CR and PP-R
 (their per-correction β̂, ρ in joint space), KF-CRP in joint space and KF-CRP in task space
 (``space = "task"``, the cup's path, with the shipped fit); a physical session's learners are
 told that people push (``model = "physical"``). None of these corrections is in the data the
@@ -39,7 +39,7 @@ VARIANTS = (
 
 def judged(log, session_id: int) -> list[dict]:
     """Every labelled correction of one session, judged by each variant (rows)."""
-    from corrections_sim.interact.replay import replay
+    from corrections_sim.session.replay import replay
 
     row = log.session(session_id)
     physical = row.correction.get("name") == "physical"
@@ -82,10 +82,10 @@ def scores(rows: list[dict]) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from corrections_sim.interact.log import LogError, StudyLog
+    from corrections_sim.session.log import LogError, StudyLog
 
     p = argparse.ArgumentParser(
-        prog="python -m corrections_sim.interact.relevance_page",
+        prog="python -m corrections_sim.session.relevance_scores",
         description=__doc__.split("\n\n")[0],
     )
     p.add_argument("db", type=Path, help="a log with labelled sessions")

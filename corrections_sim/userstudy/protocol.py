@@ -4,7 +4,7 @@ the order of conditions per participant, and (for piloting) the simulated popula
 A protocol file (TOML, ``experiments/protocol.toml``) is checked here key by key, with the
 same one-line errors as study files (``conditions[1].learner: unknown learner 'KF-X' …``).
 Nothing here runs a trial: :func:`steps` lists what a participant goes through, in order,
-and :mod:`corrections_sim.interact.participant` walks it (the page and the simulated cohort
+and :mod:`corrections_sim.userstudy.participant` walks it (the page and the simulated cohort
 alike).
 
 The order of conditions is a balanced Latin square (:func:`latin_square`): Williams' design

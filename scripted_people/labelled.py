@@ -1,12 +1,12 @@
 """Labelled corrections made through the page with the mouse, by a scripted person (issue 38).
 
-    python -m corrections_sim.interact.labelled --mode drag --corrections 20 \\
+    python -m scripted_people.labelled --mode drag --corrections 20 \\
         --db results/interact/labelled.sqlite
-    python -m corrections_sim.interact.labelled --mode physical --corrections 20 \\
+    python -m scripted_people.labelled --mode physical --corrections 20 \\
         --db results/interact/labelled.sqlite
 
 A session of fig. 4's study is started with ``--corrections`` labelled corrections asked for
-(:func:`~corrections_sim.interact.session.make_asks`: half toward the stated preference, half
+(:func:`~corrections_sim.session.session.make_asks`: half toward the stated preference, half
 nudges, in a seeded order) and served; a headless chromium opens its page, and for each
 correction the script reads what the page asks and does it with the mouse, as a hand would:
 
@@ -25,8 +25,8 @@ drag is made one arrow (axis) at a time in a random order. A drag the page refus
 reach, a collision) is tried again shorter, then in another direction. Everything random flows
 from ``--seed``. The learner is the page's default (KF-CL); the labels are scored by replaying
 the session through the relevance-aware learners (``python -m
-corrections_sim.interact.relevance_page``). Needs the ``dev`` extra and a chromium (see
-:mod:`~corrections_sim.interact.drive`).
+corrections_sim.session.relevance_scores``). Needs the ``dev`` extra and a chromium (see
+:mod:`~scripted_people.drive`).
 """
 
 from __future__ import annotations
@@ -38,14 +38,14 @@ from pathlib import Path
 
 import numpy as np
 
-from corrections_sim.interact import drive
-from corrections_sim.interact.log import StudyLog
-from corrections_sim.interact.page import HANDLE_SCALE, project
-from corrections_sim.interact.server import serve
-from corrections_sim.interact.session import Session, make_asks
+from corrections_sim.pages.page import HANDLE_SCALE, project
+from corrections_sim.pages.server import serve
 from corrections_sim.people.physical import worst_cup_waypoint
 from corrections_sim.planning.plans import PlanBook
 from corrections_sim.scene.robot import cup_pose
+from corrections_sim.session.log import StudyLog
+from corrections_sim.session.session import Session, make_asks
+from scripted_people import drive
 
 #: The waypoint slider's number box on the drag page (after one per feature).
 WAYPOINT_BOX = 2
@@ -207,7 +207,7 @@ def _push_once(session, page, hand, rng, speed: float) -> bool | None:
     return page.pushes > count
 
 
-def _skip(tab, page, session, physical: bool) -> None:
+def skip(tab, page, session, physical: bool) -> None:
     """Skip this environment on the page and wait for the next plan there."""
     draws = session.draws
     drive.click(tab, "Skip this environment")
@@ -266,7 +266,7 @@ def run(
                 if skips > 20 * corrections:
                     raise RuntimeError(f"{skips} environments skipped: nothing to correct")
                 if done is None or (done is False and not physical):
-                    _skip(tab, page, session, physical)
+                    skip(tab, page, session, physical)
             session.finish()
             tab.close()
         finally:
@@ -276,7 +276,7 @@ def run(
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(
-        prog="python -m corrections_sim.interact.labelled", description=__doc__.split("\n\n")[0]
+        prog="python -m scripted_people.labelled", description=__doc__.split("\n\n")[0]
     )
     p.add_argument("--db", type=Path, required=True)
     p.add_argument("--mode", choices=("drag", "physical"), default="drag")

@@ -10,7 +10,7 @@ A PP-type learner whose rate comes from another learner's gains gets them from t
 replayed on the same corrections (added to the replay if it was not asked for). The session's
 own learner replayed gives back the logged θ̂ (checked: ``max_gap_to_log``): exactly on the
 machine that logged a session planned from cold starts (every plan a pure function of (θ, E)),
-within :data:`~corrections_sim.interact.session.LOG_TOLERANCE` on another processor, and at the
+within :data:`~corrections_sim.session.session.LOG_TOLERANCE` on another processor, and at the
 solver's tolerance for a session planned warm (the replay plans cold). The summary says
 whether the machine is the one that logged the session (``same_machine``).
 """
@@ -23,20 +23,20 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from corrections_sim import components, provenance
-from corrections_sim.interact.log import StudyLog
-from corrections_sim.interact.session import (
-    LOG_TOLERANCE,
-    build_learner,
-    learner_rng,
-    settings_from_log,
-    teach_rng,
-)
 from corrections_sim.learning.base import LEARNERS, LearnerContext
 from corrections_sim.learning.perceptron import learning_rate_schedule
 from corrections_sim.metrics import estimate_error, label_scores
 from corrections_sim.planning.features import feature_counts
 from corrections_sim.planning.planner import Plan, PlanningError, shared_planner
 from corrections_sim.planning.plans import PlanBook, Target, evaluate
+from corrections_sim.session.log import StudyLog
+from corrections_sim.session.session import (
+    LOG_TOLERANCE,
+    build_learner,
+    learner_rng,
+    settings_from_log,
+    teach_rng,
+)
 from corrections_sim.study.loop import belief_columns
 from corrections_sim.study.runner import FigureResult
 from corrections_sim.study.settings import FigureSettings

@@ -15,7 +15,7 @@ Tables (``SCHEMA_VERSION`` 1):
 * ``events`` — everything else a page reports: ``stated``, ``skip``, ``undo``, ``refused``
   (a drag the page refused, with the reason), ``done``.
 
-A user study run from a protocol (:mod:`corrections_sim.interact.participant`) adds three
+A user study run from a protocol (:mod:`corrections_sim.userstudy.participant`) adds three
 tables, created the first time a participant is enrolled (a log of single sessions keeps its
 four, so older readers and committed logs are untouched), and the protocol in ``meta``:
 
