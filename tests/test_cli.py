@@ -19,6 +19,7 @@ from pathlib import Path
 import pytest
 
 from corrections_sim.cli import main as cli
+from corrections_sim.cli.commands import figure as figure_command
 from corrections_sim.figures import learning
 from corrections_sim.study import runner
 from corrections_sim.study.store import RunStore
@@ -106,7 +107,7 @@ def test_an_unreachable_scheduler_fails_within_seconds(tmp_path, capsys):
     start = time.perf_counter()
     status = _main([*TINY, "--out", str(tmp_path), "--scheduler", "tcp://127.0.0.1:9"])
     assert status == 2
-    assert time.perf_counter() - start < cli.SCHEDULER_TIMEOUT_S + 5
+    assert time.perf_counter() - start < figure_command.SCHEDULER_TIMEOUT_S + 5
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--scheduler tcp://127.0.0.1:9: cannot connect" in err
 
@@ -200,7 +201,7 @@ def test_a_worker_that_dies_is_replaced_and_its_run_redone(uninterrupted, tmp_pa
         with pool:
             yield pool, "test pool"
 
-    monkeypatch.setattr(cli, "_executor", executor)
+    monkeypatch.setattr(figure_command, "open_executor", executor)
     assert cli.main([*TINY, "--out", str(tmp_path)]) == 0
     assert len(pools) == 2
     assert (tmp_path / "fig4" / "curves.csv").read_bytes() == uninterrupted

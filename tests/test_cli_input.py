@@ -214,3 +214,31 @@ def test_a_replay_sets_learners_parameters_only(tmp_path, capsys):
     assert _main([*argv, "--out", str(tmp_path)]) == 0
     summary = json.loads((tmp_path / "replay-1" / "summary.json").read_text())
     assert summary["settings"]["learners"]["KF-C"]["model"]["name"] == "physical"
+
+
+def test_the_architecture_pages_new_command_is_one_module_and_its_registration(
+    tmp_path, monkeypatch, capsys
+):
+    """docs/architecture.md's example command, as written there: registered by its module in
+    TOOLS alone, it runs, lists in --help, and refuses an option it does not name."""
+    import re
+    import types
+
+    from corrections_sim.cli import commands
+    from corrections_sim.session.log import StudyLog
+
+    page = (Path(__file__).parents[1] / "docs" / "architecture.md").read_text()
+    source = re.search(
+        r"```python\n# corrections_sim/cli/commands/sessions.py\n(.*?)```", page, re.S
+    )
+    assert source, "docs/architecture.md lost its example command"
+    module = types.ModuleType("corrections_sim.cli.commands.sessions")
+    exec(compile(source[1], "sessions.py", "exec"), module.__dict__)
+    monkeypatch.setattr(commands, "TOOLS", (*commands.TOOLS, module))
+    db = tmp_path / "log.sqlite"
+    StudyLog(db).close()
+    assert _main(["sessions", str(db)]) == 0
+    assert _main(["--help"]) == 0
+    assert "the sessions of a study log" in capsys.readouterr().out
+    assert _main(["sessions", str(db), "--runs", "3"]) == 2
+    _one_line(capsys.readouterr().err, "--runs", "sessions", "FILE")

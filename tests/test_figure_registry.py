@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from corrections_sim.cli import main as cli
+from corrections_sim.cli.options import catalogue
 from corrections_sim.figures import registry
 
 PAPER = ("fig1", "fig2", "fig3", "fig4", "fig5", "fig6")
@@ -28,7 +29,7 @@ def test_every_figure_has_the_protocol(name):
     for method in ("load", "folder", "cache_keys", "recorded", "run", "write"):
         assert callable(getattr(figure, method)), method
     assert figure.name == name and figure.help and figure.unit in ("run", "task")
-    assert set(figure.options) <= {a.dest for a in cli.catalogue()._actions}
+    assert set(figure.options) <= {a.dest for a in catalogue()._actions}
     if name != "study":
         settings = figure.load(quick=True, overrides={})
         assert figure.folder(settings) == name
@@ -103,6 +104,8 @@ def test_run_all_makes_the_paper_figures_in_order_without_touching_the_arguments
         made.append((figure.name, args.runs, args.figure))
         return []
 
-    monkeypatch.setattr(cli, "run_figure", fake)
+    from corrections_sim.cli.commands import all_figures
+
+    monkeypatch.setattr(all_figures, "run_figure", fake)
     assert cli.main(["all", "--quick", "--runs", "2", "--out", str(tmp_path)]) == 0
     assert made == [(name, 2, "all") for name in PAPER]

@@ -140,12 +140,14 @@ def test_every_pointer_into_the_readme_or_the_docs_leads_somewhere(source):
 def test_help_lines_name_registered_learners_and_the_true_defaults():
     """A list of learners in any command's --help names registered learners only, and
     replay's stated default is the one it uses."""
-    from corrections_sim.cli.main import _COMMAND_HELP, catalogue
+    from corrections_sim.cli.commands import commands
+    from corrections_sim.cli.options import catalogue
     from corrections_sim.learning.base import LEARNERS
     from corrections_sim.session.replay import DEFAULT_LEARNERS
 
-    assert ",".join(DEFAULT_LEARNERS) in _COMMAND_HELP[("replay", "learners")]
-    texts = [*_COMMAND_HELP.values(), *(a.help or "" for a in catalogue()._actions)]
+    assert ",".join(DEFAULT_LEARNERS) in commands()["replay"].option_help["learners"]
+    own = [text for command in commands().values() for text in command.option_help.values()]
+    texts = [*own, *(a.help or "" for a in catalogue()._actions)]
     lists = re.findall(r"\b[A-Z]+(?:-[A-Z]+)?(?:,[A-Z]+(?:-[A-Z]+)?)+\b", " ".join(texts))
     assert lists, "the help names no list of learners: this test would check nothing"
     named = {name for found in lists for name in found.split(",")}

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from corrections_sim.cli import main as cli
+from corrections_sim.cli.commands import figure as figure_command
 from corrections_sim.figures import learning
 from corrections_sim.study import runner
 from corrections_sim.study import schema as study_file
@@ -296,7 +297,7 @@ def test_a_plug_in_that_raises_is_one_line_and_finished_runs_are_kept(
         with ThreadPoolExecutor(max_workers=1) as pool:
             yield pool, "test threads"
 
-    monkeypatch.setattr(cli, "_executor", threads)
+    monkeypatch.setattr(figure_command, "open_executor", threads)
     monkeypatch.setattr(runner, "run_one", _fails_on_the_second_run)
     argv = ["study", str(path), "--out", str(tmp_path / "out")]
     assert _main(argv) == 2
