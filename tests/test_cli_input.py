@@ -242,3 +242,34 @@ def test_the_architecture_pages_new_command_is_one_module_and_its_registration(
     assert "the sessions of a study log" in capsys.readouterr().out
     assert _main(["sessions", str(db), "--runs", "3"]) == 2
     _one_line(capsys.readouterr().err, "--runs", "sessions", "FILE")
+
+
+@pytest.mark.parametrize(
+    ("argv", "names"),
+    [
+        (["relevance-scores", "{tmp}/none.sqlite"], ["none.sqlite", "no such file"]),
+        (["relevance-scores"], ["relevance-scores", "give the log"]),
+        (["relevance-fit", "--per-kind", "1"], ["--per-kind 1", "at least 2"]),
+        (["reference"], ["reference", "folder"]),
+        (["reference", "{tmp}"], ["summary.json"]),
+        (["reference-plot", "{tmp}"], ["no reference summaries"]),
+        (["report", "{tmp}"], ["no summary.json"]),
+        (["models", "--runs", "2"], ["--runs", "does not apply to models"]),
+    ],
+)
+def test_the_former_side_doors_are_commands_with_one_line_errors(argv, names, tmp_path, capsys):
+    """reference, reference-plot, relevance-fit, relevance-scores, report and models are
+    commands of ``python -m corrections_sim.run``: bad input is one line and exit status 2,
+    before anything is written."""
+    argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]
+    assert _main(argv) == 2
+    _one_line(capsys.readouterr().err, *names)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_models_check_lists_what_drifted_and_exits_1(tmp_path, capsys):
+    assert _main(["models", "--check", "--out", str(tmp_path)]) == 1
+    err = capsys.readouterr().err
+    assert "differs from the code" in err and "scene.xml" in err
+    assert _main(["models", "--out", str(tmp_path)]) == 0
+    assert _main(["models", "--check", "--out", str(tmp_path)]) == 0

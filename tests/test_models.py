@@ -22,7 +22,7 @@ def from_file() -> mujoco.MjModel:
 
 def test_committed_models_match_the_code():
     stale = models.drift()
-    assert not stale, f"models/ drifted: {stale}; run `python -m corrections_sim.scene.models`"
+    assert not stale, f"models/ drifted: {stale}; run `python -m corrections_sim.run models`"
 
 
 def test_opens_anywhere_as_the_viewer_loads_it(tmp_path):

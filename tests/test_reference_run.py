@@ -1,4 +1,4 @@
-"""The reference beside a finished figure's runs (python -m corrections_sim.figures.reference):
+"""The reference beside a finished figure's runs (python -m corrections_sim.run reference):
 the replayed corrections are the run's own, and the exact posterior on a coarse grid gives
 finite NEES and KL for KF-C, for KF-CL (noise integrated out), for BP, for KF-CR (its
 relevance integrated out) and for KF-CRP (θ, the person's rate and precision together)."""
@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 
 from corrections_sim.cli import main as cli
-from corrections_sim.figures import reference
 
 STUDY = """\
 theta_star = [1.0, -1.0]
@@ -35,7 +34,10 @@ def figure(tmp_path_factory):
 
 @pytest.mark.parametrize("learner", ["KF-C", "KF-CL", "BP", "KF-CR", "KF-CRP"])
 def test_the_reference_of_a_run(figure, learner, capsys):
-    assert reference.main([str(figure), "--learner", learner, "--runs", "1", "--points", "9"]) == 0
+    assert (
+        cli.main(["reference", str(figure), "--learner", learner, "--runs", "1", "--points", "9"])
+        == 0
+    )
     with open(figure / f"reference-{learner}.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
     assert [int(r["iteration"]) for r in rows] == [1, 2]
@@ -59,7 +61,7 @@ def test_the_reference_of_a_run(figure, learner, capsys):
 
 
 def test_a_learner_the_figure_did_not_run_is_one_line(figure, capsys):
-    assert reference.main([str(figure), "--learner", "KF"]) == 2
+    assert cli.main(["reference", str(figure), "--learner", "KF"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: --learner KF: not in this figure") and err.count("\n") == 1
 
@@ -69,7 +71,7 @@ def test_one_filter_step_from_the_reference(figure, capsys):
     first correction it starts from the prior, as the learner itself did, so it is the
     learner's own first step (up to the grid's moments of the prior)."""
     argv = [str(figure), "--learner", "KF-CR", "--runs", "1", "--points", "41", "--one-step"]
-    assert reference.main([*argv, "--restart", "0,1"]) == 0
+    assert cli.main(["reference", *argv, "--restart", "0,1"]) == 0
     with open(figure / "reference-KF-CR.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
     first = rows[0]
@@ -80,9 +82,9 @@ def test_one_filter_step_from_the_reference(figure, capsys):
     # Run on from the prior, the filter is the learner replayed (plans solved cold here).
     assert float(rows[1]["restart_0_nees"]) == pytest.approx(float(rows[1]["nees"]), rel=0.1)
     assert "one filter step from the reference" in capsys.readouterr().out
-    assert reference.main([str(figure), "--learner", "KF-CL", "--one-step"]) == 2
+    assert cli.main(["reference", str(figure), "--learner", "KF-CL", "--one-step"]) == 2
     assert "--one-step and --restart need a Kalman learner" in capsys.readouterr().err
-    assert reference.main([str(figure), "--learner", "KF-C", "--restart", "x"]) == 2
+    assert cli.main(["reference", str(figure), "--learner", "KF-C", "--restart", "x"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: --restart x: expected iterations") and err.count("\n") == 1
 
@@ -114,15 +116,15 @@ def test_the_particle_reference_at_k_3_and_against_the_grid_at_k_2(figure, tmp_p
     assert cli.main(argv) == 0
     three = tmp_path / "out" / "three"
     capsys.readouterr()
-    assert reference.main([str(three), "--learner", "PP"]) == 2
+    assert cli.main(["reference", str(three), "--learner", "PP"]) == 2
     err = capsys.readouterr().err
     assert err == "error: learner PP: has no covariance to judge against a reference\n"
-    assert reference.main([str(three), "--learner", "KF-C"]) == 2
+    assert cli.main(["reference", str(three), "--learner", "KF-C"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: k = 3: no grid beyond k = 2") and err.count("\n") == 1
-    assert reference.main([str(three), "--learner", "KF-C", "--particles", "1"]) == 2
+    assert cli.main(["reference", str(three), "--learner", "KF-C", "--particles", "1"]) == 2
     assert "--particles 1: expected an integer >= 2" in capsys.readouterr().err
-    assert reference.main([str(three), "--learner", "KF-C", "--particles", "40"]) == 0
+    assert cli.main(["reference", str(three), "--learner", "KF-C", "--particles", "40"]) == 0
     final = json.loads((three / "reference-KF-C.json").read_text())
     assert [s["iteration"] for s in final["by_iteration"]] == [1, 2]
     assert "ref_kl" not in final and final["ref_kl_gaussian"] >= 0.0
@@ -132,7 +134,7 @@ def test_the_particle_reference_at_k_3_and_against_the_grid_at_k_2(figure, tmp_p
     assert all(float(r["ref_cov_22"]) > 0 for r in rows)
     # At k = 2, 300 particles against the grid on the same corrections.
     argv = [str(figure), "--learner", "KF-C", "--runs", "1", "--points", "31", "--particles", "300"]
-    assert reference.main(argv) == 0
+    assert cli.main(["reference", *argv]) == 0
     final = json.loads((figure / "reference-KF-C.json").read_text())
     assert final["particle_mean_gap"] < 0.3 and final["particle_var_gap"] < 0.3
     assert 0.0 <= final["particle_kl"] < 0.3

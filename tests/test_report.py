@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+from corrections_sim.cli import main as cli
 from corrections_sim.figures import report
 
 SUMMARY = {
@@ -41,7 +42,7 @@ SUMMARY = {
 
 def test_tables_quote_the_summary(tmp_path, capsys):
     (tmp_path / "summary.json").write_text(json.dumps(SUMMARY))
-    assert report.main([str(tmp_path)]) == 0
+    assert cli.main(["report", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     assert "| PP (N = 3) | AL (N = 1) |" in out
     assert "1.000 ± 0.100; 9.0" in out and "2.000 (N = 1); 8.0" in out
@@ -50,8 +51,8 @@ def test_tables_quote_the_summary(tmp_path, capsys):
 
 
 def test_bad_folders_are_one_line(tmp_path, capsys):
-    assert report.main([str(tmp_path / "none")]) == 2
+    assert cli.main(["report", str(tmp_path / "none")]) == 2
     (tmp_path / "summary.json").write_text("{}")
-    assert report.main([str(tmp_path)]) == 2
+    assert cli.main(["report", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 2 and "no summary.json" in err and "not a learning" in err

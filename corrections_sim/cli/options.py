@@ -304,6 +304,47 @@ def catalogue() -> argparse.ArgumentParser:
         help="the outcome to power for: final_error, mean_regret, seconds (default: the "
         "protocol's primary)",
     )
+    r = p.add_argument_group(
+        "exact references, fits and the scene's files (reference, relevance-fit, models)"
+    )
+    r.add_argument(
+        "--points", type=positive_int, help="grid points per axis over [-3, 3]^k (default 61)"
+    )
+    r.add_argument(
+        "--one-step",
+        action="store_true",
+        help="also the learner's update from the reference before each correction (a Kalman "
+        "learner with N fixed): the error of one filter step, apart from accumulation",
+    )
+    r.add_argument(
+        "--restart",
+        metavar="S,S",
+        help="also the learner's filter run on from the reference at these iterations (0: the "
+        "prior): NEES / reference NEES at the end for each",
+    )
+    r.add_argument(
+        "--particles",
+        type=int,
+        metavar="N",
+        help="also run PF-C's particle machinery with N particles on the same corrections: "
+        "judged against the grid at k = 2, the reference itself at k > 2 (no grid there)",
+    )
+    r.add_argument(
+        "--check-grid",
+        action="store_true",
+        help="also on the halved grid (first run): how much mean and covariance move",
+    )
+    r.add_argument(
+        "--per-kind",
+        type=int,
+        help="simulated relevant (and irrelevant) corrections per mode (default 60; 12 with "
+        "--quick)",
+    )
+    r.add_argument(
+        "--check",
+        action="store_true",
+        help="only list the files that differ from what the code writes; exit status 1 if any",
+    )
     x = p.add_argument_group("where the runs execute")
     x.add_argument(
         "--workers",

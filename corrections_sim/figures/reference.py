@@ -1,6 +1,6 @@
 """The exact posterior beside a learner's Gaussian, for the runs of a finished learning figure.
 
-    python -m corrections_sim.figures.reference results/quick/fig4 --learner KF-C --runs 2
+    python -m corrections_sim.run reference results/quick/fig4 --learner KF-C --runs 2
 
 For each chosen run of a Gaussian learner, the posterior p(θ | corrections) is computed on a
 grid (:mod:`corrections_sim.learning.reference`) under exactly the model the learner assumes:
@@ -22,19 +22,16 @@ reference NEES, ``ref_kl``; with ``--one-step`` and ``--restart``, where the gap
 
 from __future__ import annotations
 
-import argparse
 import csv
 import dataclasses
 import hashlib
 import json
 import os
-import sys
 from pathlib import Path
 
 import numpy as np
 
 from corrections_sim.belief import Belief, PersonBelief
-from corrections_sim.figures.output import write_records
 from corrections_sim.learning import reference as ref
 from corrections_sim.learning.base import LearnerContext
 from corrections_sim.learning.paper import (
@@ -60,7 +57,6 @@ from corrections_sim.planning.features import waypoint_features
 from corrections_sim.planning.planner import Planner, PlanningError, build_key, cache_dir
 from corrections_sim.planning.plans import PlanBook
 from corrections_sim.scene.environments import Environment
-from corrections_sim.study import schema
 from corrections_sim.study.settings import FigureSettings
 
 
@@ -161,7 +157,7 @@ def grid_residuals(
     return out
 
 
-def _rows(folder: Path, learner: str) -> dict[int, list[dict]]:
+def recorded_runs(folder: Path, learner: str) -> dict[int, list[dict]]:
     with open(folder / "curves.csv", newline="") as fh:
         rows = [r for r in csv.DictReader(fh) if r["learner"] == learner]
     runs: dict[int, list[dict]] = {}
@@ -483,179 +479,3 @@ def calibration_figure(folder: Path) -> Path:
     title = "Each learner against exact Bayes under its own model (95% intervals over "
     plot_reference_calibration(panels, f"{title}{'/'.join(map(str, runs))} runs)", [out])
     return out
-
-
-def main(argv: list[str] | None = None) -> int:
-    if argv is None:
-        argv = sys.argv[1:]
-    if argv[:1] == ["plot"]:
-        try:
-            if len(argv) != 2:
-                raise ValueError("usage: python -m corrections_sim.figures.reference plot DIR")
-            print(f"wrote {calibration_figure(Path(argv[1]))}")
-        except (OSError, ValueError, KeyError) as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            return 2
-        return 0
-    p = argparse.ArgumentParser(
-        prog="python -m corrections_sim.figures.reference", description=__doc__.split("\n\n")[0]
-    )
-    p.add_argument(
-        "folder", type=Path, help="a finished learning figure's folder (curves.csv, summary.json)"
-    )
-    p.add_argument("--learner", default="KF-C")
-    p.add_argument("--runs", type=int, default=2, help="how many runs (the first N)")
-    p.add_argument("--points", type=int, default=61, help="grid points per axis over [-3, 3]^2")
-    p.add_argument(
-        "--one-step",
-        action="store_true",
-        help="also the learner's update from the reference before each correction (a Kalman "
-        "learner with N fixed): the error of one filter step, apart from accumulation",
-    )
-    p.add_argument(
-        "--restart",
-        default="",
-        metavar="S,S",
-        help="also the learner's filter run on from the reference at these iterations (0: the "
-        "prior): NEES / reference NEES at the end for each",
-    )
-    p.add_argument(
-        "--particles",
-        type=int,
-        default=0,
-        metavar="N",
-        help="also run PF-C's particle machinery with N particles on the same corrections: "
-        "judged against the grid at k = 2, the reference itself at k > 2 (no grid there)",
-    )
-    p.add_argument("--seed", type=int, default=0, help="the particle reference's seed")
-    p.add_argument(
-        "--check-grid",
-        action="store_true",
-        help="also on the halved grid (first run): how much mean and covariance move",
-    )
-    args = p.parse_args(argv)
-    try:
-        summary = json.loads((args.folder / "summary.json").read_text())
-        settings = schema.parse_study(summary["settings"], name=summary.get("figure", ""))
-        if args.learner not in settings.study.learners:
-            known = ", ".join(settings.study.learners)
-            raise ValueError(f"--learner {args.learner}: not in this figure ({known})")
-        runs = _rows(args.folder, args.learner)
-        try:
-            restarts = tuple(sorted({int(v) for v in args.restart.split(",") if v.strip()}))
-        except ValueError:
-            raise ValueError(f"--restart {args.restart}: expected iterations like 0,1,4") from None
-        if any(s < 0 for s in restarts):
-            raise ValueError(f"--restart {args.restart}: iterations are >= 0")
-        if args.check_grid and settings.study.k != 2:
-            raise ValueError(
-                f"--check-grid: the grid exists only for k = 2, not {settings.study.k}"
-            )
-        k = settings.study.k
-        grid = ref.Grid((-3.0,) * k, (3.0,) * k, args.points) if k == 2 else None
-        planner = Planner(settings.planner_config())
-        records = []
-        for run in sorted(runs)[: args.runs]:
-            records += reference_run(
-                settings,
-                args.learner,
-                runs[run],
-                grid,
-                planner,
-                one_step=args.one_step,
-                restarts=restarts,
-                particles=args.particles,
-                seed=args.seed + run,
-            )
-            print(f"run {run}: done", file=sys.stderr, flush=True)
-    except (OSError, KeyError, ValueError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    path = write_records(args.folder / f"reference-{args.learner}.csv", records)
-    n_runs = len({r["run"] for r in records})
-    iterations = sorted({r["iteration"] for r in records})
-    by_t = [summary_at(records, t) for t in iterations]
-    print(f"(means over {n_runs} runs; 95% intervals over runs)")
-    print(
-        f"{'t':>3} {'ref NEES':>9} {'NEES':>7} {'NEES / ref NEES':>22} {'ref_kl':>22} "
-        f"{'Gaussian part':>22}"
-    )
-    for row in by_t:
-        ratio = f"{row['ratio']:.2f} [{row['ratio_ci95'][0]:.2f}, {row['ratio_ci95'][1]:.2f}]"
-        kl = (
-            f"{row['ref_kl']:.3f} [{row['ref_kl_ci95'][0]:.3f}, {row['ref_kl_ci95'][1]:.3f}]"
-            if "ref_kl" in row
-            else "-"
-        )
-        lo, hi = row["ref_kl_gaussian_ci95"]
-        gauss = f"{row['ref_kl_gaussian']:.3f} [{lo:.3f}, {hi:.3f}]"
-        print(
-            f"{row['iteration']:>3} {row['ref_nees']:9.2f} {row['nees']:7.2f} {ratio:>22} "
-            f"{kl:>22} {gauss:>22}"
-        )
-    final = by_t[-1]
-    (args.folder / f"reference-{args.learner}.json").write_text(
-        json.dumps({"learner": args.learner, **final, "by_iteration": by_t}, indent=1) + "\n"
-    )
-    kl_text = (
-        f"ref_kl = {final['ref_kl']:.3f} [{final['ref_kl_ci95'][0]:.3f}, "
-        f"{final['ref_kl_ci95'][1]:.3f}], of which Gaussian "
-        if "ref_kl" in final
-        else "the reference is the particles': ref_kl's Gaussian part "
-    )
-    print(
-        f"t = {final['iteration']}: NEES / reference NEES = {final['ratio']:.2f} "
-        f"[{final['ratio_ci95'][0]:.2f}, {final['ratio_ci95'][1]:.2f}], {kl_text}"
-        f"{final['ref_kl_gaussian']:.3f} (95% intervals over {final['runs']} runs)"
-    )
-    if "particle_kl" in final:
-        print(
-            f"{args.particles} particles against the grid: KL (smoothed on the grid) "
-            f"{final['particle_kl']:.3f}, mean within {final['particle_mean_gap']:.1%} of an "
-            f"sd, variances within {final['particle_var_gap']:.1%}, ESS "
-            f"{final['particle_ess']:.0f}"
-        )
-    if "one_step_ratio" in final:
-        low, high = final["one_step_ratio_ci95"]
-        print(
-            f"one filter step from the reference: NEES / reference NEES = "
-            f"{final['one_step_ratio']:.2f} [{low:.2f}, {high:.2f}], KL "
-            f"{final['one_step_kl']:.3f}"
-        )
-    if "relevance_gap" in final:
-        print(
-            f"β̂ against the exact one: mean |gap| {final['relevance_gap']:.3f} (largest "
-            f"{final['relevance_gap_max']:.3f}); the same side of 1/2 for "
-            f"{final['relevance_agree']:.0%} of the corrections"
-        )
-    for key, value in final.items():
-        if key.startswith("restart_"):
-            at = key.split("_")[1]
-            print(f"the filter from the reference at t = {at} on: NEES / ref NEES {value:.2f}")
-    if args.check_grid:
-        fine = grid.halved()
-        first = sorted(runs)[0]
-        coarse = [r for r in records if r["run"] == first]
-        finer = reference_run(settings, args.learner, runs[first], fine, planner)
-        pairs = list(zip(coarse, finer, strict=True))
-        k = settings.study.k
-        worst_mean = max(
-            abs(a[f"ref_theta_{i}"] - b[f"ref_theta_{i}"]) / np.sqrt(b[f"ref_cov_{i}{i}"])
-            for a, b in pairs
-            for i in range(k)
-        )
-        worst_cov = max(
-            abs(a[f"ref_cov_{i}{i}"] - b[f"ref_cov_{i}{i}"]) / b[f"ref_cov_{i}{i}"]
-            for a, b in pairs
-            for i in range(k)
-        )
-        print(
-            f"grid {grid.points} -> {fine.points} points per axis: the mean moves by at most "
-            f"{worst_mean:.2%} of its sd, the variances by {worst_cov:.2%}"
-        )
-    print(f"wrote {path}")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

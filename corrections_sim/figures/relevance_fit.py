@@ -1,8 +1,8 @@
 """The densities of ρ*, fitted to labelled corrections (issue 38): what a relevant and an
 irrelevant correction leave unexplained, in the space where the person acts.
 
-    python -m corrections_sim.figures.relevance_fit            # results/relevance_fit/
-    python -m corrections_sim.figures.relevance_fit --quick    # 12 per kind, results/quick/
+    python -m corrections_sim.run relevance-fit            # results/relevance_fit/
+    python -m corrections_sim.run relevance-fit --quick    # 12 per kind, results/quick/
 
 Labelled corrections are made by simulated people in three ways, each relevant (toward the
 plan of a preference θ_p over the robot's own features) or irrelevant (the same size, in a
@@ -36,14 +36,11 @@ copy of the committed fit) and ``densities.png``.
 
 from __future__ import annotations
 
-import argparse
-import json
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from corrections_sim.figures.output import write_csv
 from corrections_sim.learning.kalman import SigmaPoints
 from corrections_sim.learning.relevance import SPACES, beta_rho_density, explain
 from corrections_sim.people.corrections import WaypointCorrection, worst_waypoints
@@ -293,41 +290,3 @@ def plot(rows: list[dict], fitted: dict, path: Path) -> Path:
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path
-
-
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(
-        prog="python -m corrections_sim.figures.relevance_fit",
-        description=__doc__.split("\n\n")[0],
-    )
-    p.add_argument("--out", type=Path, default=Path("results"))
-    p.add_argument("--per-kind", type=int, default=60, help="relevant (and irrelevant) per mode")
-    p.add_argument("--quick", action="store_true", help="12 per kind, into OUT/quick/")
-    p.add_argument("--seed", type=int, default=SEED)
-    args = p.parse_args(argv)
-    per_kind = 12 if args.quick else args.per_kind
-    if per_kind < 2:
-        print(f"error: --per-kind {per_kind}: at least 2", file=sys.stderr)
-        return 2
-    folder = args.out / ("quick" if args.quick else "") / "relevance_fit"
-    rows = labelled_corrections(per_kind, args.seed)
-    fitted = fit(rows)
-    fitted["source"] = f"relevance_fit --per-kind {per_kind} --seed {args.seed}"
-    folder.mkdir(parents=True, exist_ok=True)
-    print(f"wrote {write_csv(folder / 'data.csv', rows)}")
-    (folder / "fit.json").write_text(json.dumps(fitted, indent=1) + "\n")
-    print(f"wrote {folder / 'fit.json'}")
-    print(f"wrote {plot(rows, fitted, folder / 'densities.png')}")
-    for space, entry in fitted["spaces"].items():
-        a, b = entry["irrelevant"]
-        shape, rate = entry["precision"]
-        print(
-            f"{space}: relevant τ ~ Gamma({shape:.3g}, {rate:.3g}) (σ̂ {np.sqrt(rate / shape):.4f});"
-            f" irrelevant ρ² ~ Beta({a:.3f}, {b:.3f}); explanations' scatter {entry['scatter']};"
-            f" {entry['relevant_count']} + {entry['irrelevant_count']} corrections"
-        )
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

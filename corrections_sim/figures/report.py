@@ -1,7 +1,7 @@
 """Markdown tables from a figure's ``summary.json``: what the README quotes, computed, not typed.
 
-    python -m corrections_sim.figures.report results/fig4   # learning figure: final, paired, NEES
-    python -m corrections_sim.figures.report results/fig6            # robustness matrix
+    python -m corrections_sim.run report results/fig4   # learning figure: final, paired, NEES
+    python -m corrections_sim.run report results/fig6            # robustness matrix
 
 Reads only the summary a figure wrote; prints to stdout. Bad input (no such folder, not a
 figure's summary) is one line on stderr and exit status 2.
@@ -10,7 +10,6 @@ figure's summary) is one line on stderr and exit status 2.
 from __future__ import annotations
 
 import json
-import sys
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -173,29 +172,3 @@ def report(folder: Path) -> str:
     parts += calibration_table(summary) + [""]
     parts += paired_table(summary)
     return "\n".join(parts)
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    args = list(sys.argv[1:] if argv is None else argv)
-    if len(args) != 1:
-        print(
-            "error: usage: python -m corrections_sim.figures.report RESULTS/FIGURE", file=sys.stderr
-        )
-        return 2
-    folder = Path(args[0])
-    try:
-        print(report(folder))
-    except FileNotFoundError:
-        print(f"error: {folder}: no summary.json (run the figure first)", file=sys.stderr)
-        return 2
-    except (KeyError, json.JSONDecodeError) as exc:
-        print(
-            f"error: {folder}/summary.json: not a learning figure's summary ({exc})",
-            file=sys.stderr,
-        )
-        return 2
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -595,7 +595,7 @@ class PersonRelevanceKalman(CorrectionAwareKalman):
         space: where ρ is measured: "joint" (the arm's joints, what a simulated person moves)
             or "task" (the cup's path, what a person at the page drags or pushes).
         fit: a fit file of the densities of ρ* and of the scatter of irrelevant
-            explanations (``python -m corrections_sim.figures.relevance_fit``); "" is the
+            explanations (``python -m corrections_sim.run relevance-fit``); "" is the
             shipped fit, except that in joint space f₀ is then the random direction's
             Beta((7 − k)/2, k/2) and σ̂ is ``relevance_spread``.
         expand_traces: feature expansion (FERL; :mod:`corrections_sim.planning.learnt`): how

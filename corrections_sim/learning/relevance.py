@@ -423,7 +423,7 @@ class Relevance:
 
 
 #: The fit the learners use when a study names none: fitted by
-#: ``python -m corrections_sim.figures.relevance_fit`` to labelled corrections, shipped with
+#: ``python -m corrections_sim.run relevance-fit`` to labelled corrections, shipped with
 #: the presets.
 DEFAULT_FIT = "relevance_fit.json"
 

@@ -13,7 +13,7 @@
 
 The source of truth stays the code (:func:`corrections_sim.scene.world.build_spec`, the
 dimensions in :mod:`corrections_sim.scene.geometry`, the installed example-robot-data):
-``python -m corrections_sim.scene.models`` rewrites ``models/``, ``--check`` lists what drifted, and
+``python -m corrections_sim.run models`` rewrites ``models/``, ``--check`` lists what drifted, and
 ``tests/test_models.py`` fails when the committed files differ from what :func:`scene_files`
 makes, or when the model loaded from them disagrees with the collision checker's in forward
 kinematics or collision verdicts.
@@ -21,8 +21,6 @@ kinematics or collision verdicts.
 
 from __future__ import annotations
 
-import argparse
-import sys
 from pathlib import Path
 
 import mujoco
@@ -43,7 +41,7 @@ SCENE_ENV = "s0-t0-l1"
 _HEADER = (
     "<!-- The corrections_sim scene (Losey & O'Malley, CoRL 2018): Panda, pedestal, table, "
     "laptop, cup.\n"
-    "     Written by `python -m corrections_sim.scene.models` from "
+    "     Written by `python -m corrections_sim.run models` from "
     "corrections_sim/scene/world.py, corrections_sim/scene/geometry.py\n"
     "     and example-robot-data's panda_collision.urdf; do not edit by hand: "
     "tests/test_models.py fails on drift.\n"
@@ -154,25 +152,3 @@ def load_model(path: str | Path = MODELS_DIR / SCENE_FILE) -> mujoco.MjModel:
     if model.nq != robot.N_ARM_JOINTS:
         raise ModelFileError(f"{path}: {model.nq} joint coordinates, expected the Panda's 7")
     return model
-
-
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(
-        prog="python -m corrections_sim.scene.models",
-        description="Write the scene as MJCF into models/ (or check that it has not drifted).",
-    )
-    p.add_argument("--out", type=Path, default=MODELS_DIR, help="folder (default: models/)")
-    p.add_argument("--check", action="store_true", help="only list files that differ; exit 1")
-    args = p.parse_args(argv)
-    if args.check:
-        stale = drift(args.out)
-        for name in stale:
-            print(f"differs from the code: {args.out / name}", file=sys.stderr)
-        return 1 if stale else 0
-    for path in write(args.out):
-        print(f"wrote {path}")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -15,9 +15,15 @@ from corrections_sim.cli.commands import (
     analyze,
     figure,
     interact,
+    models,
     pilot,
     power,
+    reference,
+    reference_plot,
+    relevance_fit,
+    relevance_scores,
     replay,
+    report,
     scene,
     serve_study,
     study_status,
@@ -36,6 +42,12 @@ TOOLS = (
     analyze,
     pilot,
     power,
+    reference,
+    reference_plot,
+    relevance_fit,
+    relevance_scores,
+    report,
+    models,
 )
 
 

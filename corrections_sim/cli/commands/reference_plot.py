@@ -1,0 +1,35 @@
+"""``reference-plot``: the calibration figure of the exact references in a figure's folder
+(``reference-<learner>.json``, written by ``reference``).
+
+    python -m corrections_sim.run reference-plot results/fig4
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from corrections_sim.cli.command import Command
+from corrections_sim.cli.errors import UsageError
+
+
+def run_reference_plot(args: argparse.Namespace) -> list[Path]:
+    """The calibration figure of every ``reference-*.json`` in the folder FILE."""
+    from corrections_sim.figures.reference import calibration_figure
+
+    if not args.study_file:
+        raise UsageError("reference-plot: give the folder of the references, e.g. results/fig4")
+    try:
+        return [calibration_figure(Path(args.study_file))]
+    except (OSError, ValueError, KeyError) as exc:
+        raise UsageError(str(exc)) from None
+
+
+COMMAND = Command(
+    name="reference-plot",
+    run=run_reference_plot,
+    help="the calibration figure of the references in a figure's folder",
+    options=("study_file",),
+    file="DIR",
+    option_help={"study_file": "a folder holding reference-<learner>.json files"},
+)
