@@ -17,7 +17,7 @@ import time
 
 import numpy as np
 
-from corrections_sim.figures.learning import load_settings
+from corrections_sim.figures.learning_study import load_settings
 from corrections_sim.study import runner
 
 

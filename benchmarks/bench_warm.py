@@ -59,7 +59,7 @@ class WarmProblem:
 
 def capture(runs: int, seed: int, learners: Sequence[str] = LEARNERS) -> list[WarmProblem]:
     """The warm problems of ``runs`` runs of fig. 4 (12 corrections, ``learners``)."""
-    from corrections_sim.figures import learning
+    from corrections_sim.figures import learning_study
     from corrections_sim.study import runner
 
     index = {e.key(): i for i, e in enumerate(paper_environments())}
@@ -78,7 +78,7 @@ def capture(runs: int, seed: int, learners: Sequence[str] = LEARNERS) -> list[Wa
         return original(book, theta, env)
 
     overrides = {"runs": runs, "iterations": 12, "seed": seed, "learners": list(learners)}
-    settings = learning.load_settings("fig4", quick=False, overrides=overrides)
+    settings = learning_study.load_settings("fig4", quick=False, overrides=overrides)
     plans.PlanBook._solve = watched
     try:
         with ThreadPoolExecutor(max_workers=1) as executor:
@@ -218,7 +218,7 @@ def run_breakdown(runs: int, seed: int, modes: Sequence[str] = ("solver", "newto
     settings on one worker thread, every planner solve timed by how it started (cold: the
     planner's guesses; warm: one start) and what answered it; the rest is outside the
     planner (learners, users, records)."""
-    from corrections_sim.figures import learning
+    from corrections_sim.figures import learning_study
     from corrections_sim.planning import planner as planner_module
     from corrections_sim.study import runner
 
@@ -247,7 +247,7 @@ def run_breakdown(runs: int, seed: int, modes: Sequence[str] = ("solver", "newto
                 entry[1] += time.perf_counter() - t0
 
         overrides = {"runs": runs, "seed": seed, "set": [f"planner.warm={mode}"]}
-        settings = learning.load_settings("fig4", quick=False, overrides=overrides)
+        settings = learning_study.load_settings("fig4", quick=False, overrides=overrides)
         planner_module.Planner.solve = timed
         t0 = time.perf_counter()
         try:

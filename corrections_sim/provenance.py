@@ -106,7 +106,7 @@ EDGE_MODULES = (
 #: Packages that cannot change a learning run's numbers (command line, files and plots), and
 #: of ``figures/`` the modules a learning run executes (the others make files or figs. 1–3).
 EDGE_PACKAGES = ("cli/", "figures/", "session/", "userstudy/", "pages/")
-FIGURE_MODULES = ("figures/learning.py",)
+FIGURE_MODULES = ("figures/learning_study.py",)
 
 
 def code_fingerprint() -> str:

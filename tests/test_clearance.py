@@ -181,14 +181,16 @@ def test_bad_input_and_unsupported_models(cert):
 
 
 def test_a_study_can_turn_it_off_and_the_run_key_ignores_it():
-    from corrections_sim.figures import learning
+    from corrections_sim.figures import learning_study
     from corrections_sim.study.runner import run_key
 
-    on = learning.load_settings("fig4", quick=True)
-    off = learning.load_settings(
+    on = learning_study.load_settings("fig4", quick=True)
+    off = learning_study.load_settings(
         "fig4", quick=True, overrides={"set": ["planner.certificate=false"]}
     )
     assert on.planner_config().certificate and not off.planner_config().certificate
     assert run_key(on) == run_key(off)  # it changes no number, so cached runs are reused
     with pytest.raises(ValueError, match="planner.certificate"):
-        learning.load_settings("fig4", quick=True, overrides={"set": ["planner.certificate=2"]})
+        learning_study.load_settings(
+            "fig4", quick=True, overrides={"set": ["planner.certificate=2"]}
+        )

@@ -20,7 +20,7 @@ import pytest
 
 from corrections_sim.cli import main as cli
 from corrections_sim.cli.commands import figure as figure_command
-from corrections_sim.figures import learning
+from corrections_sim.figures import learning_study
 from corrections_sim.study import runner
 from corrections_sim.study.store import RunStore
 
@@ -113,7 +113,7 @@ def test_an_unreachable_scheduler_fails_within_seconds(tmp_path, capsys):
 
 
 def test_a_second_command_on_the_same_folder_is_refused(earlier, capsys):
-    settings = learning.load_settings("fig4", quick=True)
+    settings = learning_study.load_settings("fig4", quick=True)
     store = RunStore(earlier / ".runs" / "fig4", {"other": settings.as_dict()})
     with store.lock():
         status = _main([*TINY, "--out", str(earlier), "--force"])

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from corrections_sim.belief import Belief, KalmanNoise, Particles
+from corrections_sim.learning import exact_posterior as ref
 from corrections_sim.learning import particles as smc
-from corrections_sim.learning import reference as ref
 from corrections_sim.learning.base import make_learner
 from corrections_sim.learning.kalman import (
     batch_update,

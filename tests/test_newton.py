@@ -244,17 +244,17 @@ def test_the_start_residual_is_the_gate(solved, planners):
 
 
 def test_the_warm_mode_is_checked_and_named_in_a_study():
-    from corrections_sim.figures import learning
+    from corrections_sim.figures import learning_study
 
     with pytest.raises(ValueError, match="warm"):
         PlannerConfig(warm="fast")
-    s = learning.load_settings("fig4", quick=True, overrides={"set": ["planner.warm=newton"]})
+    s = learning_study.load_settings("fig4", quick=True, overrides={"set": ["planner.warm=newton"]})
     assert s.planner_config().warm == "newton"
-    assert learning.load_settings("fig4", quick=True).planner_config().warm == "newton"
-    s = learning.load_settings("fig4", quick=True, overrides={"set": ["planner.warm=solver"]})
+    assert learning_study.load_settings("fig4", quick=True).planner_config().warm == "newton"
+    s = learning_study.load_settings("fig4", quick=True, overrides={"set": ["planner.warm=solver"]})
     assert s.planner_config().warm == "solver"
     with pytest.raises(ValueError, match="planner.warm"):
-        learning.load_settings("fig4", quick=True, overrides={"set": ["planner.warm=fast"]})
+        learning_study.load_settings("fig4", quick=True, overrides={"set": ["planner.warm=fast"]})
 
 
 def test_the_band_holds_the_whole_hessian():

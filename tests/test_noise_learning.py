@@ -124,10 +124,12 @@ def test_quick_fig4_learnt_noise_raises_nis_lowers_the_noise_and_learns_no_worse
     (0.19, 0.15) and the final error is 0.78 against 0.84."""
     from concurrent.futures import ThreadPoolExecutor
 
-    from corrections_sim.figures import learning
+    from corrections_sim.figures import learning_study
     from corrections_sim.study import analysis, runner
 
-    settings = learning.load_settings("fig4", quick=True, overrides={"learners": ["KF-C", "KF-CL"]})
+    settings = learning_study.load_settings(
+        "fig4", quick=True, overrides={"learners": ["KF-C", "KF-CL"]}
+    )
     with ThreadPoolExecutor(max_workers=1) as executor:
         result = runner.run(settings, executor, mean_estimate=False)
     stats = analysis.summarize(settings, result)
@@ -144,14 +146,14 @@ def test_quick_fig4_learnt_noise_raises_nis_lowers_the_noise_and_learns_no_worse
 def test_a_learners_override_given_as_a_table_keeps_its_parameters():
     """Python callers may name learners with parameters: they reach the learner (they were
     dropped silently before), on top of the study file's, and a non-table is refused."""
-    from corrections_sim.figures import learning
+    from corrections_sim.figures import learning_study
 
     table = {"KF-CL": {"noise_dof": 1.5}, "KF": {"noise": "learnt"}}
-    s = learning.load_settings("fig4", quick=True, overrides={"learners": table}).study
+    s = learning_study.load_settings("fig4", quick=True, overrides={"learners": table}).study
     assert list(s.learners) == ["KF-CL", "KF"]
     assert s.learners["KF"].noise == "learnt"
     assert (s.learners["KF-CL"].noise, s.learners["KF-CL"].noise_dof) == ("learnt", 1.5)
-    listed = learning.load_settings("fig4", quick=True, overrides={"learners": ["KF"]}).study
+    listed = learning_study.load_settings("fig4", quick=True, overrides={"learners": ["KF"]}).study
     assert listed.learners["KF"].noise == "fixed"
     with pytest.raises(ValueError, match="learners.KF: expected a table of parameters"):
-        learning.load_settings("fig4", quick=True, overrides={"learners": {"KF": "learnt"}})
+        learning_study.load_settings("fig4", quick=True, overrides={"learners": {"KF": "learnt"}})

@@ -12,7 +12,7 @@ from scipy import integrate, stats
 from test_relevance import _context
 
 from corrections_sim.belief import Belief, PersonBelief
-from corrections_sim.learning import reference as ref
+from corrections_sim.learning import exact_posterior as ref
 from corrections_sim.learning.base import make_learner
 from corrections_sim.learning.kalman import SigmaPoints
 from corrections_sim.learning.relevance import judge

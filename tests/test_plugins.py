@@ -369,13 +369,13 @@ def test_example_custom_feature_plans_with_it():
 
 
 def test_a_plugin_learner_runs_through_the_figures_pipeline():
-    """learning.run (executor, PP-type ordering, learning rates) takes a registered learner
+    """learning_study.run (executor, PP-type ordering, learning rates) takes a registered learner
     without a covariance that needs no rates; plotting gives it a colour and its label."""
     code = f"""
 import json, runpy
 from concurrent.futures import ThreadPoolExecutor
 runpy.run_path({str(EXAMPLES / "custom_learner.py")!r})
-from corrections_sim.figures import learning
+from corrections_sim.figures import learning_study
 from corrections_sim.study import runner
 from corrections_sim.figures.plotting import learner_label, learner_style
 from corrections_sim.study import schema

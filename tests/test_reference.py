@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from corrections_sim.belief import Belief, KalmanNoise
-from corrections_sim.learning import reference as ref
+from corrections_sim.learning import exact_posterior as ref
 from corrections_sim.learning.kalman import ukf_update
 
 PRIOR = Belief(theta=np.zeros(2), cov=np.eye(2))

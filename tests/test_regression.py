@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from corrections_sim.figures import learning
+from corrections_sim.figures import learning_study
 from corrections_sim.study import analysis, runner
 
 REFERENCE = Path(__file__).resolve().parents[1] / "results" / "reference"
@@ -37,10 +37,10 @@ def _mean_curves(rows: list[dict], learner: str, key: str) -> np.ndarray:
     )
 
 
-@pytest.fixture(scope="module", params=learning.FIGURES)
+@pytest.fixture(scope="module", params=learning_study.FIGURES)
 def quick_run(request):
     figure = request.param
-    settings = learning.load_settings(figure, quick=True)
+    settings = learning_study.load_settings(figure, quick=True)
     # One worker thread: the same code path as the process pool, without process start-up.
     with ThreadPoolExecutor(max_workers=1) as executor:
         result = runner.run(settings, executor)

@@ -11,7 +11,7 @@ from scipy import integrate
 
 from corrections_sim.belief import Belief
 from corrections_sim.components import ParameterError
-from corrections_sim.learning import reference as ref
+from corrections_sim.learning import exact_posterior as ref
 from corrections_sim.learning.base import make_learner
 from corrections_sim.learning.relevance import Relevance, explain
 from corrections_sim.metrics import roc_auc

@@ -18,7 +18,7 @@ import pytest
 
 from corrections_sim.cli import main as cli
 from corrections_sim.cli.commands import figure as figure_command
-from corrections_sim.figures import learning
+from corrections_sim.figures import learning_study
 from corrections_sim.study import runner
 from corrections_sim.study import schema as study_file
 
@@ -155,8 +155,8 @@ def test_own_environments_are_the_ones_the_study_runs_in(tmp_path):
 
 
 def test_figs_4_and_5_are_study_files_with_the_same_settings():
-    for figure in learning.FIGURES:
-        via_figure = learning.load_settings(figure, quick=True)
+    for figure in learning_study.FIGURES:
+        via_figure = learning_study.load_settings(figure, quick=True)
         path = EXPERIMENTS / f"{figure}.toml"
         via_file = study_file.load_study(path, name=figure, quick=True)
         assert via_figure == via_file

@@ -124,7 +124,7 @@ def test_an_installed_wheel_runs_a_figure_from_another_folder(python, tmp_path):
     check = run(
         "-c",
         "import corrections_sim, json\n"
-        "from corrections_sim.figures import deployment, learning, selection\n"
+        "from corrections_sim.figures import deployment, learning_study, selection\n"
         "for module in (selection, deployment, learning):\n"
         "    for figure in module.FIGURES:\n"
         "        for quick in (False, True):\n"

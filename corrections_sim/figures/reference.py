@@ -3,7 +3,7 @@
     python -m corrections_sim.run reference results/quick/fig4 --learner KF-C --runs 2
 
 For each chosen run of a Gaussian learner, the posterior p(θ | corrections) is computed on a
-grid (:mod:`corrections_sim.learning.reference`) under exactly the model the learner assumes:
+grid (:mod:`corrections_sim.learning.exact_posterior`) under exactly the model the learner assumes:
 KF/AL's h(θ) = Φ(ξ*(θ, E)), KF-C/AL-C's hₜ(θ) = Φ(C(ξᵗ, ξ*(θ, E))) with its correction model,
 N fixed or (``noise = "learnt"``) integrated out under the learner's prior, and BP's Boltzmann
 likelihood. Each correction is replayed from the figure's records: Eᵗ and θ̂ᵗ⁻¹ give the
@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from corrections_sim.belief import Belief, PersonBelief
-from corrections_sim.learning import reference as ref
+from corrections_sim.learning import exact_posterior as ref
 from corrections_sim.learning.base import LearnerContext
 from corrections_sim.learning.paper import (
     BoltzmannPosterior,

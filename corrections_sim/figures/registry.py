@@ -30,7 +30,7 @@ from corrections_sim.study.runner import RunCache
 BUILT_IN = (
     "corrections_sim.figures.selection",
     "corrections_sim.figures.deployment",
-    "corrections_sim.figures.learning",
+    "corrections_sim.figures.learning_study",
     "corrections_sim.figures.robustness",
     "corrections_sim.figures.physical",
     "corrections_sim.figures.relevance",

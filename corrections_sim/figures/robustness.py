@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from corrections_sim import provenance
-from corrections_sim.figures import learning
+from corrections_sim.figures import learning_study
 from corrections_sim.figures.output import write_records
 from corrections_sim.figures.presets import EXPERIMENTS_DIR
 from corrections_sim.figures.registry import Caches, register
@@ -171,7 +171,7 @@ def title(settings: RobustnessSettings, what: str) -> str:
     first = settings.columns[0].settings
     return (
         f"{what}: {first.study.runs} runs × {first.study.iterations} corrections; "
-        + learning.describe(first).rsplit(";", 1)[0]
+        + learning_study.describe(first).rsplit(";", 1)[0]
     )
 
 
@@ -217,7 +217,7 @@ def write(settings: RobustnessSettings, results: Sequence[FigureResult], folder:
     first = settings.columns[0].settings
     title = (
         f"fig6: learners × simulated users; {first.study.runs} runs × "
-        f"{first.study.iterations} corrections; " + learning.describe(first).rsplit(";", 1)[0]
+        f"{first.study.iterations} corrections; " + learning_study.describe(first).rsplit(";", 1)[0]
     )
     plot_robustness_matrix(rows, title, [folder / "fig6.png", folder / "fig6.pdf"])
     return summary
@@ -229,7 +229,7 @@ class RobustnessFigure:
 
     name: str = FIGURE
     help: str = "beyond the paper: learners x simulated users, calibration"
-    options: tuple[str, ...] = learning.OPTIONS
+    options: tuple[str, ...] = learning_study.OPTIONS
     unit: str = "run"
     in_all: bool = True
 

@@ -37,6 +37,7 @@ from corrections_sim.learning.active import select_environment
 from corrections_sim.learning.attenuated import Attenuation
 from corrections_sim.learning.attenuated import update as attenuated_update
 from corrections_sim.learning.base import Learner, LearnerContext, Step, register_learner
+from corrections_sim.learning.exact_posterior import gaussian_log_likelihood as particle_likelihood
 from corrections_sim.learning.kalman import (
     Observe,
     batch_update,
@@ -53,7 +54,6 @@ from corrections_sim.learning.particles import draw as particles_draw
 from corrections_sim.learning.perceptron import perceptron_update
 from corrections_sim.learning.preference_posterior import BoltzmannCorrection
 from corrections_sim.learning.preference_posterior import update as posterior_update
-from corrections_sim.learning.reference import gaussian_log_likelihood as particle_likelihood
 from corrections_sim.learning.relevance import SPACES, Relevance, explain, judge, load_fit
 from corrections_sim.people.corrections import (
     CORRECTIONS,

@@ -359,7 +359,7 @@ def write(settings: FigureSettings, result: FigureResult, facts: dict, folder) -
     stated θ gives error, regret and NEES, the plot (PNG, PDF); returns the summary's fields."""
     from pathlib import Path
 
-    from corrections_sim.figures.learning import write as write_study
+    from corrections_sim.figures.learning_study import write as write_study
     from corrections_sim.figures.output import write_records
 
     folder = Path(folder)

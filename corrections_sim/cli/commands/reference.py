@@ -22,7 +22,7 @@ def run_reference(args: argparse.Namespace) -> list[Path]:
     JSON beside the figure's files, and the table of its means over runs printed."""
     from corrections_sim.figures.output import write_records
     from corrections_sim.figures.reference import recorded_runs, reference_run, summary_at
-    from corrections_sim.learning import reference as ref
+    from corrections_sim.learning import exact_posterior as ref
     from corrections_sim.planning.planner import Planner
     from corrections_sim.study import schema
 
