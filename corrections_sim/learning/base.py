@@ -143,6 +143,17 @@ class Learner(abc.ABC):
         """Index of Eᵗ in ``ctx.envs``; ``draw`` is the run's random choice."""
         return draw
 
+    def learns_features(self) -> bool:
+        """Whether it may ask its person for feature traces and learn the feature it lacks
+        (FERL, :mod:`corrections_sim.planning.learnt`): a session then builds the learnt
+        feature's planner ahead and shows the teaching controls."""
+        return False
+
+    def wants_traces(self, belief: Belief, corrections: int) -> int:
+        """How many feature traces it asks for after ``corrections`` corrections with
+        ``belief`` (0: none, which a learner that does not learn features always says)."""
+        return 0
+
     @abc.abstractmethod
     def update(
         self, ctx: LearnerContext, belief: Belief, env: Environment, plan: Plan, phi_h: np.ndarray

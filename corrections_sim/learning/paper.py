@@ -767,6 +767,9 @@ class PersonRelevanceKalman(CorrectionAwareKalman):
             return declined, {"asked": True, "taught": False}
         return self.grow(belief, env, traces, ctx.rng, ctx)
 
+    def learns_features(self) -> bool:
+        return self.expand_traces > 0
+
     def wants_traces(self, belief: Belief, corrections: int) -> int:
         """How many feature traces it asks for after ``corrections`` corrections with
         ``belief`` (0: none; it asks once)."""

@@ -307,8 +307,7 @@ def _teach(agent, belief, corrections: int, teaching: dict, envs, seed: int, ctx
     """A learner that asks for traces after ``corrections`` corrections gets the session's:
     it learns the feature from them as the session did (the same seed; the session's own
     learner gives back the logged weights); where the person gave none it is told so."""
-    wants = getattr(agent, "wants_traces", None)
-    if wants is None or not wants(belief, corrections):
+    if not agent.learns_features() or not agent.wants_traces(belief, corrections):
         return belief
     given = teaching.get(corrections)
     if given is None or "learnt" not in given:

@@ -221,7 +221,7 @@ class Session:
         # environment (eq. (A1)'s 48 × (2k + 1) predictions for AL in well under a second);
         # --resume then repeats the very same solves in the same order.
         self.book = PlanBook(self.planner, warm_start=s.warm_start)
-        if getattr(agent, "expand_traces", 0) and self.planner.config.jit:
+        if agent.learns_features() and self.planner.config.jit:
             # A learner that may learn a feature: its shape's planner is built now, not while
             # the person waits for the plan over it (a first build takes about two minutes).
             from corrections_sim.planning.learnt import prepare_slot
@@ -497,7 +497,7 @@ class Session:
     def teaches(self) -> bool:
         """Whether the learner may ask its person for feature traces (a page shows the
         teaching controls only then)."""
-        return bool(getattr(self.agent, "expand_traces", 0)) and not self.physical
+        return self.agent.learns_features() and not self.physical
 
     def motion(self, duration: float = 5.0, *, look_steps: int | None = None) -> PushedMotion:
         """The current proposal played under impedance, for a person to push (no sensing
@@ -739,8 +739,7 @@ class Session:
 
     def _ask_traces(self) -> None:
         """Whether the learner now asks for feature traces (after each correction)."""
-        wants = getattr(self.agent, "wants_traces", None)
-        self.wanted = 0 if wants is None else int(wants(self.belief, self.iteration))
+        self.wanted = int(self.agent.wants_traces(self.belief, self.iteration))
         self.traces, self.open_trace = [], None
 
     def start_trace(self, detail: Mapping) -> None:
