@@ -156,7 +156,7 @@ def test_a_registered_learner_takes_its_parameters_by_name():
 
 
 def test_plot_styles_and_labels_come_from_the_learners():
-    from corrections_sim.figures.plotting import learner_label, learner_style
+    from corrections_sim.figures.style import learner_label, learner_style
 
     assert learner_style("KF-C") == ("#1f77b4", "--")
     assert learner_label("KF") == "Kalman filter (KF)"
@@ -377,7 +377,7 @@ from concurrent.futures import ThreadPoolExecutor
 runpy.run_path({str(EXAMPLES / "custom_learner.py")!r})
 from corrections_sim.figures import learning_study
 from corrections_sim.study import runner
-from corrections_sim.figures.plotting import learner_label, learner_style
+from corrections_sim.figures.style import learner_label, learner_style
 from corrections_sim.study import schema
 s = schema.parse_study(dict(
     theta_star=[1.0, -1.0], theta0=[0.0, 0.0], cov0=[[1.0, 0.0], [0.0, 1.0]], runs=1,

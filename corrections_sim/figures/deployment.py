@@ -409,8 +409,8 @@ def write(settings: DeploymentSettings, result: DeploymentResult, folder: Path) 
     Returns:
         The paths written, in that order.
     """
+    from corrections_sim.figures.deployment_plot import plot_deployment_figure
     from corrections_sim.figures.output import trajectory_rows, write_csv
-    from corrections_sim.figures.plotting import plot_deployment_figure
     from corrections_sim.scene import render
 
     folder = Path(folder)

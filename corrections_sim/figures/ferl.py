@@ -231,7 +231,6 @@ def _taught(settings) -> str:
 def write(settings, results: Sequence[FigureResult], folder: Path, sweep: list[dict]) -> dict:
     """matrix.csv, paired.csv, curves.csv, quality.csv and the plots; the summary's fields."""
     from corrections_sim.figures.output import write_csv
-    from corrections_sim.figures.plotting import plot_ferl, plot_ferl_quality
 
     k0 = len(settings.columns[0].settings.features)
     rows = matrix(settings, results, k0)
@@ -290,3 +289,76 @@ class FerlSettings(robustness.RobustnessSettings):
 
 
 register(FerlFigure())
+
+
+def plot_ferl(curves: dict, people: list[str], bounds: dict, title: str, paths) -> None:
+    """The FERL figure: per person (columns), the regret of their whole objective (top) and
+    the error on the robot's own features (bottom) over corrections, mean ± SEM per learner,
+    and the upper bound (KF-C of the column where the robot knows their feature) dashed grey.
+
+    Args:
+        curves: column label -> learner -> {"regret", "error"} arrays (runs, T + 1).
+        people: the columns to draw, in order.
+        bounds: column label -> the label of its upper bound's column.
+        paths: files to write.
+    """
+    from corrections_sim.figures.style import learner_style, plt, save_and_close
+    from corrections_sim.metrics import mean_sem
+
+    fig, axes = plt.subplots(2, len(people), figsize=(5.0 * len(people), 7.4), squeeze=False)
+    for j, person in enumerate(people):
+        lines = dict(curves[person])
+        if person in bounds:
+            lines["KF-C, knows human"] = curves[bounds[person]]["KF-C"]
+        for i, metric in enumerate(("regret", "error")):
+            ax = axes[i, j]
+            for name, data in lines.items():
+                values = data[metric]
+                t = np.arange(values.shape[1])
+                mean, sem = mean_sem(values)
+                if name.endswith("knows human"):
+                    colour, style = "0.45", "--"
+                else:
+                    colour, style = learner_style(name)
+                ax.plot(t, mean, color=colour, ls=style, lw=1.4, label=name)
+                ax.fill_between(t, mean - sem, mean + sem, color=colour, alpha=0.15, lw=0)
+            ax.set_xlabel("corrections t")
+            if i == 0:
+                ax.set_title(person, fontsize=10)
+                ax.set_ylabel("regret of the person's objective")
+            else:
+                ax.set_ylabel("error ‖θ̂ − θ*‖₁ on laptop, table")
+            ax.grid(alpha=0.3)
+        axes[0, j].legend(fontsize=8)
+    fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    save_and_close(fig, paths, dpi=120)
+
+
+def plot_ferl_quality(rows: Sequence[dict], title: str, paths) -> None:
+    """Spearman ρ of a learnt feature against the true one, against the number of traces,
+    per teacher noise (mean ± SEM over seeds; FERL's measure), with the issue's targets."""
+    from corrections_sim.figures.style import plt, save_and_close
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.8))
+    for noise in dict.fromkeys(r["noise"] for r in rows):
+        mine = [r for r in rows if r["noise"] == noise]
+        counts = sorted({r["traces"] for r in mine})
+        values = [np.array([r["spearman"] for r in mine if r["traces"] == n]) for n in counts]
+        mean = [v.mean() for v in values]
+        sem = [v.std(ddof=1) / np.sqrt(v.size) if v.size > 1 else 0.0 for v in values]
+        ax.errorbar(counts, mean, yerr=sem, marker="o", capsize=3, label=f"teacher: {noise}")
+    for level in (0.9, 0.8):
+        ax.axhline(level, color="0.6", lw=0.8, ls=":")
+    ax.set_xscale("log")
+    counts = sorted({r["traces"] for r in rows})
+    ax.set_xticks(counts, [str(n) for n in counts])
+    ax.minorticks_off()
+    ax.set_xlabel("feature traces")
+    ax.set_ylabel("Spearman ρ, learnt vs true (10,000 configurations)")
+    ax.set_ylim(top=1.0)
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    save_and_close(fig, paths, dpi=130)

@@ -180,7 +180,6 @@ def example(settings) -> dict:
 def write(settings, result: PhysicalResult, folder: Path) -> dict:
     """matrix.csv, curves.csv, paired.csv, the plot and push.png in ``folder``; the summary's
     fields."""
-    from corrections_sim.figures.plotting import plot_physical, plot_push
 
     results = result.columns
     plot_push(result.example, [folder / "push.png"])
@@ -233,3 +232,163 @@ class PhysicalFigure(robustness.RobustnessFigure):
 
 
 register(PhysicalFigure())
+
+
+def plot_physical(curves: dict, tasks: dict, k: int, title: str, paths) -> None:
+    """The physical-corrections figure: estimate error and regret against corrections per
+    learner (solid: the physical person, dashed: the other columns' users), the regret of
+    the motion the person got with online replanning minus with the plan kept after the same
+    push, per correction, and the mean NEES (log, calibrated band shaded).
+
+    Args:
+        curves: user label -> ``analysis.curves`` (learner -> metric -> (runs, T + 1)).
+        tasks: user label -> learner -> per-task column -> (runs, T).
+        k: θ's dimension (NEES's calibrated mean).
+    """
+    from corrections_sim.calibration import mean_band
+    from corrections_sim.figures.style import learner_label, plt, save_and_close
+    from corrections_sim.metrics import mean_sem
+
+    users = list(curves)
+    physical = [
+        u
+        for u in users
+        if any(
+            np.isfinite(v["executed_regret"]).any()
+            for v in tasks[u].values()
+            if v["executed_regret"].size
+        )
+    ]
+    learners = list(dict.fromkeys(n for u in users for n in curves[u]))
+    # One colour per learner (learner_style gives KF-C KF's colour, dashed; here dashes mark
+    # the user).
+    palette = {n: plt.cm.tab10(i % 10) for i, n in enumerate(learners)}
+    fig, axes = plt.subplots(2, 2, figsize=(13, 8.6))
+    panels = (
+        (axes[0, 0], "estimate_error", "estimate error ‖θ̂ − θ*‖₁"),
+        (axes[0, 1], "regret", "regret of the next plans, Σ over environments"),
+    )
+    for ax, key, label in panels:
+        for user in users:
+            dashes = "-" if user in physical else "--"
+            for learner, values in curves[user].items():
+                colour = palette[learner]
+                mean, sem = mean_sem(values[key])
+                x = np.arange(mean.size)
+                ax.plot(
+                    x, mean, dashes, color=colour, lw=1.8, label=f"{learner_label(learner)}, {user}"
+                )
+                ax.fill_between(x, mean - sem, mean + sem, color=colour, alpha=0.15, lw=0)
+        ax.set_xlabel("corrections")
+        ax.set_title(label, fontsize=10)
+        ax.grid(alpha=0.3)
+    axes[0, 0].legend(fontsize=7, ncol=2, loc="upper right")
+    ax = axes[1, 0]
+    for user in physical:
+        for learner, columns in tasks[user].items():
+            online, kept = columns["executed_regret"], columns["executed_regret_kept"]
+            if kept.size == 0 or not np.isfinite(kept).any():
+                continue
+            mean, sem = mean_sem(online - kept)
+            x = np.arange(1, mean.size + 1)
+            colour = palette[learner]
+            ax.plot(x, mean, "-o", color=colour, lw=1.8, ms=3, label=learner_label(learner))
+            ax.fill_between(x, mean - sem, mean + sem, color=colour, alpha=0.15, lw=0)
+    ax.axhline(0.0, color="0.3", lw=1)
+    ax.set_xlabel("correction (task)")
+    ax.set_title(
+        "regret of the executed motion: online replanning − plan kept (same push; < 0: "
+        "online helps)",
+        fontsize=10,
+    )
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, ncol=2)
+    ax = axes[1, 1]
+    for user in users:
+        dashes = "-" if user in physical else "--"
+        for learner, values in curves[user].items():
+            nees = values["nees"]
+            if not np.isfinite(nees).any():
+                continue
+            colour = palette[learner]
+            mean = np.nanmean(nees, axis=0)
+            ax.plot(np.arange(mean.size), mean, dashes, color=colour, lw=1.8)
+        runs = next(iter(curves[user].values()))["nees"].shape[0]
+    low, high = mean_band(k, runs)
+    ax.axhspan(low, high, color="0.6", alpha=0.25, lw=0, label="calibrated band (95%)")
+    ax.set_yscale("log")
+    ax.set_xlabel("corrections")
+    ax.set_title("mean NEES (solid: physical person, dashed: kinematic user)", fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.suptitle(title, fontsize=11)
+    save_and_close(fig, paths, dpi=110)
+
+
+def plot_push(example: dict, paths) -> None:
+    """One push seen from above and from the side: the robot's plan (blue), the person's
+    (grey, dashed), the executed cup path (orange) with the person's force (red arrows, every
+    0.1 s), the deformation ξ_H the robot learnt from (orange, dashed) and its new plan
+    (green, dotted)."""
+    from corrections_sim.figures.style import plt, save_and_close
+
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.8))
+    force = np.asarray(example["force"])
+    executed = np.asarray(example["executed"])
+    pushing = np.flatnonzero(np.linalg.norm(force, axis=1) > 0)[::10]
+    for ax, (i, j), view in zip(
+        axes, ((0, 1), (0, 2)), ("from above", "from the side"), strict=True
+    ):
+        ax.plot(
+            *example["person"][:, [i, j]].T,
+            "--",
+            color="0.45",
+            lw=1.6,
+            label="the person's plan ξ*(θ*)",
+        )
+        ax.plot(*example["plan"][:, [i, j]].T, color="tab:blue", lw=2, label="the robot's plan ξ_R")
+        ax.plot(
+            *executed[:, [i, j]].T, color="tab:orange", lw=2.2, label="executed (with the push)"
+        )
+        ax.plot(
+            *example["deformed"][:, [i, j]].T,
+            "--",
+            color="tab:orange",
+            lw=1.4,
+            label="deformation ξ_H (learnt)",
+        )
+        if example["new_plan"] is not None:
+            ax.plot(
+                *example["new_plan"][:, [i, j]].T,
+                ":",
+                color="tab:green",
+                lw=2.2,
+                label="new plan (online)",
+            )
+        if pushing.size:
+            ax.quiver(
+                executed[pushing, i],
+                executed[pushing, j],
+                force[pushing, i],
+                force[pushing, j],
+                color="tab:red",
+                angles="xy",
+                scale_units="xy",
+                scale=150,
+                width=0.004,
+                label="the person's force",
+            )
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)" if j == 1 else "z (m)")
+        ax.set_title(view, fontsize=10)
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=7, loc="best")
+    before, after = (None if t is None else np.round(t, 2).tolist() for t in example["theta"])
+    learnt = f" → {after}" if after is not None else ""
+    fig.suptitle(
+        f"one push in {example['environment']}: {example['learner']} θ̂ {before}{learnt}; "
+        f"effort {example['effort']:.1f} N·s, sensing error {100 * example['sense_error']:.1f}%",
+        fontsize=10,
+    )
+    save_and_close(fig, paths, dpi=110)

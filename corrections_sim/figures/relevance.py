@@ -141,11 +141,7 @@ def boundary(settings) -> float | None:
 def write(settings, results: Sequence[FigureResult], folder: Path) -> dict:
     """matrix.csv, curves.csv, paired.csv and the plots in ``folder``; the summary's fields."""
     from corrections_sim.figures.output import write_csv
-    from corrections_sim.figures.plotting import (
-        plot_relevance,
-        plot_reliability,
-        plot_robustness_matrix,
-    )
+    from corrections_sim.figures.robustness import plot_robustness_matrix
 
     rows = matrix(settings, results)
     pairs = paired(settings, results)
@@ -218,3 +214,97 @@ class RelevanceFigure(robustness.RobustnessFigure):
 
 
 register(RelevanceFigure())
+
+
+def plot_relevance(
+    rows: Sequence[dict], seen: dict, title: str, paths, boundary: float | None = None
+) -> None:
+    """The relevance figure's second plot: (a) the distribution of ρ, the unexplained fraction
+    of each correction KF-CR judged, relevant and irrelevant apart, per person; (b) how
+    far θ̂ drifted from θ̂⁰ over the run, per learner and person (mean ± SEM).
+
+    Args:
+        rows: ``relevance.matrix`` rows (learner, user, drift_mean, drift_sem, …).
+        seen: person -> learner -> {"rho", "beta", "relevant"} arrays per correction.
+        paths: files to write.
+        boundary: the ρ where β̂ = 1/2, drawn as a line.
+    """
+    from corrections_sim.figures.style import plt, save_and_close
+
+    users = list(dict.fromkeys(r["user"] for r in rows))
+    learners = list(dict.fromkeys(r["learner"] for r in rows))
+    cell = {(r["learner"], r["user"]): r for r in rows}
+    fig, (left, right) = plt.subplots(1, 2, figsize=(15, 5.2))
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for j, user in enumerate(users):
+        data = seen.get(user, {}).get("KF-CR")
+        if data is None or data["rho"].size == 0:
+            continue
+        for label, mask, style in (
+            ("relevant", data["relevant"] == 1, "-"),
+            ("irrelevant", data["relevant"] == 0, "--"),
+        ):
+            values = np.sort(data["rho"][mask & np.isfinite(data["rho"])])
+            if values.size:
+                left.step(
+                    values,
+                    np.arange(1, values.size + 1) / values.size,
+                    where="post",
+                    linestyle=style,
+                    color=colours[j % len(colours)],
+                    label=f"{user}: {label} ({values.size})",
+                )
+    if boundary is not None:
+        left.axvline(boundary, color="0.4", lw=0.8, ls=":")
+        left.text(boundary, 0.02, f" β̂ = 0.5 at ρ = {boundary:.2f}", fontsize=8, color="0.3")
+    left.set_xlim(0.0, 1.0)
+    left.set_ylim(0.0, 1.02)
+    left.set_xlabel("ρ, the unexplained fraction of a correction (KF-CR's best θ)")
+    left.set_ylabel("fraction of corrections with a smaller ρ")
+    left.set_title("(a) what the robot's features cannot explain", fontsize=10)
+    left.legend(fontsize=7)
+    width = 0.8 / max(len(users), 1)
+    x = np.arange(len(learners))
+    for j, user in enumerate(users):
+        means = [cell[(n, user)]["drift_mean"] for n in learners]
+        sems = [cell[(n, user)]["drift_sem"] for n in learners]
+        right.bar(x + (j - (len(users) - 1) / 2) * width, means, width, yerr=sems, label=user)
+    right.set_xticks(x, learners, rotation=20, fontsize=9)
+    right.set_ylabel("‖θ̂ᵀ − θ̂⁰‖₁")
+    right.set_title("(b) how far θ̂ moved over the run", fontsize=10)
+    right.legend(fontsize=8)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    save_and_close(fig, paths, dpi=130)
+
+
+def plot_reliability(diagrams: dict, title: str, paths) -> None:
+    """Reliability diagrams of β̂: per learner, the fraction of relevant corrections in each
+    β̂ bin against the bin's mean β̂ (marker area ∝ the bin's corrections), the diagonal
+    being perfect calibration; the expected calibration error in the legend.
+
+    Args:
+        diagrams: learner -> {"ece": float, "bins": [{count, probability, fraction}, …]}.
+        paths: files to write.
+    """
+    from corrections_sim.figures.style import learner_style, plt, save_and_close
+
+    fig, ax = plt.subplots(figsize=(6.2, 5.6))
+    ax.plot([0, 1], [0, 1], color="0.6", lw=0.8, ls=":")
+    total = max(sum(b["count"] for b in d["bins"]) for d in diagrams.values())
+    for name, diagram in diagrams.items():
+        bins = [b for b in diagram["bins"] if b["count"]]
+        colour, style = learner_style(name)
+        x = [b["probability"] for b in bins]
+        y = [b["fraction"] for b in bins]
+        ax.plot(x, y, color=colour, ls=style, lw=1.2, label=f"{name}: ECE {diagram['ece']:.3f}")
+        ax.scatter(x, y, s=[8 + 600 * b["count"] / total for b in bins], color=colour, alpha=0.6)
+    ax.set_xlim(-0.02, 1.02)
+    ax.set_ylim(-0.02, 1.02)
+    ax.set_xlabel("β̂ (mean within the bin)")
+    ax.set_ylabel("fraction of the bin's corrections that are relevant")
+    ax.set_title("Is β̂ calibrated? (every person's corrections; area ∝ count)", fontsize=10)
+    ax.legend(fontsize=8, loc="upper left")
+    fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    save_and_close(fig, paths, dpi=130)

@@ -210,7 +210,6 @@ def write_matrix(
 def write(settings: RobustnessSettings, results: Sequence[FigureResult], folder: Path) -> dict:
     """matrix.csv, curves.csv (every column's records, labelled by user) and the plot in
     ``folder``; returns the summary's fields."""
-    from corrections_sim.figures.plotting import plot_robustness_matrix
 
     rows = matrix(settings, results)
     summary = write_matrix(settings, results, rows, folder)
@@ -267,3 +266,74 @@ class RobustnessFigure:
 
 
 register(RobustnessFigure())
+
+
+def plot_robustness_matrix(rows: Sequence[dict], title: str, paths) -> None:
+    """Fig. 6: learners (rows) × users (columns); final estimate error, final regret and
+    final mean NEES as coloured tables with mean ± SEM in each cell.
+
+    Args:
+        rows: ``robustness.matrix`` rows (learner, user, *_mean, *_sem, nees_final, band).
+        paths: files to write.
+    """
+    from corrections_sim.figures.style import plt, save_and_close
+
+    learners = list(dict.fromkeys(r["learner"] for r in rows))
+    users = list(dict.fromkeys(r["user"] for r in rows))
+    cell = {(r["learner"], r["user"]): r for r in rows}
+    panels = (
+        ("estimate_error", "Final estimate error ‖θ̂ − θ*‖₁ (lower is better)", "viridis_r"),
+        ("regret", "Final regret, Σ over 48 envs (lower is better)", "viridis_r"),
+        ("nees", "Final mean NEES (calibrated: k = 2; log colour)", "coolwarm"),
+    )
+    fig, axes = plt.subplots(1, 3, figsize=(6.2 * 3, 0.55 * len(learners) + 2.6))
+    for ax, (key, label, cmap) in zip(axes, panels, strict=True):
+        values = np.full((len(learners), len(users)), np.nan)
+        for i, learner in enumerate(learners):
+            for j, user in enumerate(users):
+                r = cell[(learner, user)]
+                value = r["nees_final"] if key == "nees" else r[f"{key}_mean"]
+                values[i, j] = np.nan if value is None else value
+        if key == "nees":
+            # Diverging around k = 2 on a log scale: blue under-, red over-confident.
+            shown = np.log10(values / 2.0)
+            limit = max(1.0, float(np.nanmax(np.abs(shown))))
+            image = ax.imshow(shown, cmap=cmap, vmin=-limit, vmax=limit, aspect="auto")
+        else:
+            image = ax.imshow(values, cmap=cmap, aspect="auto")
+        colours = image.cmap(image.norm(shown if key == "nees" else values))
+        for i, learner in enumerate(learners):
+            for j, user in enumerate(users):
+                r = cell[(learner, user)]
+                if key == "nees":
+                    v = r["nees_final"]
+                    if v is None:
+                        text = "—"
+                    else:
+                        inside = r["nees_band_low"] <= v <= r["nees_band_high"]
+                        text = f"{v:.3g}" + (" ✓" if inside else "")
+                else:
+                    sem = r[f"{key}_sem"]
+                    text = f"{r[f'{key}_mean']:.3g}" + (f"\n± {sem:.2g}" if sem else "\n(N = 1)")
+                luminance = np.dot(colours[i, j, :3], (0.299, 0.587, 0.114))
+                ax.text(
+                    j,
+                    i,
+                    text,
+                    ha="center",
+                    va="center",
+                    fontsize=8,
+                    color="black" if luminance > 0.5 or not np.isfinite(values[i, j]) else "white",
+                )
+        ax.set_xticks(range(len(users)), users, rotation=20, ha="right", fontsize=9)
+        ax.set_yticks(range(len(learners)), learners, fontsize=9)
+        ax.set_title(label, fontsize=10)
+    fig.text(
+        0.99,
+        0.01,
+        "NEES: ✓ inside the 95% χ² band of a calibrated mean for its N; — no covariance (PP)",
+        ha="right",
+        fontsize=8,
+    )
+    fig.suptitle(title, fontsize=11)
+    save_and_close(fig, paths, dpi=150)

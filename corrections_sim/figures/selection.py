@@ -459,7 +459,7 @@ def write(settings: SelectionSettings, result: SelectionResult, folder: Path) ->
         The paths written, in that order.
     """
     from corrections_sim.figures.output import path_rows, write_csv
-    from corrections_sim.figures.plotting import plot_selection_figure
+    from corrections_sim.figures.selection_plot import plot_selection_figure
     from corrections_sim.scene import render
 
     folder = Path(folder)

@@ -29,7 +29,7 @@ def run_scene(args: argparse.Namespace) -> list[Path]:
         ((1.0, -1.0), (0.85, 0.25, 0.55, 1.0), "θ = (+1, −1): seek the laptop, avoid the table"),
     )
     plans = [(planner.solve(np.array(theta), env), rgba, label) for theta, rgba, label in cases]
-    from corrections_sim.figures.plotting import save_scene_figure
+    from corrections_sim.figures.style import save_scene_figure
     from corrections_sim.scene import render
 
     image = render.render_scene(
