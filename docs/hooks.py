@@ -33,6 +33,6 @@ def on_page_markdown(markdown, page, config, files):
     """Replace the marker on the study-file page with the schema's own reference."""
     if MARKER not in markdown:
         return markdown
-    from corrections_sim.study.schema import reference_markdown
+    from corrections_sim.study.key_reference import reference_markdown
 
     return markdown.replace(MARKER, reference_markdown())

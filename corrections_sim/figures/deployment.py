@@ -50,7 +50,7 @@ from corrections_sim.planning.risk import (
     worst_case_reward,
 )
 from corrections_sim.scene.environments import Environment, paper_environments
-from corrections_sim.study import schema
+from corrections_sim.study import checks, files
 
 FIGURES = ("fig3",)
 #: The trajectories a panel draws, in order: (A4) per attitude, then (A3).
@@ -120,38 +120,38 @@ def load_settings(
         ValueError: a missing, unknown or bad field; the one-line message names it (e.g.
             ``panels[2].cov``, ``theta``).
     """
-    values, features, theta = schema.load_values(
+    values, features, theta = files.load_values(
         presets.EXPERIMENTS_DIR, figure, FIGURES, quick, overrides, "panels"
     )
     k = len(features)
     scene = Scene.parse(values)
-    raw_panels = schema.take(values, "panels")
+    raw_panels = checks.take(values, "panels")
     if not isinstance(raw_panels, list) or not raw_panels:
         raise ValueError("panels: expected at least one [[panels]] table")
     panels = []
     for i, raw in enumerate(raw_panels):
         prefix = f"panels[{i}]."
         raw = dict(raw)
-        name = str(schema.take(raw, "name", prefix))
+        name = str(checks.take(raw, "name", prefix))
         if not name.isidentifier():
             raise ValueError(f"{prefix}name = {name!r}: expected a short identifier")
-        title = str(schema.take(raw, "title", prefix))
-        cov = schema.covariance(f"{prefix}cov", schema.take(raw, "cov", prefix), k)
-        schema.reject_unknown(raw, f"panels[{i}]")
+        title = str(checks.take(raw, "title", prefix))
+        cov = checks.covariance(f"{prefix}cov", checks.take(raw, "cov", prefix), k)
+        checks.reject_unknown(raw, f"panels[{i}]")
         panels.append(Panel(name=name, title=title, cov=cov))
     if len({p.name for p in panels}) != len(panels):
         raise ValueError(f"panels: names must be distinct, got {[p.name for p in panels]}")
     optional = {}
     if "comparison_environments" in values:
-        optional["comparison_environments"] = schema.integer(
+        optional["comparison_environments"] = checks.integer(
             "comparison_environments",
             values.pop("comparison_environments"),
             low=0,
             high=len(paper_environments()),
         )
     if "n_starts" in values:
-        optional["n_starts"] = schema.integer("n_starts", values.pop("n_starts"), low=1, high=3)
-    schema.reject_unknown(values)
+        optional["n_starts"] = checks.integer("n_starts", values.pop("n_starts"), low=1, high=3)
+    checks.reject_unknown(values)
     return DeploymentSettings(
         features=features, theta=theta, scene=scene, panels=tuple(panels), **optional
     )

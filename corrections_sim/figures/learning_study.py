@@ -22,7 +22,7 @@ from corrections_sim import components, provenance
 from corrections_sim.figures.output import write_records
 from corrections_sim.figures.presets import EXPERIMENTS_DIR
 from corrections_sim.figures.registry import Caches, register
-from corrections_sim.study import schema
+from corrections_sim.study import legacy, schema
 from corrections_sim.study.analysis import METRICS, curves, summarize
 from corrections_sim.study.runner import FigureResult, run, run_key
 from corrections_sim.study.settings import FigureSettings
@@ -199,7 +199,7 @@ class LearningStudy:
 
     def upgrade_recorded(self, old: dict) -> dict:
         """Settings an older ``summary.json`` recorded (flat keys), in today's form."""
-        return schema.normalize_recorded(old)
+        return legacy.normalize_recorded(old)
 
     def run(
         self,

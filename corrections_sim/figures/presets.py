@@ -22,7 +22,7 @@ from corrections_sim.scene.environments import (
     configuration_at,
     table_holding,
 )
-from corrections_sim.study import schema
+from corrections_sim.study import checks, files
 
 
 def _experiments_dir():
@@ -59,10 +59,10 @@ class Scene:
     def parse(cls, values: dict) -> Scene:
         """Take ``start``, ``goal``, ``laptop`` and ``table`` from ``values`` and check them."""
         scene = cls(
-            start=schema.cup_position("start", schema.take(values, "start")),
-            goal=schema.cup_position("goal", schema.take(values, "goal")),
-            laptop=schema.vector("laptop", schema.take(values, "laptop"), 3),  # type: ignore[arg-type]
-            table=schema.vector("table", schema.take(values, "table"), 2),  # type: ignore[arg-type]
+            start=checks.cup_position("start", checks.take(values, "start")),
+            goal=checks.cup_position("goal", checks.take(values, "goal")),
+            laptop=checks.vector("laptop", checks.take(values, "laptop"), 3),  # type: ignore[arg-type]
+            table=checks.vector("table", checks.take(values, "table"), 2),  # type: ignore[arg-type]
         )
         scene.environment()  # the laptop on the table, the table in its range
         return scene
@@ -137,7 +137,7 @@ class PresetFigure:
     def recorded(self, settings, *, quick: bool) -> dict:
         from corrections_sim import provenance
 
-        return provenance.plain(schema.read(EXPERIMENTS_DIR / f"{self.name}.toml", quick=quick))
+        return provenance.plain(files.read(EXPERIMENTS_DIR / f"{self.name}.toml", quick=quick))
 
     def run(self, settings, executor, progress, cache):
         return self._module().run(settings, executor, progress)

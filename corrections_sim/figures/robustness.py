@@ -30,7 +30,7 @@ from corrections_sim.figures import learning_study
 from corrections_sim.figures.output import write_records
 from corrections_sim.figures.presets import EXPERIMENTS_DIR
 from corrections_sim.figures.registry import Caches, register
-from corrections_sim.study import analysis, runner, schema
+from corrections_sim.study import analysis, files, legacy, runner, schema
 from corrections_sim.study.runner import FigureResult, RunCache
 from corrections_sim.study.settings import FigureSettings
 
@@ -78,8 +78,8 @@ def load_settings(
     Raises:
         ValueError: a bad value, named as ``columns[i].key`` or by its key path.
     """
-    keys = (*schema.STUDY_KEYS, *schema.LEGACY_KEYS, "columns")
-    values = schema.read(EXPERIMENTS_DIR / f"{figure}.toml", quick=quick, keys=keys)
+    keys = (*schema.STUDY_KEYS, *legacy.LEGACY_KEYS, "columns")
+    values = files.read(EXPERIMENTS_DIR / f"{figure}.toml", quick=quick, keys=keys)
     columns = values.pop("columns", None)
     if not isinstance(columns, list) or not columns:
         raise ValueError("columns: expected a non-empty list of [[columns]] tables")
@@ -247,7 +247,7 @@ class RobustnessFigure:
     def upgrade_recorded(self, old: dict) -> dict:
         """Settings an older ``summary.json`` recorded (flat keys per column), in today's form."""
         return {
-            label: schema.normalize_recorded(v) if isinstance(v, dict) else v
+            label: legacy.normalize_recorded(v) if isinstance(v, dict) else v
             for label, v in old.items()
         }
 

@@ -45,7 +45,7 @@ from corrections_sim.learning import (
 from corrections_sim.planning.planner import PlannerConfig, PlanningError, shared_planner
 from corrections_sim.scene.environments import CUP_WORKSPACE, Environment, laptop_range
 from corrections_sim.scene.world import check_configuration
-from corrections_sim.study import schema
+from corrections_sim.study import checks, files
 from corrections_sim.study.loop import PlanBook
 
 FIGURES = ("fig1", "fig2")
@@ -162,7 +162,7 @@ class SelectionSettings:
 
 
 def _grid(prefix: str, values: dict, laptop_yaw: float) -> Grid:
-    vary = schema.take(values, "vary", prefix)
+    vary = checks.take(values, "vary", prefix)
     if vary not in VARY:
         raise ValueError(f"{prefix}vary = {vary!r}: choose one of {', '.join(VARY)}")
     if vary == "laptop":
@@ -170,16 +170,16 @@ def _grid(prefix: str, values: dict, laptop_yaw: float) -> Grid:
         z = None
     else:
         (x_lo, x_hi), (y_lo, y_hi), (z_lo, z_hi) = CUP_WORKSPACE
-        z = schema.number(f"{prefix}z", schema.take(values, "z", prefix), low=z_lo, high=z_hi)
+        z = checks.number(f"{prefix}z", checks.take(values, "z", prefix), low=z_lo, high=z_hi)
     grid = Grid(
         vary=vary,
-        x=schema.bounds(f"{prefix}x", schema.take(values, "x", prefix), x_lo, x_hi),
-        y=schema.bounds(f"{prefix}y", schema.take(values, "y", prefix), y_lo, y_hi),
-        nx=schema.integer(
-            f"{prefix}nx", schema.take(values, "nx", prefix), low=2, high=_MAX_CELLS_PER_AXIS
+        x=checks.bounds(f"{prefix}x", checks.take(values, "x", prefix), x_lo, x_hi),
+        y=checks.bounds(f"{prefix}y", checks.take(values, "y", prefix), y_lo, y_hi),
+        nx=checks.integer(
+            f"{prefix}nx", checks.take(values, "nx", prefix), low=2, high=_MAX_CELLS_PER_AXIS
         ),
-        ny=schema.integer(
-            f"{prefix}ny", schema.take(values, "ny", prefix), low=2, high=_MAX_CELLS_PER_AXIS
+        ny=checks.integer(
+            f"{prefix}ny", checks.take(values, "ny", prefix), low=2, high=_MAX_CELLS_PER_AXIS
         ),
         z=z,
     )
@@ -199,46 +199,46 @@ def load_settings(figure: str, *, quick: bool, overrides: dict | None = None) ->
         ValueError: unknown figure, missing or unknown key, or a bad value; the one-line
             message names the field (e.g. ``maps[1].cov``, ``maps[0].x``).
     """
-    values, features, theta = schema.load_values(
+    values, features, theta = files.load_values(
         presets.EXPERIMENTS_DIR, figure, FIGURES, quick, overrides, "maps"
     )
     k = len(features)
     scene = Scene.parse(values)
     maps = []
-    raw_maps = schema.take(values, "maps")
+    raw_maps = checks.take(values, "maps")
     if not isinstance(raw_maps, list) or not raw_maps:
         raise ValueError("maps: expected at least one [[maps]] table")
     for i, raw in enumerate(raw_maps):
         prefix = f"maps[{i}]."
         raw = dict(raw)
-        name = str(schema.take(raw, "name", prefix))
+        name = str(checks.take(raw, "name", prefix))
         if not name.isidentifier():
             raise ValueError(f"{prefix}name = {name!r}: expected a short identifier")
-        title = str(schema.take(raw, "title", prefix))
-        cov = schema.covariance(f"{prefix}cov", schema.take(raw, "cov", prefix), k)
+        title = str(checks.take(raw, "title", prefix))
+        cov = checks.covariance(f"{prefix}cov", checks.take(raw, "cov", prefix), k)
         grid = _grid(prefix, raw, scene.laptop[2])
-        schema.reject_unknown(raw, f"maps[{i}]")
+        checks.reject_unknown(raw, f"maps[{i}]")
         maps.append(HeatMap(name=name, title=title, grid=grid, cov=cov))
     if len({m.name for m in maps}) != len(maps):
         raise ValueError(f"maps: names must be distinct, got {[m.name for m in maps]}")
     candidates = tuple(
-        schema.vector(f"candidates[{i}]", c, k) for i, c in enumerate(values.pop("candidates", []))
+        checks.vector(f"candidates[{i}]", c, k) for i, c in enumerate(values.pop("candidates", []))
     )
     optional = {}
     for name, low in (("process_noise", 0.0), ("observation_noise", 1e-12)):
         if name in values:
-            optional[name] = schema.number(name, values.pop(name), low=low)
+            optional[name] = checks.number(name, values.pop(name), low=low)
     for name in ("sigma_alpha", "sigma_beta", "sigma_kappa"):
         if name in values:
-            optional[name] = schema.number(name, values.pop(name))
+            optional[name] = checks.number(name, values.pop(name))
     if "n_starts" in values:
-        optional["n_starts"] = schema.integer("n_starts", values.pop("n_starts"), low=1, high=3)
+        optional["n_starts"] = checks.integer("n_starts", values.pop("n_starts"), low=1, high=3)
     if "camera" in values:
         camera = values.pop("camera")
         if camera not in CAMERAS:
             raise ValueError(f"camera = {camera!r}: choose one of {', '.join(CAMERAS)}")
         optional["camera"] = camera
-    schema.reject_unknown(values)
+    checks.reject_unknown(values)
     settings = SelectionSettings(
         figure=figure,
         features=features,

@@ -321,3 +321,8 @@ class FigureSettings:
         if self.plugins:
             d["plugins"] = [p.as_dict() for p in self.plugins]
         return d
+
+
+#: The planner's settings a study takes (the ``[planner]`` table), with their defaults; passed
+#: to :class:`~corrections_sim.planning.planner.PlannerConfig` by name (which checks them).
+PLANNER_SETTINGS: dict[str, Any] = dict(FigureSettings.__dataclass_fields__["planner"].default)

@@ -27,7 +27,7 @@ import numpy as np
 
 from corrections_sim.figures.presets import EXPERIMENTS_DIR
 from corrections_sim.session.log import StudyLog
-from corrections_sim.study import schema
+from corrections_sim.study import files, legacy, schema
 from corrections_sim.study.settings import FigureSettings
 from corrections_sim.userstudy import statistics
 from corrections_sim.userstudy.participant import (
@@ -55,7 +55,7 @@ def settings_for(protocol: Protocol, base: Path | None = None) -> dict[str, Figu
     """Each condition's (and the practice's) study settings: the protocol's study file with
     the condition's ``set`` keys; one-line errors name the condition's key."""
     source = study_source(protocol, base)
-    values = schema.read(source, quick=False, keys=(*schema.STUDY_KEYS, *schema.LEGACY_KEYS))
+    values = files.read(source, quick=False, keys=(*schema.STUDY_KEYS, *legacy.LEGACY_KEYS))
     values = schema.apply_overrides(values, {})
     out = {}
     conditions = [*protocol.conditions, *([protocol.practice] if protocol.practice else [])]
@@ -64,7 +64,7 @@ def settings_for(protocol: Protocol, base: Path | None = None) -> dict[str, Figu
         mine = json.loads(json.dumps(values))
         try:
             for path, value in condition.set:
-                schema.set_path(mine, path, value)
+                files.set_path(mine, path, value)
             out[condition.name] = schema.parse_study(
                 mine, name=source.stem, base=source.resolve().parent
             )

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from corrections_sim.learning.base import LEARNERS
-from corrections_sim.study.schema import integer, number, reject_unknown, vector
+from corrections_sim.study.checks import integer, number, reject_unknown, vector
 
 #: How a condition's trials are shown: dragging a waypoint's cup, or pushing the moving arm.
 MODES = ("drag", "physical")

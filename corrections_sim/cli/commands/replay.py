@@ -18,7 +18,7 @@ from corrections_sim.cli.errors import UsageError
 def _learner_sets(items) -> dict[str, dict]:
     """``--set learners.NAME.KEY=VALUE`` items as {NAME: {KEY: value}} (a replay changes its
     learners only: the environments, features and prior are the session's)."""
-    from corrections_sim.study.schema import parse_value
+    from corrections_sim.study.files import parse_value
 
     out: dict[str, dict] = {}
     for item in items:
