@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from corrections_sim.learning.paper import correction_observer
+from corrections_sim.learning.learners.kalman import correction_observer
 from corrections_sim.people.users import BiasedUser, NoisyOptimalUser
 from corrections_sim.planning.planner import Plan, Planner, PlannerConfig, PlanningError
 from corrections_sim.planning.plans import PlanBook, Target, evaluate

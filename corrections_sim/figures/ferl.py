@@ -7,7 +7,8 @@ biased user (who should never make the robot ask), a person who also minds the c
 close to them (`human`, weight −2) and one who minds only that (−5); and the last two again
 with a robot that knows `human` from the start (a column may set ``features`` and
 ``learners``): the upper bound. Rows are learners: KF-C, KF-CRP (which notices) and KF-CRX
-(which notices and asks, :meth:`~corrections_sim.learning.paper.PersonRelevanceKalman.expand`).
+(which notices and asks,
+:meth:`~corrections_sim.learning.learners.relevance.PersonRelevanceKalman.expand`).
 
 Besides the study, the quality of a learnt feature against the number of traces and the
 teacher's noise: Spearman ρ between the learnt and the true `human` on 10,000 random

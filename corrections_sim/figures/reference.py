@@ -34,13 +34,12 @@ import numpy as np
 from corrections_sim.belief import Belief, PersonBelief
 from corrections_sim.learning import exact_posterior as ref
 from corrections_sim.learning.base import LearnerContext
-from corrections_sim.learning.paper import (
-    BoltzmannPosterior,
-    CorrectionAwareKalman,
-    ParticleCorrectionAware,
+from corrections_sim.learning.learners.boltzmann import BoltzmannPosterior
+from corrections_sim.learning.learners.kalman import CorrectionAwareKalman, UnscentedKalman
+from corrections_sim.learning.learners.particles import ParticleCorrectionAware
+from corrections_sim.learning.learners.relevance import (
     PersonRelevanceKalman,
     RelevanceAwareKalman,
-    UnscentedKalman,
 )
 from corrections_sim.learning.particles import smoothed_kl
 from corrections_sim.learning.relevance import (
@@ -105,7 +104,7 @@ def _filter_step(model, study, book: PlanBook, env, robot, z, start, row) -> Bel
     record)."""
     from corrections_sim.belief import KalmanNoise
     from corrections_sim.learning.kalman import ukf_update
-    from corrections_sim.learning.paper import correction_observer
+    from corrections_sim.learning.learners.kalman import correction_observer
 
     names = book.planner.config.features
     if isinstance(model, CorrectionAwareKalman):

@@ -1,7 +1,7 @@
 """Learners of the human's preferences θ from corrections.
 
 * :mod:`.base`: the :class:`~.base.Learner` protocol, its context and the ``LEARNERS`` registry;
-  :mod:`.paper`: the paper's learners and their calibrated variants, registered by name;
+  :mod:`.learners`: the built-in learners, one module per family, registered by name;
   :mod:`.step`: :class:`~.step.Step`, the one result every update returns.
 * The maths, pure numpy (no planner): :mod:`.perceptron` (eq. B5), :mod:`.kalman` (UKF and
   EKF, eqs. K1–K7, and their predicted covariances), :mod:`.active` (eq. A1),
@@ -63,5 +63,5 @@ __all__ = [
     "ukf_update",
 ]
 
-# The paper's learners register themselves on import; first, so they lead the registry's order.
-from corrections_sim.learning import paper  # noqa: E402,F401
+# The built-in learners are registered on import; first, so they lead the registry's order.
+from corrections_sim.learning import learners  # noqa: E402,F401

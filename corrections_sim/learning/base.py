@@ -25,8 +25,8 @@ is a :class:`Learner` subclass, a frozen dataclass whose fields are its own para
             return Step(new_belief, gain=None, innovation=phi_h - plan.features)
 
 :func:`make_learner` builds one by name from its parameters (a study file's
-``[learners.MINE]`` table). The paper's learners are registered in
-:mod:`corrections_sim.learning.paper`, which the package imports first, so they come first
+``[learners.MINE]`` table). The built-in learners are registered in
+:mod:`corrections_sim.learning.learners`, which the package imports first, so they come first
 in the registry's order.
 """
 

@@ -28,7 +28,8 @@ Two models of ρ turn it into a probability (:meth:`Relevance.probability`):
   ρ² ~ Beta((n − k)/2, k/2) exactly when the family is flat; that density is used.
 
 β̂ = P(relevant | ρ) = p f₁(ρ) / (p f₁(ρ) + (1 − p) f₀(ρ)) with the prior p (``prior``, a
-study setting). How the learners use it (:mod:`corrections_sim.learning.paper`): a Kalman
+study setting). How the learners use it
+(:mod:`corrections_sim.learning.learners.relevance`): a Kalman
 filter inflates its observation noise to N / β̂ (β̂ → 0: no update; β̂ = 1: the filter
 itself); the perceptron scales its rate, α β̂. The Boltzmann posterior (BP) integrates the
 rationality β out and has a lapse ε, the chance that a correction carries no information; its

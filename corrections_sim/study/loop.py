@@ -16,7 +16,7 @@ Learners and simulated users are plug-ins, registered by name
 the loop
 calls their protocols (:class:`~corrections_sim.learning.base.Learner`,
 :class:`~corrections_sim.people.users.User`) and knows none by name. The paper's learners are in
-:mod:`corrections_sim.learning.paper`.
+:mod:`corrections_sim.learning.learners`.
 
 Everything random flows from ``np.random.Generator`` objects made from the study's seed.
 """

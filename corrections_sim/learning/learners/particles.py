@@ -1,0 +1,137 @@
+"""PF-C: the posterior over θ as resample-move particles under KF-C's model of a correction
+(:mod:`corrections_sim.learning.particles`), and AL-PF, active learning over them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from corrections_sim.belief import Belief, KalmanNoise, symmetrize
+from corrections_sim.components import ParameterError
+from corrections_sim.learning.base import LearnerContext, Step
+from corrections_sim.learning.exact_posterior import gaussian_log_likelihood as particle_likelihood
+from corrections_sim.learning.kalman import (
+    Observe,
+)
+from corrections_sim.learning.learners.active import ActiveMixin
+from corrections_sim.learning.learners.kalman import CorrectionAwareKalman
+from corrections_sim.learning.learners.params import require_count
+from corrections_sim.learning.particles import belief_of as particles_belief
+from corrections_sim.learning.particles import correct as particles_correct
+from corrections_sim.learning.particles import draw as particles_draw
+from corrections_sim.planning.planner import Plan, PlanningError
+from corrections_sim.scene.environments import Environment
+
+
+@dataclass(frozen=True)
+class ParticleCorrectionAware(CorrectionAwareKalman):
+    """A particle learner under KF-C's model: particles over θ from the prior, each weighed
+    by every correction's likelihood N(Φ_h; hₜ(θ), N) (one plan per particle, warm from the
+    run's nearest planned θ), resampled when the effective sample size falls below
+    ``resample_below`` × the count, and then moved by ``moves`` random-walk Metropolis steps
+    that re-evaluate every past correction (:mod:`~corrections_sim.learning.particles`). Its
+    mean and covariance are the belief every consumer reads. θ is static (no process noise
+    M, as in the exact reference); its random draws come from a child of the run's generator
+    (``rng.spawn``), so the person's draws are the same as for every other learner.
+
+    Attributes:
+        particles: how many (>= 2).
+        moves: Metropolis steps per particle after a resample (>= 0).
+        resample_below: resample once ESS < this × the count, in (0, 1].
+    """
+
+    label = "Particle filter, KF-C's model (PF-C)"
+    style = ("#bcbd22", "--")
+
+    particles: int = 200
+    moves: int = 2
+    resample_below: float = 0.5
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        require_count("particles", self.particles, 2)
+        require_count("moves", self.moves, 0)
+        threshold = self.resample_below
+        ok = isinstance(threshold, int | float) and not isinstance(threshold, bool)
+        if not (ok and 0.0 < threshold <= 1.0):
+            raise ParameterError("resample_below", f"must be in (0, 1], got {threshold!r}")
+        if self.iterate != "none":
+            raise ParameterError("iterate", "a particle learner is not linearised")
+        if self.noise != "fixed":
+            raise ParameterError("noise", "PF-C keeps N fixed (its likelihood is N(h(θ), N))")
+
+    def initial(self, belief: Belief, noise: KalmanNoise) -> Belief:
+        return Belief(theta=belief.theta, cov=belief.cov, history=((belief.theta, belief.cov),))
+
+    @staticmethod
+    def predict(observe: Observe, thetas: np.ndarray) -> np.ndarray:
+        """h(θ) at each of ``thetas`` (n, k), a row of NaN where the planner finds no plan."""
+        h = np.full(thetas.shape, np.nan)
+        for i, theta in enumerate(thetas):
+            try:
+                h[i] = observe(theta[None, :])[0]
+            except PlanningError:
+                continue
+        return h
+
+    def update(
+        self, ctx: LearnerContext, belief: Belief, env: Environment, plan: Plan, phi_h: np.ndarray
+    ) -> Step:
+        rng = ctx.rng.spawn(1)[0]
+        (theta0, cov0), *_ = belief.history or ((belief.theta, belief.cov),)
+        prior = Belief(theta=theta0, cov=cov0)
+        cloud = belief.particles or particles_draw(prior, self.particles, rng)
+        z = np.asarray(phi_h, float)
+        noise = ctx.noise.observation
+        h = self.predict(self.observer_of(ctx, env, plan.trajectory), cloud.thetas)
+        # What it expected before the correction: the particles' predictive mean and spread.
+        seen = np.all(np.isfinite(h), axis=1)
+        if not seen.any():
+            raise PlanningError(f"{env.name}: no particle's plan exists; the update is skipped")
+        w = cloud.weights()[seen] / cloud.weights()[seen].sum()
+        expected = w @ h[seen]
+        spread = (w[:, None] * (h[seen] - expected)).T @ (h[seen] - expected)
+        entry = (env, plan.trajectory, z, noise)
+        past = [*belief.history[1:], entry]
+        observers = [(self.observer_of(ctx, e, robot), zi, ni) for e, robot, zi, ni in past]
+
+        def log_total(thetas: np.ndarray) -> tuple[np.ndarray, int]:
+            total = np.zeros(len(thetas))
+            for observe_i, zi, ni in observers:
+                total += particle_likelihood(zi, self.predict(observe_i, thetas), ni)
+            return total, len(thetas) * len(observers)
+
+        inverse = np.linalg.inv(prior.cov)
+
+        def log_prior(thetas: np.ndarray) -> np.ndarray:
+            d = thetas - prior.theta
+            return -0.5 * np.einsum("ni,ij,nj->n", d, inverse, d)
+
+        moved = particles_correct(
+            cloud,
+            particle_likelihood(z, h, noise),
+            log_prior,
+            log_total,
+            rng,
+            moves=self.moves,
+            threshold=self.resample_below,
+        )
+        after = particles_belief(moved.particles, history=((theta0, cov0), *past))
+        return Step(
+            after,
+            None,
+            z - plan.features,
+            symmetrize(spread + noise),
+        )
+
+
+@dataclass(frozen=True)
+class ParticleActive(ActiveMixin, ParticleCorrectionAware):
+    """PF-C with environments chosen by eq. (A1): the UKF's predicted covariance from the
+    particles' mean and covariance (2k + 1 plans per candidate environment; the particles'
+    own predicted posterior would cost a plan per particle per environment)."""
+
+    label = "AL on PF-C's belief (AL-PF)"
+    style = ("#ff7f0e", ":")
