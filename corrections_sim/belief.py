@@ -8,6 +8,7 @@ surfacing as a failed Cholesky factorization several iterations later.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -146,6 +147,40 @@ class Particles:
 
 
 @dataclass(frozen=True, eq=False)
+class PriorEntry:
+    """The first entry of a belief's history: the prior N(θ̂⁰, P⁰) the past is read from."""
+
+    theta: np.ndarray
+    cov: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class CorrectionEntry:
+    """A correction as an iterated or particle learner reads it again: its environment Eᵗ,
+    the robot's trajectory ξᵗ (T, 7), the features Φ_h (k,) and the observation noise N
+    (k, k) it was seen under."""
+
+    env: Any
+    robot: np.ndarray
+    phi_h: np.ndarray
+    noise: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class ShownEntry:
+    """A correction kept for feature expansion: its environment Eᵗ, the robot's trajectory
+    ξᵗ and the person's ξ_h (both (T, 7)), to be read again over a learnt feature."""
+
+    env: Any
+    robot: np.ndarray
+    corrected: np.ndarray
+
+
+#: What a belief's history holds: a :class:`PriorEntry` first, then corrections.
+HistoryEntry = PriorEntry | CorrectionEntry | ShownEntry
+
+
+@dataclass(frozen=True, eq=False)
 class Belief:
     """Gaussian belief θ ~ N(θ̂, P) over the human's preference weights.
 
@@ -164,9 +199,9 @@ class Belief:
         extra: the names of features the learner learnt beyond the study's (feature
             expansion: θ̂ and P then have ``len(extra)`` more entries, after the study's).
         asked: whether the learner has asked the person for feature traces (it asks once).
-        history: what a learner that reads the past again keeps: the prior (θ̂⁰, P⁰) first,
-            then each correction's (environment, ξ, ξ_h) for feature expansion, or
-            (environment, ξ, Φ_h, N) for an iterated or particle learner.
+        history: what a learner that reads the past again keeps: a :class:`PriorEntry`
+            first, then each correction, a :class:`ShownEntry` for feature expansion or a
+            :class:`CorrectionEntry` for an iterated or particle learner.
         particles: the particle learner's weighted sample (θ̂ and P are its moments), or
             None.
 
@@ -181,7 +216,7 @@ class Belief:
     person: PersonBelief | None = None
     extra: tuple[str, ...] = ()
     asked: bool = False
-    history: tuple = ()
+    history: tuple[HistoryEntry, ...] = ()
     particles: Particles | None = None
 
     def __post_init__(self) -> None:
@@ -200,6 +235,12 @@ class Belief:
                 f"Belief.noise: a posterior over {self.noise.dim} x {self.noise.dim} noise, "
                 f"expected {theta.shape[0]} x {theta.shape[0]}"
             )
+        history = tuple(self.history)
+        if history and not isinstance(history[0], PriorEntry):
+            raise ValueError("Belief.history: its first entry must be the PriorEntry")
+        if any(not isinstance(e, CorrectionEntry | ShownEntry) for e in history[1:]):
+            raise ValueError("Belief.history: after the prior, CorrectionEntry or ShownEntry only")
+        object.__setattr__(self, "history", history)
         if self.particles is not None and self.particles.thetas.shape[1] != theta.shape[0]:
             raise ValueError(
                 f"Belief.particles: particles over {self.particles.thetas.shape[1]} weights, "

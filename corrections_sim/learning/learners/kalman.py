@@ -12,7 +12,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from corrections_sim import components
-from corrections_sim.belief import Belief, KalmanNoise, NoisePosterior
+from corrections_sim.belief import (
+    Belief,
+    CorrectionEntry,
+    KalmanNoise,
+    NoisePosterior,
+    PriorEntry,
+)
 from corrections_sim.components import ParameterError
 from corrections_sim.learning.base import Learner, LearnerContext, Step
 from corrections_sim.learning.kalman import (
@@ -96,7 +102,8 @@ class UnscentedKalman(Learner):
 
     def initial(self, belief: Belief, noise: KalmanNoise) -> Belief:
         if self.iterate == "all":  # the prior first, then each correction (see update)
-            return Belief(theta=belief.theta, cov=belief.cov, history=((belief.theta, belief.cov),))
+            prior = PriorEntry(belief.theta, belief.cov)
+            return Belief(theta=belief.theta, cov=belief.cov, history=(prior,))
         if self.noise == "fixed":
             return belief
         dof = self.noise_dof if self.noise_dof is not None else belief.dim + 2.0
@@ -137,15 +144,17 @@ class UnscentedKalman(Learner):
         )  # fmt: skip
         if self.iterate == "each":
             return step
-        entry = (env, plan.trajectory, np.asarray(phi_h, float), ctx.noise.observation)
-        (theta0, cov0), *past = (*belief.history, entry)
+        entry = CorrectionEntry(
+            env, plan.trajectory, np.asarray(phi_h, float), ctx.noise.observation
+        )
+        first, *past = (*belief.history, entry)
         # θ is static here; the random walk's M over t corrections widens the prior instead.
-        prior = Belief(theta=theta0, cov=cov0 + len(past) * ctx.noise.process)
+        prior = Belief(theta=first.theta, cov=first.cov + len(past) * ctx.noise.process)
         after, passes, change = batch_update(
             prior,
-            [self.observer_of(ctx, e, robot) for e, robot, _, _ in past],
-            [z for _, _, z, _ in past],
-            [n for _, _, _, n in past],
+            [self.observer_of(ctx, seen.env, seen.robot) for seen in past],
+            [seen.phi_h for seen in past],
+            [seen.noise for seen in past],
             step.belief,
             ctx.sigma,
             iterations=self.iterations,

@@ -8,7 +8,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from corrections_sim.belief import Belief, KalmanNoise, symmetrize
+from corrections_sim.belief import (
+    Belief,
+    CorrectionEntry,
+    KalmanNoise,
+    PriorEntry,
+    symmetrize,
+)
 from corrections_sim.components import ParameterError
 from corrections_sim.learning.base import LearnerContext, Step
 from corrections_sim.learning.exact_posterior import gaussian_log_likelihood as particle_likelihood
@@ -63,7 +69,8 @@ class ParticleCorrectionAware(CorrectionAwareKalman):
             raise ParameterError("noise", "PF-C keeps N fixed (its likelihood is N(h(θ), N))")
 
     def initial(self, belief: Belief, noise: KalmanNoise) -> Belief:
-        return Belief(theta=belief.theta, cov=belief.cov, history=((belief.theta, belief.cov),))
+        prior = PriorEntry(belief.theta, belief.cov)
+        return Belief(theta=belief.theta, cov=belief.cov, history=(prior,))
 
     @staticmethod
     def predict(observe: Observe, thetas: np.ndarray) -> np.ndarray:
@@ -80,8 +87,8 @@ class ParticleCorrectionAware(CorrectionAwareKalman):
         self, ctx: LearnerContext, belief: Belief, env: Environment, plan: Plan, phi_h: np.ndarray
     ) -> Step:
         rng = ctx.rng.spawn(1)[0]
-        (theta0, cov0), *_ = belief.history or ((belief.theta, belief.cov),)
-        prior = Belief(theta=theta0, cov=cov0)
+        first = belief.history[0] if belief.history else PriorEntry(belief.theta, belief.cov)
+        prior = Belief(theta=first.theta, cov=first.cov)
         cloud = belief.particles or particles_draw(prior, self.particles, rng)
         z = np.asarray(phi_h, float)
         noise = ctx.noise.observation
@@ -93,9 +100,9 @@ class ParticleCorrectionAware(CorrectionAwareKalman):
         w = cloud.weights()[seen] / cloud.weights()[seen].sum()
         expected = w @ h[seen]
         spread = (w[:, None] * (h[seen] - expected)).T @ (h[seen] - expected)
-        entry = (env, plan.trajectory, z, noise)
+        entry = CorrectionEntry(env, plan.trajectory, z, noise)
         past = [*belief.history[1:], entry]
-        observers = [(self.observer_of(ctx, e, robot), zi, ni) for e, robot, zi, ni in past]
+        observers = [(self.observer_of(ctx, s.env, s.robot), s.phi_h, s.noise) for s in past]
 
         def log_total(thetas: np.ndarray) -> tuple[np.ndarray, int]:
             total = np.zeros(len(thetas))
@@ -118,7 +125,7 @@ class ParticleCorrectionAware(CorrectionAwareKalman):
             moves=self.moves,
             threshold=self.resample_below,
         )
-        after = particles_belief(moved.particles, history=((theta0, cov0), *past))
+        after = particles_belief(moved.particles, history=(first, *past))
         return Step(
             after,
             None,

@@ -12,7 +12,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from corrections_sim import components
-from corrections_sim.belief import Belief, KalmanNoise, PersonBelief
+from corrections_sim.belief import (
+    Belief,
+    KalmanNoise,
+    PersonBelief,
+    PriorEntry,
+    ShownEntry,
+)
 from corrections_sim.components import ParameterError
 from corrections_sim.learning.base import LearnerContext, Step
 from corrections_sim.learning.learners.kalman import (
@@ -210,7 +216,7 @@ class PersonRelevanceKalman(CorrectionAwareKalman):
     def initial(self, belief: Belief, noise: KalmanNoise) -> Belief:
         # A learner that may learn a feature keeps the prior and its corrections, to read
         # them again over the new feature (see :meth:`grow`).
-        kept = ((belief.theta, belief.cov),) if self.expand_traces else ()
+        kept = (PriorEntry(belief.theta, belief.cov),) if self.expand_traces else ()
         return Belief(theta=belief.theta, cov=belief.cov, person=self.person(), history=kept)
 
     def update(
@@ -253,7 +259,8 @@ class PersonRelevanceKalman(CorrectionAwareKalman):
             person = found.person
         history = belief.history
         if history and not belief.asked and ctx.corrected is not None:
-            history = (*history, (env, plan.trajectory, np.asarray(ctx.corrected, float)))
+            shown = ShownEntry(env, plan.trajectory, np.asarray(ctx.corrected, float))
+            history = (*history, shown)
         after = Belief(
             theta=step.belief.theta,
             cov=step.belief.cov,
@@ -322,7 +329,8 @@ class PersonRelevanceKalman(CorrectionAwareKalman):
         start = time.process_time()
         learnt = learn(traces, env, rng, network=self.network())
         name = register_learnt(learnt)
-        (theta0, cov0), *past = belief.history or ((belief.theta, belief.cov),)
+        first, *past = belief.history or (PriorEntry(belief.theta, belief.cov),)
+        theta0, cov0 = first.theta, first.cov
         k = len(theta0)
         cov = np.zeros((k + 1, k + 1))
         cov[:k, :k] = cov0
@@ -331,7 +339,8 @@ class PersonRelevanceKalman(CorrectionAwareKalman):
         features = (*ctx.features, name)
         config = dataclasses.replace(ctx.book.planner.config, features=features)
         book = PlanBook(shared_planner(config), warm_start=ctx.book.warm_start)
-        for env_i, robot, corrected in past:
+        for shown in past:
+            env_i, robot, corrected = shown.env, shown.robot, shown.corrected
             seen = dataclasses.replace(
                 ctx, book=book, features=features, noise=ctx.noise.grown(k + 1),
                 corrected=corrected,
