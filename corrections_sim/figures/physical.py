@@ -128,7 +128,7 @@ def example(settings) -> dict:
     names = sorted(
         study.learners,
         key=lambda n: (
-            not isinstance(getattr(study.learners[n], "model", None), PhysicalCorrection),
+            not isinstance(study.learners[n].assumed_correction(), PhysicalCorrection),
             not LEARNERS[n].has_covariance,
         ),
     )

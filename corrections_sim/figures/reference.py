@@ -34,13 +34,7 @@ import numpy as np
 from corrections_sim.belief import Belief, PersonBelief
 from corrections_sim.learning import exact_posterior as ref
 from corrections_sim.learning.base import LearnerContext
-from corrections_sim.learning.learners.boltzmann import BoltzmannPosterior
-from corrections_sim.learning.learners.kalman import CorrectionAwareKalman, UnscentedKalman
-from corrections_sim.learning.learners.particles import ParticleCorrectionAware
-from corrections_sim.learning.learners.relevance import (
-    PersonRelevanceKalman,
-    RelevanceAwareKalman,
-)
+from corrections_sim.learning.learners.particles import particle_reference
 from corrections_sim.learning.particles import smoothed_kl
 from corrections_sim.learning.relevance import (
     MOVED,
@@ -49,7 +43,6 @@ from corrections_sim.learning.relevance import (
     embed,
     random_direction_shape,
 )
-from corrections_sim.people.corrections import OptimalCorrection
 from corrections_sim.people.users import Situation
 from corrections_sim.planning.compiled import build_once
 from corrections_sim.planning.features import waypoint_features
@@ -107,12 +100,13 @@ def _filter_step(model, study, book: PlanBook, env, robot, z, start, row) -> Bel
     from corrections_sim.learning.learners.kalman import correction_observer
 
     names = book.planner.config.features
-    if isinstance(model, CorrectionAwareKalman):
-        observe = correction_observer(book, env, robot.trajectory, model.model, names)
+    likelihood = model.likelihood()
+    if likelihood.correction is not None:
+        observe = correction_observer(book, env, robot.trajectory, likelihood.correction, names)
     else:
         observe = book.observe(env)
     noise = study.noise()
-    if isinstance(model, RelevanceAwareKalman) and row.get("relevance"):
+    if likelihood.relevance == "per-correction" and row.get("relevance"):
         beta = float(row["relevance"])
         noise = KalmanNoise(process=noise.process, observation=noise.observation / beta)
     prior = Belief(theta=start[0], cov=start[1])
@@ -212,11 +206,12 @@ def reference_run(
         )
     if not model.has_covariance:
         raise ValueError(f"learner {learner}: has no covariance to judge against a reference")
-    if not isinstance(model, UnscentedKalman | BoltzmannPosterior):
+    likelihood = model.likelihood()
+    if likelihood is None:
         raise ValueError(f"learner {learner}: no reference for it (KF-type learners and BP)")
-    if isinstance(model, RelevanceAwareKalman) and model.noise == "learnt":
+    if likelihood.relevance == "per-correction" and likelihood.noise == "learnt":
         raise ValueError(f"learner {learner}: no reference for relevance with N learnt")
-    engine = _particle_engine(model, learner, particles, planner) if particles else None
+    engine = particle_reference(model, learner, particles) if particles else None
     if grid is None and (engine is None or one_step or restarts):
         raise ValueError(
             f"k = {study.k}: no grid beyond k = 2 (--particles N is the reference there; "
@@ -230,18 +225,18 @@ def reference_run(
     thetas = grid.thetas() if grid is not None else np.zeros((1, k))
     log_p = ref.gaussian_log_prior(thetas, study.prior())
     noise = study.noise().observation
-    learnt = isinstance(model, UnscentedKalman) and model.noise == "learnt"
+    learnt = likelihood.kind == "gaussian" and likelihood.noise == "learnt"
     prior_noise = model.initial(study.prior(), study.noise()).noise if learnt else None
     zs, hs, out = [], [], []
     person = None
-    if isinstance(model, PersonRelevanceKalman):
+    if likelihood.relevance == "person":
         _, (shape, rate), _ = model.densities()
         a = model.relevance_prior * model.relevance_count
         b = (1.0 - model.relevance_prior) * model.relevance_count
         fine = PersonBelief.prior(shape, rate, a, b, tau_points=PERSON_TAU_NODES, rate_points=41)
         person = ref.PersonPosterior.prior(thetas, log_p, fine)
     if (one_step or restarts) and (
-        person is not None or not (isinstance(model, UnscentedKalman) and not learnt)
+        person is not None or not (likelihood.kind == "gaussian" and not learnt)
     ):
         raise ValueError(
             f"learner {learner}: --one-step and --restart need a Kalman learner with N fixed"
@@ -278,20 +273,19 @@ def reference_run(
             cloud = engine.update(seen_ctx, cloud, env, robot, z).belief
         if grid is None:
             log_post = None
-        elif isinstance(model, BoltzmannPosterior):
+        elif likelihood.kind == "boltzmann":
             betas = model.correction_model(0.0).betas
             log_l = ref.boltzmann_log_likelihood(thetas, z - robot.features, betas, model.lapse)
             log_p = log_p + log_l
             log_post = log_p
         else:
             plans = grid_plans(planner, env, grid)
-            correct = (
-                model.model.apply if isinstance(model, CorrectionAwareKalman) else (lambda r, x: x)
-            )
+            c = likelihood.correction
+            correct = c.apply if c is not None else (lambda r, x: x)
             h = grid_observations(plans, robot.trajectory, correct, env, names)
             if person is not None:
                 plans_rho = grid_residuals(
-                    plans, robot.trajectory, outcome.corrected, model.model, model.space
+                    plans, robot.trajectory, outcome.corrected, likelihood.correction, model.space
                 )
                 recorded = float(row["relevance_residual"] or 1.0)
                 rho_star = min(float(np.nanmin(plans_rho)), recorded)
@@ -314,7 +308,7 @@ def reference_run(
                 judged["ref_relevance_rate"] = person.rate_mean()
                 judged["ref_relevance_spread"] = person.spread()
                 log_post = np.log(np.maximum(person.theta_weights(), 1e-300))
-            elif isinstance(model, RelevanceAwareKalman):
+            elif likelihood.relevance == "per-correction":
                 if row.get("relevance"):  # else the learner skipped this update
                     log_l = ref.relevance_log_likelihood(
                         ref.gaussian_log_likelihood(z, h, noise), log_p, float(row["relevance"])
@@ -366,21 +360,6 @@ def reference_run(
             rec[f"restart_{s}_nees"] = ref.nees(state.theta, state.cov, theta_star)
         out.append(rec)
     return out
-
-
-def _particle_engine(model, learner: str, count: int, planner: Planner):
-    """PF-C with ``count`` particles under ``model``'s observation model (KF's is KF-C's
-    with the correction C = ξ*), or a one-line refusal."""
-    if isinstance(count, bool) or not isinstance(count, int) or count < 2:
-        raise ValueError(f"--particles {count!r}: expected an integer >= 2")
-    plain = isinstance(model, UnscentedKalman) and model.noise == "fixed"
-    if not plain or isinstance(model, RelevanceAwareKalman | PersonRelevanceKalman):
-        raise ValueError(
-            f"learner {learner}: a particle reference needs a KF or KF-C type learner, N fixed"
-        )
-    correction = model.model if isinstance(model, CorrectionAwareKalman) else OptimalCorrection()
-    moves = model.moves if isinstance(model, ParticleCorrectionAware) else 2
-    return ParticleCorrectionAware(model=correction, particles=count, moves=moves)
 
 
 def _particles_against_grid(cloud, thetas, weights, mean, cov) -> dict:

@@ -35,7 +35,7 @@ from __future__ import annotations
 import abc
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar, Literal
 
 import numpy as np
 
@@ -48,6 +48,7 @@ from corrections_sim.registry import Registry
 from corrections_sim.scene.environments import Environment
 
 if TYPE_CHECKING:
+    from corrections_sim.people.corrections import CorrectionModel
     from corrections_sim.planning.plans import PlanBook
 
 
@@ -91,6 +92,25 @@ class LearnerContext:
     corrected: np.ndarray | None = None
     declined: frozenset[int] = frozenset()
     teach: Callable[[int, Environment], list[np.ndarray] | None] | None = None
+
+
+@dataclass(frozen=True)
+class Likelihood:
+    """What a learner assumes a correction tells about θ: the model its exact reference is
+    computed under (:mod:`corrections_sim.figures.reference`), read instead of its class.
+
+    Attributes:
+        kind: "gaussian", Φ_h ~ N(h(θ), N); or "boltzmann", BP's P(ξ_h ≻ ξᵗ | θ).
+        correction: C in hₜ(θ) = Φ(C(ξᵗ, ξ*(θ, E))); None: h(θ) = Φ(ξ*(θ, E)) itself.
+        noise: "fixed" (N known) or "learnt" (N integrated out under the learner's prior).
+        relevance: "none"; "per-correction" (N / β̂, β̂ as the learner judged it); or
+            "person" (θ with the person's rate and precision).
+    """
+
+    kind: Literal["gaussian", "boltzmann"]
+    correction: CorrectionModel | None = None
+    noise: Literal["fixed", "learnt"] = "fixed"
+    relevance: Literal["none", "per-correction", "person"] = "none"
 
 
 class Learner(abc.ABC):
@@ -142,6 +162,16 @@ class Learner(abc.ABC):
     def choose(self, ctx: LearnerContext, belief: Belief, draw: int) -> int:
         """Index of Eᵗ in ``ctx.envs``; ``draw`` is the run's random choice."""
         return draw
+
+    def assumed_correction(self) -> CorrectionModel | None:
+        """The model C it explains a person's corrections with (KF-C's ``model``), or None
+        when it takes Φ_h as it comes."""
+        return None
+
+    def likelihood(self) -> Likelihood | None:
+        """What it assumes a correction tells about θ (None: no model an exact reference can
+        be computed under, e.g. the perceptron's or KF-A's)."""
+        return None
 
     def learns_features(self) -> bool:
         """Whether it may ask its person for feature traces and learn the feature it lacks

@@ -11,7 +11,7 @@ import numpy as np
 
 from corrections_sim.belief import Belief
 from corrections_sim.components import ParameterError
-from corrections_sim.learning.base import Learner, LearnerContext, Step
+from corrections_sim.learning.base import Learner, LearnerContext, Likelihood, Step
 from corrections_sim.learning.learners.params import renamed_keys
 from corrections_sim.learning.preference_posterior import BoltzmannCorrection
 from corrections_sim.learning.preference_posterior import update as posterior_update
@@ -49,6 +49,9 @@ class BoltzmannPosterior(Learner):
         if isinstance(self.beta_points, int) and self.beta_points > 10_000:
             raise ParameterError("beta_points", "at most 10,000")
         self.correction_model(0.0)
+
+    def likelihood(self) -> Likelihood:
+        return Likelihood("boltzmann")
 
     def correction_model(self, process_noise: float) -> BoltzmannCorrection:
         """Its model of a correction, with the study's process noise M = q I."""

@@ -20,7 +20,7 @@ from corrections_sim.belief import (
     PriorEntry,
 )
 from corrections_sim.components import ParameterError
-from corrections_sim.learning.base import Learner, LearnerContext, Step
+from corrections_sim.learning.base import Learner, LearnerContext, Likelihood, Step
 from corrections_sim.learning.kalman import (
     Observe,
     batch_update,
@@ -111,6 +111,9 @@ class UnscentedKalman(Learner):
             raise ParameterError("noise_dof", f"must be > k - 1 = {belief.dim - 1}, got {dof}")
         prior = NoisePosterior.around(noise.observation, dof)
         return Belief(theta=belief.theta, cov=belief.cov, noise=prior)
+
+    def likelihood(self) -> Likelihood:
+        return Likelihood("gaussian", self.assumed_correction(), self.noise)
 
     def filter_noise(self, ctx: LearnerContext, belief: Belief) -> KalmanNoise:
         """M and N as this filter believes them now (N̂ when it learns N)."""
@@ -237,6 +240,9 @@ class CorrectionAwareKalman(UnscentedKalman):
     style = ("#1f77b4", "--")
 
     model: CorrectionModel = components.nested(CORRECTIONS, WaypointCorrection())
+
+    def assumed_correction(self) -> CorrectionModel:
+        return self.model
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -16,7 +16,7 @@ from corrections_sim.belief import (
     symmetrize,
 )
 from corrections_sim.components import ParameterError
-from corrections_sim.learning.base import LearnerContext, Step
+from corrections_sim.learning.base import Learner, LearnerContext, Step
 from corrections_sim.learning.exact_posterior import gaussian_log_likelihood as particle_likelihood
 from corrections_sim.learning.kalman import (
     Observe,
@@ -27,6 +27,7 @@ from corrections_sim.learning.learners.params import require_count
 from corrections_sim.learning.particles import belief_of as particles_belief
 from corrections_sim.learning.particles import correct as particles_correct
 from corrections_sim.learning.particles import draw as particles_draw
+from corrections_sim.people.corrections import OptimalCorrection
 from corrections_sim.planning.planner import Plan, PlanningError
 from corrections_sim.scene.environments import Environment
 
@@ -142,3 +143,21 @@ class ParticleActive(ActiveMixin, ParticleCorrectionAware):
 
     label = "AL on PF-C's belief (AL-PF)"
     style = ("#ff7f0e", ":")
+
+
+def particle_reference(learner: Learner, name: str, count: int) -> ParticleCorrectionAware:
+    """PF-C with ``count`` particles under ``learner``'s likelihood (KF's is KF-C's with the
+    correction C = ξ*), as the reference of a learner at k > 2 where no grid is; ValueError
+    (one line, naming the learner ``name``) for a count < 2 or a likelihood particles cannot
+    carry (N learnt, relevance judged)."""
+    if isinstance(count, bool) or not isinstance(count, int) or count < 2:
+        raise ValueError(f"--particles {count!r}: expected an integer >= 2")
+    likelihood = learner.likelihood()
+    plain = likelihood is not None and likelihood.kind == "gaussian" and likelihood.noise == "fixed"
+    if not plain or likelihood.relevance != "none":
+        raise ValueError(
+            f"learner {name}: a particle reference needs a KF or KF-C type learner, N fixed"
+        )
+    correction = likelihood.correction or OptimalCorrection()
+    moves = learner.moves if isinstance(learner, ParticleCorrectionAware) else 2
+    return ParticleCorrectionAware(model=correction, particles=count, moves=moves)

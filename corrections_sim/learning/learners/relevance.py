@@ -20,7 +20,7 @@ from corrections_sim.belief import (
     ShownEntry,
 )
 from corrections_sim.components import ParameterError
-from corrections_sim.learning.base import LearnerContext, Step
+from corrections_sim.learning.base import LearnerContext, Likelihood, Step
 from corrections_sim.learning.learners.kalman import (
     CorrectionAwareKalman,
     model_fits,
@@ -94,6 +94,9 @@ class RelevanceAwareKalman(_RelevanceAware, CorrectionAwareKalman):
         super().__post_init__()
         self.relevance(2)
 
+    def likelihood(self) -> Likelihood:
+        return dataclasses.replace(super().likelihood(), relevance="per-correction")
+
     def update(
         self, ctx: LearnerContext, belief: Belief, env: Environment, plan: Plan, phi_h: np.ndarray
     ) -> Step:
@@ -152,6 +155,9 @@ class PersonRelevanceKalman(CorrectionAwareKalman):
     expand_variance: float = 1.0
     expand_inputs: tuple[str, ...] = Network().inputs
     expand_hidden: tuple[int, ...] = Network().hidden
+
+    def likelihood(self) -> Likelihood:
+        return dataclasses.replace(super().likelihood(), relevance="person")
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -392,6 +398,9 @@ class RelevanceAwarePerceptron(_RelevanceAware, Perceptron):
     model: CorrectionModel = components.nested(CORRECTIONS, WaypointCorrection())
     relevance_prior: float = 0.5
     relevance_spread: float = 0.05
+
+    def assumed_correction(self) -> CorrectionModel:
+        return self.model
 
     def __post_init__(self) -> None:
         super().__post_init__()
