@@ -273,3 +273,25 @@ def test_models_check_lists_what_drifted_and_exits_1(tmp_path, capsys):
     assert "differs from the code" in err and "scene.xml" in err
     assert _main(["models", "--out", str(tmp_path)]) == 0
     assert _main(["models", "--check", "--out", str(tmp_path)]) == 0
+
+
+def test_what_an_interrupt_leaves_is_said_without_importing_anything():
+    """An interrupt can land inside an import (scipy's, the figure registry's); saying what it
+    left must not import again what is half-imported (a traceback and exit 1, seen once)."""
+    code = (
+        "import argparse, sys\n"
+        "from corrections_sim.cli import main\n"
+        "before = set(sys.modules)\n"
+        "args = argparse.Namespace(figure='interact', interact_session=3, db='x.sqlite')\n"
+        "said = [main._nothing_kept(None), main._nothing_kept(args),\n"
+        "        main._nothing_kept(argparse.Namespace(figure='replay')),\n"
+        "        main._nothing_kept(argparse.Namespace(figure='fig4'))]\n"
+        "print(sorted(set(sys.modules) - before))\n"
+        "print(said)\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True
+    ).stdout.splitlines()
+    assert out[0] == "[]", out[0]
+    assert "--resume 3 --db x.sqlite" in out[1] and "replay wrote nothing" in out[1]
+    assert out[1].count("no finished runs to keep") == 2

@@ -20,7 +20,7 @@ import sys
 from collections.abc import Sequence
 
 from corrections_sim.cli.command import NOTHING_KEPT
-from corrections_sim.cli.commands import commands
+from corrections_sim.cli.commands import commands, tool
 from corrections_sim.cli.errors import UsageError
 from corrections_sim.cli.executors import Interrupted, interruption, interrupts
 from corrections_sim.cli.options import Parser, catalogue, label
@@ -124,7 +124,8 @@ def _parse(given: Sequence[str]) -> argparse.Namespace:
 
 def _nothing_kept(args: argparse.Namespace | None) -> str:
     """What an interrupted command leaves, said for that command."""
-    command = commands().get(getattr(args, "figure", None))
+    # Never commands(): the interrupt may have landed inside an import that commands() needs.
+    command = tool(getattr(args, "figure", None))
     return NOTHING_KEPT if command is None else command.nothing_kept(args)
 
 

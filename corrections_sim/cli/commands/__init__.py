@@ -54,3 +54,15 @@ TOOLS = (
 def commands() -> dict[str, Command]:
     """Every command by name, in ``--help``'s order: the registered figures, then the tools."""
     return {**figure.figure_commands(), **{t.COMMAND.name: t.COMMAND for t in TOOLS}}
+
+
+def tool(name: str | None) -> Command | None:
+    """The tool called ``name``, looked up without importing anything beyond this package's
+    modules (a figure's, and ``all``'s, command is built from the figure registry: None here).
+    Safe while an interrupt is being handled, when a half-imported package must not be
+    imported again."""
+    for module in TOOLS:
+        command = vars(module).get("COMMAND")
+        if command is not None and command.name == name:
+            return command
+    return None
