@@ -45,7 +45,6 @@ from corrections_sim.userstudy.plots import plot
 from corrections_sim.userstudy.protocol import OUTCOMES, TLX_SCALES, Protocol, parse_protocol
 
 
-
 def protocol_of(log: StudyLog) -> Protocol:
     """The protocol a study log was run with (kept in its ``meta``)."""
     text = log.meta("protocol")
