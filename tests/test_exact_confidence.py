@@ -11,14 +11,14 @@ from corrections_sim.belief import Belief, KalmanNoise, Particles
 from corrections_sim.learning import exact_posterior as ref
 from corrections_sim.learning import particles as smc
 from corrections_sim.learning.base import make_learner
-from corrections_sim.learning.kalman import (
+from corrections_sim.learning.iterated import (
     batch_update,
     gaussian_kl,
     iterated_update,
     linear_posterior,
     linearise,
-    ukf_update,
 )
+from corrections_sim.learning.kalman import ukf_update
 
 PRIOR = Belief(theta=np.zeros(2), cov=np.eye(2))
 N = np.array([[0.25, 0.0], [0.0, 0.25]])

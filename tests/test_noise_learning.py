@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from corrections_sim.belief import Belief, KalmanNoise, NoisePosterior
-from corrections_sim.learning.kalman import SigmaPoints, ukf_update, vb_ukf_update
+from corrections_sim.learning.kalman import SigmaPoints, ukf_update
+from corrections_sim.learning.learnt_noise import vb_ukf_update
 from corrections_sim.study import schema
 
 

@@ -47,9 +47,9 @@ from corrections_sim.learning.kalman import (
     Observe,
     SigmaPoints,
     _check_noise,
-    _observe_batch,
-    _repair_covariance,
     _repair_innovation_covariance,
+    observe_batch,
+    repair_covariance,
 )
 from corrections_sim.learning.step import Step
 
@@ -149,7 +149,7 @@ def update(
     phi_human = _as_vector("phi_human", phi_human, k)
     prior_cov = symmetrize(belief.cov + noise.process)
     points = sigma.points(belief.theta, prior_cov)
-    change = _observe_batch(observe, points, k) - phi_robot  # d_i, (2k+1, k)
+    change = observe_batch(observe, points, k) - phi_robot  # d_i, (2k+1, k)
     wm, wc = sigma.weights(k)
     d_mean = wm @ change
     dd = change - d_mean
@@ -165,7 +165,7 @@ def update(
             a * a * cov_dd + noise.observation, noise.observation
         )
         gain = np.linalg.solve(s, a * cross.T).T
-        cov, p_rep = _repair_covariance(prior_cov - gain @ s @ gain.T, prior_cov)
+        cov, p_rep = repair_covariance(prior_cov - gain @ s @ gain.T, prior_cov)
         nu = delta - a * change[0]
         log_w.append(-0.5 * nu @ np.linalg.solve(s, nu) - 0.5 * np.linalg.slogdet(s)[1])
         means.append(belief.theta + gain @ nu)
@@ -182,7 +182,7 @@ def update(
     post_cov = (
         np.einsum("j,jab->ab", weights, np.array(covs)) + (weights[:, None] * spread).T @ spread
     )
-    post_cov, p_rep = _repair_covariance(post_cov, prior_cov)
+    post_cov, p_rep = repair_covariance(post_cov, prior_cov)
 
     predicted = np.outer(attenuation.values, d_mean)  # ẑ_j, (n_a, k)
     pred_spread = predicted - predicted.mean(axis=0)

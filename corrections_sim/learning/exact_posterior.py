@@ -29,7 +29,7 @@ import numpy as np
 from scipy.special import expit
 
 from corrections_sim.belief import Belief
-from corrections_sim.learning import kalman
+from corrections_sim.learning import iterated
 
 
 @dataclass(frozen=True)
@@ -181,7 +181,7 @@ def kl_to_gaussian(grid: Grid, thetas: np.ndarray, weights: np.ndarray, belief: 
 def gaussian_kl(mean: np.ndarray, cov: np.ndarray, belief: Belief) -> float:
     """KL(N(mean, cov) ‖ N(θ̂, P)) in nats, closed form: the part of ``ref_kl`` a Gaussian
     with the reference's own moments already has (the rest is the reference's shape)."""
-    return kalman.gaussian_kl(Belief(theta=mean, cov=cov), belief)
+    return iterated.gaussian_kl(Belief(theta=mean, cov=cov), belief)
 
 
 def nees(mean: np.ndarray, cov: np.ndarray, theta_star: np.ndarray) -> float:

@@ -25,7 +25,7 @@ Keeping P symmetric positive definite: the EKF uses the Joseph form, PSD by cons
 for any gain. The UKF has no Joseph form (there is no H), so it uses P⁺ = P⁻ − K S Kᵀ; that
 difference can lose definiteness to cancellation when N ≪ H P Hᵀ, or when β < α² makes
 the sigma-point covariance of h indefinite. Every posterior therefore passes
-:func:`_repair_covariance`: symmetrize, and if an eigenvalue lies below
+:func:`repair_covariance`: symmetrize, and if an eigenvalue lies below
 ``COV_FLOOR_RTOL`` × λ_max(P⁻), clip the eigenvalues to that floor. The floor caps the
 condition number of P at 1/COV_FLOOR_RTOL, so the next step's Cholesky always succeeds.
 The innovation covariance S is guarded the same way before it is inverted (see
@@ -43,7 +43,6 @@ import numpy as np
 from corrections_sim.belief import (
     Belief,
     KalmanNoise,
-    NoisePosterior,
     _as_vector,
     symmetrize,
 )
@@ -171,7 +170,7 @@ class EkfStep(Step):
 
 
 @dataclass(frozen=True, eq=False)
-class _UkfStatistics:
+class UkfStatistics:
     """Everything of a UKF correction that does not depend on Φ_h."""
 
     points: np.ndarray  # (2k+1, k)
@@ -231,10 +230,10 @@ def ukf_update(
     stats = _ukf_statistics(belief, observe, noise, sigma or SigmaPoints())
     base = stats.obs_mean if reference is None else _as_vector("reference", reference, belief.dim)
     innovation = phi_human - base
-    return _ukf_step(UkfStep, belief, stats, innovation)
+    return ukf_step(UkfStep, belief, stats, innovation)
 
 
-def _ukf_step(cls, prior: Belief, stats: _UkfStatistics, innovation: np.ndarray, **more):
+def ukf_step(cls, prior: Belief, stats: UkfStatistics, innovation: np.ndarray, **more):
     """The step ``cls`` (a :class:`UkfStep`) of a correction; ``more``: the posterior belief's
     ``noise`` and the subclass's own fields."""
     noise = more.pop("noise", None)
@@ -272,258 +271,6 @@ def ukf_predicted_covariance(
         Posterior covariance, shape (k, k), symmetric positive definite.
     """
     return _ukf_statistics(belief, observe, noise, sigma or SigmaPoints()).cov.copy()
-
-
-@dataclass(frozen=True, eq=False, kw_only=True)
-class VbUkfStep(UkfStep):
-    """Result of one UKF correction that learns the observation noise too.
-
-    Attributes:
-        noise_estimate: N̂ = V/ν of the posterior over N after this correction, (k, k).
-        fixed_point_change: max |ΔN̂| of the last fixed-point iteration (convergence).
-    """
-
-    noise_estimate: np.ndarray
-    fixed_point_change: float
-
-
-def vb_ukf_update(
-    belief: Belief,
-    observe: Observe,
-    phi_human: np.ndarray,
-    noise: KalmanNoise,
-    sigma: SigmaPoints | None = None,
-    *,
-    reference: np.ndarray | None = None,
-    iterations: int = 10,
-) -> VbUkfStep:
-    """One UKF step that learns the observation noise N jointly with θ: variational Bayes in
-    the sigma-point filter (Särkkä & Hartikainen 2013), N ~ IW(ν, V) (``belief.noise``).
-
-    The 2k + 1 observations h(χ) are made once, as in :func:`ukf_update`; the fixed point
-    iterates only on them (no extra h), with N̂ = V⁽ʲ⁾/ν⁺, ν⁺ = ν + 1:
-
-        S = P_zz + N̂;  K = P_θz S⁻¹;  θ̂⁺ = θ̂ + K ν_z;  P⁺ = P⁻ − K S Kᵀ
-        V⁽ʲ⁺¹⁾ = V + E[n nᵀ | Φ_h] = V + N̂ − N̂ S⁻¹ N̂ + (N̂ S⁻¹ ν_z)(N̂ S⁻¹ ν_z)ᵀ
-
-    where ν_z is the innovation (against ``reference`` when given, as in the paper's update).
-    The sigma points linearize h statistically, Φ_h = H θ + b + e + n with e ~ N(0, Ω) the part
-    of h's spread that is not linear in θ (Ω = P_zz − H P⁻ Hᵀ, inside S): E[n nᵀ | Φ_h] is
-    the person's noise n's share of the innovation, so a nonlinear h is not mistaken for a
-    noisy person. On a linear h (Ω = 0) it is E[(Φ_h − Hθ)(Φ_h − Hθ)ᵀ] under the posterior of
-    θ, the exact VB step. With ν → ∞ this is :func:`ukf_update` with N = V/ν. The process
-    noise M comes from ``noise``; its observation noise is not used.
-
-    Args:
-        belief: prior belief N(θ̂ᵗ, Pᵗ) with ``belief.noise`` the posterior over N so far.
-        observe: as in :func:`ukf_update`.
-        phi_human: as in :func:`ukf_update`.
-        sigma: as in :func:`ukf_update`.
-        reference: as in :func:`ukf_update`.
-        noise: the process noise M (``noise.process``).
-        iterations: fixed-point iterations (≥ 1).
-
-    Returns:
-        The posterior (its ``belief.noise`` updated) and the intermediate quantities.
-
-    Raises:
-        ValueError: a belief without a noise posterior, or as :func:`ukf_update`.
-    """
-    if belief.noise is None:
-        raise ValueError("belief.noise: a noise-learning update needs a posterior over N")
-    _check_iterations(iterations)
-    phi_human = _as_vector("phi_human", phi_human, belief.dim)
-    moments = _sigma_moments(belief, observe, noise, sigma or SigmaPoints())
-    base = moments.obs_mean if reference is None else _as_vector("reference", reference, belief.dim)
-    innovation = phi_human - base
-    dof = belief.noise.dof + 1.0
-    scale = belief.noise.scale
-    estimate = scale / dof
-    change = np.inf
-    for _ in range(iterations):
-        stats = _correct(moments, estimate)
-        share = np.linalg.solve(stats.innovation_cov, estimate).T  # N̂ S⁻¹
-        noise_mean = share @ innovation  # E[n | Φ_h]
-        noise_cov = estimate - share @ estimate  # Cov[n | Φ_h]
-        scale = symmetrize(belief.noise.scale + noise_cov + np.outer(noise_mean, noise_mean))
-        new_estimate = scale / dof
-        change = float(np.max(np.abs(new_estimate - estimate)))
-        estimate = new_estimate
-    stats = _correct(moments, estimate)
-    posterior = NoisePosterior(dof=dof, scale=scale)
-    return _ukf_step(
-        VbUkfStep,
-        belief,
-        stats,
-        innovation,
-        noise=posterior,
-        noise_estimate=_frozen(posterior.estimate()),
-        fixed_point_change=change,
-    )
-
-
-@dataclass(frozen=True, eq=False)
-class Linearisation:
-    """Statistical linear regression of h with respect to N(m, P) (from its sigma points):
-    h(θ) ≈ A θ + b + e, e ~ N(0, Ω), the linear model closest to h where N(m, P) puts θ.
-
-    Attributes:
-        matrix: A = Ψᵀ P⁻¹, Ψ = Σ W_ci (χ_i − m)(h(χ_i) − ȳ)ᵀ, shape (k, k).
-        offset: b = ȳ − A m, ȳ = Σ W_mi h(χ_i), shape (k,).
-        residual: Ω = Σ W_ci (h(χ_i) − ȳ)(h(χ_i) − ȳ)ᵀ − A P Aᵀ, the part of h's spread that
-            is not linear in θ (positive semidefinite), shape (k, k).
-    """
-
-    matrix: np.ndarray
-    offset: np.ndarray
-    residual: np.ndarray
-
-
-def linearise(belief: Belief, observe: Observe, sigma: SigmaPoints | None = None) -> Linearisation:
-    """The statistical linearisation of ``observe`` w.r.t. N(θ̂, P) (one batch of 2k + 1 h).
-
-    The UKF is this linearisation w.r.t. the prior followed by a Kalman step; the iterated
-    filters below linearise again w.r.t. the posterior (García-Fernández et al. 2015)."""
-    sigma = sigma or SigmaPoints()
-    k = belief.dim
-    points = sigma.points(belief.theta, belief.cov)
-    obs = _observe_batch(observe, points, k)
-    wm, wc = sigma.weights(k)
-    mean = wm @ obs
-    dz = obs - mean
-    cross = (wc[:, None] * (points - belief.theta)).T @ dz
-    spread = (wc[:, None] * dz).T @ dz
-    matrix = np.linalg.solve(belief.cov, cross).T
-    residual = symmetrize(spread - matrix @ belief.cov @ matrix.T)
-    eigenvalues, vectors = np.linalg.eigh(residual)  # PSD in exact arithmetic (Schur)
-    residual = symmetrize((vectors * np.maximum(eigenvalues, 0.0)) @ vectors.T)
-    return Linearisation(_frozen(matrix), _frozen(mean - matrix @ belief.theta), _frozen(residual))
-
-
-def linear_posterior(
-    prior: Belief,
-    linearisations: list[Linearisation],
-    observations: list[np.ndarray],
-    noises: list[np.ndarray],
-) -> Belief:
-    """The exact posterior of θ ~ N(θ̂⁰, P⁰) given zᵢ = Aᵢ θ + bᵢ + eᵢ + nᵢ, eᵢ ~ N(0, Ωᵢ),
-    nᵢ ~ N(0, Nᵢ), all independent (information form: P⁻¹ = P⁰⁻¹ + Σ Aᵢᵀ Rᵢ⁻¹ Aᵢ,
-    Rᵢ = Nᵢ + Ωᵢ)."""
-    info = np.linalg.inv(prior.cov)
-    vector = info @ prior.theta
-    for lin, z, noise in zip(linearisations, observations, noises, strict=True):
-        weighted = np.linalg.solve(symmetrize(noise + lin.residual), lin.matrix)  # R⁻¹ A
-        info = info + lin.matrix.T @ weighted
-        vector = vector + weighted.T @ (np.asarray(z, float) - lin.offset)
-    cov = symmetrize(np.linalg.inv(symmetrize(info)))
-    return Belief(theta=cov @ vector, cov=cov)
-
-
-def gaussian_kl(p: Belief, q: Belief) -> float:
-    """KL(N(θ̂_p, P_p) ‖ N(θ̂_q, P_q)) in nats, closed form."""
-    k = p.dim
-    inv = np.linalg.inv(q.cov)
-    d = q.theta - p.theta
-    _, logdet_q = np.linalg.slogdet(q.cov)
-    _, logdet_p = np.linalg.slogdet(p.cov)
-    return float(0.5 * (np.trace(inv @ p.cov) + d @ inv @ d - k + logdet_q - logdet_p))
-
-
-@dataclass(frozen=True, eq=False, kw_only=True)
-class IteratedStep(UkfStep):
-    """Result of an iterated (posterior-linearised) correction. The prediction fields
-    (``predicted_obs``, ``sigma_points``, ``sigma_obs``, ``innovation``, ``innovation_cov``)
-    are the first pass's, the UKF's own (what the filter expected before the correction);
-    ``belief`` and ``gain`` are the last pass's.
-
-    Attributes:
-        passes: linearisations made (1: the UKF step alone).
-        change: KL(last ‖ the one before) in nats, 0 after one pass.
-    """
-
-    passes: int
-    change: float
-
-
-def iterated_update(
-    belief: Belief,
-    observe: Observe,
-    phi_human: np.ndarray,
-    noise: KalmanNoise,
-    sigma: SigmaPoints | None = None,
-    *,
-    reference: np.ndarray | None = None,
-    iterations: int = 3,
-    tolerance: float = 0.01,
-) -> IteratedStep:
-    """The iterated posterior linearisation filter's step (IPLF; García-Fernández, Svensson,
-    Morelande & Särkkä, IEEE TSP 2015): the UKF step of :func:`ukf_update` first, then
-    again and again h linearised statistically w.r.t. the posterior just found
-    (:func:`linearise`) and the prior N(θ̂, P + M) updated exactly under that linear model
-    (:func:`linear_posterior`), until the posterior moves by less than ``tolerance`` nats
-    (KL) or after ``iterations`` linearisations. Each pass after the first solves 2k + 1
-    plans; with ``iterations = 1`` this is :func:`ukf_update`.
-
-    A broad prior's sigma points straddle planner outcomes the unscented transform averages
-    badly; the posterior's are where θ is, so the linear model is accurate where it
-    matters."""
-    _check_iterations(iterations)
-    sigma = sigma or SigmaPoints()
-    z = _as_vector("phi_human", phi_human, belief.dim)
-    first = ukf_update(belief, observe, z, noise, sigma, reference=reference)
-    predicted = Belief(theta=belief.theta, cov=symmetrize(belief.cov + noise.process))
-    current, change, passes = first.belief, 0.0, 1
-    gain = first.gain
-    while passes < iterations:
-        lin = linearise(current, observe, sigma)
-        after = linear_posterior(predicted, [lin], [z], [noise.observation])
-        change, current, passes = gaussian_kl(after, current), after, passes + 1
-        residual = symmetrize(lin.matrix @ predicted.cov @ lin.matrix.T + lin.residual)
-        gain = np.linalg.solve(residual + noise.observation, lin.matrix @ predicted.cov).T
-        if change < tolerance:
-            break
-    cov, _ = _repair_covariance(np.array(current.cov), predicted.cov)
-    return IteratedStep(
-        belief=Belief(theta=current.theta, cov=cov),
-        gain=_frozen(np.array(gain)),
-        innovation=first.innovation,
-        predicted_obs=first.predicted_obs,
-        sigma_points=first.sigma_points,
-        sigma_obs=first.sigma_obs,
-        innovation_cov=first.innovation_cov,
-        repaired=first.repaired,
-        passes=passes,
-        change=change,
-    )
-
-
-def batch_update(
-    prior: Belief,
-    observers: list[Observe],
-    observations: list[np.ndarray],
-    noises: list[np.ndarray],
-    start: Belief,
-    sigma: SigmaPoints | None = None,
-    *,
-    iterations: int = 3,
-    tolerance: float = 0.01,
-) -> tuple[Belief, int, float]:
-    """Iterated posterior linearisation over *all* corrections (θ is static: each past
-    correction is evidence, and it is read again around what is now believed): every hᵢ
-    linearised w.r.t. the current posterior (starting at ``start``), the prior updated
-    exactly under all those linear models at once, until the posterior moves by less than
-    ``tolerance`` nats or after ``iterations`` passes. Returns (posterior, passes, last
-    change). A pass solves 2k + 1 plans per correction (fewer where they are memoized)."""
-    _check_iterations(iterations)
-    sigma = sigma or SigmaPoints()
-    current, change, passes = start, 0.0, 0
-    while passes < iterations:
-        lins = [linearise(current, observe, sigma) for observe in observers]
-        after = linear_posterior(prior, lins, observations, noises)
-        change, current, passes = gaussian_kl(after, current), after, passes + 1
-        if change < tolerance:
-            break
-    return current, passes, change
 
 
 def ekf_update(
@@ -616,12 +363,12 @@ def finite_difference_jacobian(
     if not np.all(np.isfinite(steps)) or np.any(steps <= 0.0):
         raise ValueError(f"step: must be finite and > 0, got {np.asarray(step).tolist()}")
     offsets = np.diag(steps)
-    obs = _observe_batch(observe, np.vstack([theta + offsets, theta - offsets]), k)
+    obs = observe_batch(observe, np.vstack([theta + offsets, theta - offsets]), k)
     return (obs[:k] - obs[k:]).T / (2.0 * steps)
 
 
 @dataclass(frozen=True, eq=False)
-class _SigmaMoments:
+class SigmaMoments:
     """What the sigma points say before any noise N is added (one batch of h)."""
 
     prior_cov: np.ndarray  # P⁻ = P + M, (k, k)
@@ -632,14 +379,14 @@ class _SigmaMoments:
     cross_cov: np.ndarray  # P_θz, (k, k)
 
 
-def _sigma_moments(
+def sigma_moments(
     belief: Belief, observe: Observe, noise: KalmanNoise, sigma: SigmaPoints
-) -> _SigmaMoments:
+) -> SigmaMoments:
     k = belief.dim
     _check_noise(noise, k)
     prior_cov = symmetrize(belief.cov + noise.process)
     points = sigma.points(belief.theta, prior_cov)
-    obs = _observe_batch(observe, points, k)
+    obs = observe_batch(observe, points, k)
     wm, wc = sigma.weights(k)
     obs_mean = wm @ obs
     dz = obs - obs_mean
@@ -652,30 +399,30 @@ def _sigma_moments(
             "observe: features at the sigma points are too far apart to form a covariance "
             f"(overflow); largest |feature| {float(np.max(np.abs(obs))):.3g}"
         )
-    return _SigmaMoments(prior_cov, points, obs, obs_mean, obs_cov, cross_cov)
+    return SigmaMoments(prior_cov, points, obs, obs_mean, obs_cov, cross_cov)
 
 
-def _correct(moments: _SigmaMoments, observation: np.ndarray) -> _UkfStatistics:
+def correct_moments(moments: SigmaMoments, observation: np.ndarray) -> UkfStatistics:
     """The UKF correction of ``moments`` with observation noise N = ``observation``."""
     m = moments
     innovation_cov, s_repaired = _repair_innovation_covariance(m.obs_cov + observation, observation)
     gain = np.linalg.solve(innovation_cov, m.cross_cov.T).T
-    cov, p_repaired = _repair_covariance(m.prior_cov - gain @ innovation_cov @ gain.T, m.prior_cov)
-    return _UkfStatistics(
-        points=_frozen(m.points),
-        obs=_frozen(m.obs),
-        obs_mean=_frozen(m.obs_mean),
-        gain=_frozen(gain),
-        cov=_frozen(cov),
-        innovation_cov=_frozen(innovation_cov),
+    cov, p_repaired = repair_covariance(m.prior_cov - gain @ innovation_cov @ gain.T, m.prior_cov)
+    return UkfStatistics(
+        points=frozen(m.points),
+        obs=frozen(m.obs),
+        obs_mean=frozen(m.obs_mean),
+        gain=frozen(gain),
+        cov=frozen(cov),
+        innovation_cov=frozen(innovation_cov),
         repaired=s_repaired or p_repaired,
     )
 
 
 def _ukf_statistics(
     belief: Belief, observe: Observe, noise: KalmanNoise, sigma: SigmaPoints
-) -> _UkfStatistics:
-    return _correct(_sigma_moments(belief, observe, noise, sigma), noise.observation)
+) -> UkfStatistics:
+    return correct_moments(sigma_moments(belief, observe, noise, sigma), noise.observation)
 
 
 def _ekf_statistics(belief: Belief, jacobian: np.ndarray, noise: KalmanNoise) -> _EkfStatistics:
@@ -693,11 +440,11 @@ def _ekf_statistics(belief: Belief, jacobian: np.ndarray, noise: KalmanNoise) ->
     gain = np.linalg.solve(innovation_cov, h @ prior_cov).T
     i_kh = np.eye(k) - gain @ h
     joseph = i_kh @ prior_cov @ i_kh.T + gain @ noise.observation @ gain.T
-    cov, p_repaired = _repair_covariance(joseph, prior_cov)
+    cov, p_repaired = repair_covariance(joseph, prior_cov)
     return _EkfStatistics(
-        gain=_frozen(gain),
-        cov=_frozen(cov),
-        innovation_cov=_frozen(innovation_cov),
+        gain=frozen(gain),
+        cov=frozen(cov),
+        innovation_cov=frozen(innovation_cov),
         repaired=s_repaired or p_repaired,
     )
 
@@ -726,7 +473,7 @@ def _repair_innovation_covariance(
     return symmetrize((vectors * np.maximum(eigenvalues, floor)) @ vectors.T), True
 
 
-def _repair_covariance(cov: np.ndarray, prior_cov: np.ndarray) -> tuple[np.ndarray, bool]:
+def repair_covariance(cov: np.ndarray, prior_cov: np.ndarray) -> tuple[np.ndarray, bool]:
     """Symmetrize, and clip eigenvalues below COV_FLOOR_RTOL · λ_max(prior) up to it."""
     cov = symmetrize(cov)
     floor = COV_FLOOR_RTOL * float(np.linalg.eigvalsh(prior_cov)[-1])
@@ -736,7 +483,7 @@ def _repair_covariance(cov: np.ndarray, prior_cov: np.ndarray) -> tuple[np.ndarr
     return symmetrize((vectors * np.maximum(eigenvalues, floor)) @ vectors.T), True
 
 
-def _observe_batch(observe: Observe, thetas: np.ndarray, k: int) -> np.ndarray:
+def observe_batch(observe: Observe, thetas: np.ndarray, k: int) -> np.ndarray:
     out = np.array(observe(thetas.copy()), dtype=float, copy=True)
     if out.shape != thetas.shape:
         raise ValueError(
@@ -749,7 +496,7 @@ def _observe_batch(observe: Observe, thetas: np.ndarray, k: int) -> np.ndarray:
     return out
 
 
-def _check_iterations(iterations) -> None:
+def check_iterations(iterations) -> None:
     if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
         raise ValueError(f"iterations = {iterations!r}: expected an integer >= 1")
 
@@ -759,6 +506,6 @@ def _check_noise(noise: KalmanNoise, k: int) -> None:
         raise ValueError(f"noise: expected {k}x{k} covariances for k={k}, got {noise.dim}")
 
 
-def _frozen(arr: np.ndarray) -> np.ndarray:
+def frozen(arr: np.ndarray) -> np.ndarray:
     arr.setflags(write=False)
     return arr

@@ -21,16 +21,15 @@ from corrections_sim.belief import (
 )
 from corrections_sim.components import ParameterError
 from corrections_sim.learning.base import Learner, LearnerContext, Likelihood, Step
+from corrections_sim.learning.iterated import batch_update, iterated_update
 from corrections_sim.learning.kalman import (
     Observe,
-    batch_update,
     ekf_update,
     finite_difference_jacobian,
-    iterated_update,
     ukf_update,
-    vb_ukf_update,
 )
 from corrections_sim.learning.learners.params import require_count, require_positive
+from corrections_sim.learning.learnt_noise import vb_ukf_update
 from corrections_sim.people.corrections import (
     CORRECTIONS,
     CorrectionModel,
@@ -58,16 +57,18 @@ class UnscentedKalman(Learner):
 
     Attributes:
         noise: "fixed" (N is the study's, the paper's filter) or "learnt": N is estimated
-            jointly with θ by variational Bayes (:func:`~.kalman.vb_ukf_update`), from a prior
-            IW whose estimate is the study's N, held with ``noise_dof`` degrees of freedom.
+            jointly with θ by variational Bayes (``learning.learnt_noise.vb_ukf_update``),
+            from a prior IW whose estimate is the study's N, held with ``noise_dof`` degrees
+            of freedom.
         noise_dof: the prior's degrees of freedom ν₀ > k − 1 (how many corrections' worth
             the study's N counts for); None: k + 2.
         iterate: "none" (the UKF step), "each" (the iterated posterior linearisation
             filter: each correction's h linearised again w.r.t. the posterior it gives,
-            :func:`~.kalman.iterated_update`) or "all" (after that, every correction so far
-            linearised again w.r.t. the current posterior and the prior updated by all of
-            them at once, :func:`~.kalman.batch_update`: θ is static, so past corrections are
-            evidence to be read again once P has shrunk). Needs ``noise = "fixed"``.
+            ``learning.iterated.iterated_update``) or "all" (after that, every correction so
+            far linearised again w.r.t. the current posterior and the prior updated by all of
+            them at once, ``learning.iterated.batch_update``: θ is static, so past
+            corrections are evidence to be read again once P has shrunk). Needs
+            ``noise = "fixed"``.
         iterations: at most this many linearisations per correction ("each"), and passes
             over all corrections ("all"); >= 1.
         tolerance: stop iterating once the posterior moves by less than this KL (nats, > 0).
