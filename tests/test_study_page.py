@@ -180,7 +180,13 @@ def test_a_questionnaire_stores_only_what_was_given_and_shows_it_back_first(stud
             tab.send(view.controls[item], value)
         drive.wait_for(lambda: len(study.drafts[("P1", "C.questions")]) == 6, "all received")
         tab.send(view.controls["submit"], True)
-        drive.wait_for(lambda: view.pending is not None, "the answers shown back")
+        # The confirmation's button is drawn after every item's control: waiting for it, not
+        # for pending alone, waits for the whole redraw (a suite run once read the controls
+        # half-drawn).
+        drive.wait_for(
+            lambda: view.pending is not None and view.controls.get("confirm"),
+            "the answers shown back",
+        )
         assert view.pending == dict(zip(items, values, strict=True))
         assert study.run.log.answers("P1") == []  # not written before the confirmation
         assert all(view.controls[i].disabled for i in items)

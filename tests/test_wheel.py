@@ -125,7 +125,7 @@ def test_an_installed_wheel_runs_a_figure_from_another_folder(python, tmp_path):
         "-c",
         "import corrections_sim, json\n"
         "from corrections_sim.figures import deployment, learning_study, selection\n"
-        "for module in (selection, deployment, learning):\n"
+        "for module in (selection, deployment, learning_study):\n"
         "    for figure in module.FIGURES:\n"
         "        for quick in (False, True):\n"
         "            module.load_settings(figure, quick=quick)\n"
