@@ -166,30 +166,24 @@ def status(tab) -> str:
     return tab.locator("body").inner_text()
 
 
-def drag_cup(tab, pixels_up: float, *, steps: int = 10) -> None:
+def drag_cup(tab, pixels_up: float, *, steps: int = 10, camera=None) -> None:
     """Drag the handle's vertical (z) arrow ``pixels_up`` pixels up (down if negative) with
-    the mouse, in the page's initial view."""
-    (x, y), _ = _grab(tab, 2)
+    the mouse, aiming through ``camera`` (see :func:`on_screen`; default the page's initial
+    view). A retry after a miss must give the client's camera: the miss orbited the view."""
+    _, cup = cup_position(tab)
+    x, y = on_screen(tab, cup + 0.7 * HANDLE_SCALE * np.eye(3)[2], camera)
     _mouse_drag(tab, (x, y), (x, y - pixels_up), steps)
 
 
-def move_cup(tab, axis: int, metres: float, *, steps: int = 10) -> None:
+def move_cup(tab, axis: int, metres: float, *, steps: int = 10, camera=None) -> None:
     """Drag the handle's arrow along world ``axis`` (0 x, 1 y, 2 z) by ``metres``: the mouse
-    moves from the arrow to where that point would be after the move."""
+    moves from the arrow to where that point would be after the move (both seen through
+    ``camera``, as for :func:`drag_cup`)."""
     _, cup = cup_position(tab)
-    (x, y), box = _grab(tab, axis)
     direction = np.eye(3)[axis]
-    end = cup + (0.7 * HANDLE_SCALE + metres) * direction
-    ex, ey = project(end, box["width"], box["height"])
-    _mouse_drag(tab, (x, y), (box["x"] + ex, box["y"] + ey), steps)
-
-
-def _grab(tab, axis: int):
-    _, cup = cup_position(tab)
-    box = tab.locator("canvas").first.bounding_box()
-    point = cup + 0.7 * HANDLE_SCALE * np.eye(3)[axis]
-    x, y = project(point, box["width"], box["height"])
-    return (box["x"] + x, box["y"] + y), box
+    start = on_screen(tab, cup + 0.7 * HANDLE_SCALE * direction, camera)
+    end = on_screen(tab, cup + (0.7 * HANDLE_SCALE + metres) * direction, camera)
+    _mouse_drag(tab, start, end, steps)
 
 
 def _mouse_drag(tab, start, end, steps: int) -> None:

@@ -76,7 +76,10 @@ def test_a_mouse_drag_and_submit_teach_the_learner_and_are_logged(playwright_bro
         waypoint, cup = drive.cup_position(tab)
         before = session.belief.theta.copy()
         drags = page.drags
-        drive.until_landed(lambda: drive.drag_cup(tab, 60), lambda: page.drags > drags)
+        drive.until_landed(
+            lambda: drive.drag_cup(tab, 60, camera=page.client.camera),
+            lambda: page.drags > drags,
+        )
         assert page.corrected is not None, page.last_message
         moved = np.asarray(page.drag_info["handle"]) - cup
         assert moved[2] > 0.03 and np.all(np.abs(moved[:2]) < 1e-3)  # up (page: mm)
@@ -101,10 +104,30 @@ def test_a_drag_into_the_table_is_refused_with_the_reason_and_not_logged(
     session, page, url, _ = served
     tab = drive.open_page(playwright_browser, url)
     try:
+        drive.wait_for(lambda: drive.cup_position(tab), "the cup on the page")
+        # A press on empty canvas that moves orbits the view, as a drag that misses the handle
+        # does; the drag after it must aim through the client's camera, and land at once.
+        before = np.array(page.client.camera.position)
+        box = tab.locator("canvas").first.bounding_box()
+        x, y = box["x"] + 0.2 * box["width"], box["y"] + 0.8 * box["height"]
+        tab.mouse.move(x, y)
+        tab.mouse.down()
+        for i in range(1, 21):
+            tab.mouse.move(x + 10 * i, y - 2 * i)
+            tab.wait_for_timeout(20)
+        tab.mouse.up()
+        drive.wait_for(
+            lambda: not np.allclose(page.client.camera.position, before, atol=1e-3),
+            "the view orbited",
+        )
         rows = len(session.log.corrections(session.id))
         drags = page.drags
         # Far down, through the table top.
-        drive.until_landed(lambda: drive.drag_cup(tab, -400), lambda: page.drags > drags)
+        drive.until_landed(
+            lambda: drive.drag_cup(tab, -400, camera=page.client.camera),
+            lambda: page.drags > drags,
+            attempts=1,
+        )
         assert page.corrected is None
         drive.wait_for(lambda: "Refused" in drive.status(tab), "the refusal on the page")
         text = drive.status(tab)
@@ -222,7 +245,10 @@ def test_a_relevance_aware_learner_shows_its_belief_in_the_correction(playwright
     tab = drive.open_page(playwright_browser, f"http://127.0.0.1:{server.get_port()}")
     try:
         drags = page.drags
-        drive.until_landed(lambda: drive.drag_cup(tab, 60), lambda: page.drags > drags)
+        drive.until_landed(
+            lambda: drive.drag_cup(tab, 60, camera=page.client.camera),
+            lambda: page.drags > drags,
+        )
         drive.click(tab, "Submit correction")
         drive.wait_for(lambda: page.submitted == 1, "the correction reaching the learner")
         (event,) = log.events(session.id, "relevance")
