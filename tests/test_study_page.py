@@ -164,7 +164,15 @@ def test_a_questionnaire_stores_only_what_was_given_and_shows_it_back_first(stud
         items = [f"tlx.{s}" for s in TLX_SCALES]
         # Nothing moved: Submit is refused, naming every scale, and nothing is stored.
         tab.send(submit, True)
-        drive.wait_for(lambda: "not answered yet: Mental demand" in view.message, "refused")
+        # Refused, and drawn again: a new Submit button, drawn after every item's control
+        # (the message alone comes before the redraw; a suite run read the items half-drawn).
+        drive.wait_for(
+            lambda: (
+                "not answered yet: Mental demand" in view.message
+                and view.controls.get("submit") not in (None, submit)
+            ),
+            "refused, and the page drawn again",
+        )
         assert study.run.log.answers("P1") == []
         for item, value in zip(items[:2], values[:2], strict=True):
             tab.send(view.controls[item], value)

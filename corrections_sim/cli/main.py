@@ -20,10 +20,20 @@ import sys
 from collections.abc import Sequence
 
 from corrections_sim.cli.command import NOTHING_KEPT
-from corrections_sim.cli.commands import commands, tool
 from corrections_sim.cli.errors import UsageError
 from corrections_sim.cli.executors import Interrupted, interruption, interrupts
-from corrections_sim.cli.options import Parser, catalogue, label
+
+# Nothing heavier at import: ``python -m corrections_sim.run`` imports this module before
+# main() puts its interrupt handlers in place, so the commands (and numpy, with the options'
+# types) are imported inside main(), where a Ctrl-C during an import is an interrupt like any
+# other.
+
+
+def commands() -> dict:
+    """Every command by name (:func:`corrections_sim.cli.commands.commands`)."""
+    from corrections_sim.cli.commands import commands
+
+    return commands()
 
 
 def applies(command: str) -> tuple[str, ...]:
@@ -53,7 +63,9 @@ def _asks_command_help(given: Sequence[str]) -> str | None:
 
 def parser() -> argparse.ArgumentParser:
     """The command line: one subcommand per figure and tool, each with its own options
-    (from :func:`catalogue`), help and errors."""
+    (from :func:`~corrections_sim.cli.options.catalogue`), help and errors."""
+    from corrections_sim.cli.options import Parser, catalogue
+
     flat = catalogue()
     p = Parser(
         prog="python -m corrections_sim.run",
@@ -104,6 +116,8 @@ def parser() -> argparse.ArgumentParser:
 def _parse(given: Sequence[str]) -> argparse.Namespace:
     """``given`` parsed by its command's parser; an option of another command is refused in
     one line that says which options the command takes."""
+    from corrections_sim.cli.options import catalogue, label
+
     p = parser()
     args, extra = p.parse_known_args(given)
     if extra:
@@ -124,8 +138,11 @@ def _parse(given: Sequence[str]) -> argparse.Namespace:
 
 def _nothing_kept(args: argparse.Namespace | None) -> str:
     """What an interrupted command leaves, said for that command."""
-    # Never commands(): the interrupt may have landed inside an import that commands() needs.
-    command = tool(getattr(args, "figure", None))
+    # No import here: the interrupt may have landed inside one, and a half-imported module
+    # must not be imported again. The tools' modules are there if the command got that far.
+    loaded = sys.modules.get("corrections_sim.cli.commands")
+    tool = getattr(loaded, "tool", None)
+    command = None if tool is None else tool(getattr(args, "figure", None))
     return NOTHING_KEPT if command is None else command.nothing_kept(args)
 
 
