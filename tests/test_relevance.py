@@ -330,3 +330,29 @@ def test_a_simulated_session_refuses_a_person_with_own_features(tmp_path):
         with pytest.raises(ValueError, match=r"^user_features: a simulated session"):
             simulate(session, settings.study.user, settings.study.theta_star, 1)
         assert log.corrections(session.id) == []
+
+
+def test_the_laplace_widening_is_finite_for_a_jacobian_across_a_jump(rng):
+    """log det(I + t Q JᵀJ / s²) from the singular values of J L / s: the determinant's own
+    value where it is well conditioned, and finite and >= 0 for a near rank-one J of norm 1e10
+    (a secant across a jump of the planner), where the determinant cancelled to 0."""
+    from corrections_sim.learning.relevance import widening
+
+    a = rng.normal(size=(2, 2))
+    spread = a @ a.T + 0.1 * np.eye(2)
+    jac = rng.normal(size=(70, 2))
+    for t in (0.5, 40.0):
+        direct = np.linalg.slogdet(np.eye(2) + t * spread @ (jac.T @ jac) / 3.0**2)[1]
+        assert np.sum(np.log1p(t * widening(jac, spread, 3.0))) == pytest.approx(direct, rel=1e-10)
+    # Near rank one, norm 1e10: against the determinant in exact rational arithmetic.
+    from fractions import Fraction
+
+    steep = 1e10 * np.outer(rng.normal(size=70), [1.0, 0.026]) + rng.normal(size=(70, 2))
+    j = [[Fraction(v) for v in row] for row in steep.tolist()]
+    q = [[Fraction(v) for v in row] for row in spread.tolist()]
+    g = [[sum(r[a] * r[b] for r in j) for b in range(2)] for a in range(2)]
+    m = [[(a == b) + 40 * sum(q[a][c] * g[c][b] for c in range(2)) for b in range(2)]
+         for a in range(2)]  # fmt: skip
+    exact = math.log(m[0][0] * m[1][1] - m[0][1] * m[1][0])
+    assert np.sum(np.log1p(40.0 * widening(steep, spread, 1.0))) == pytest.approx(exact, rel=1e-9)
+    assert widening(np.zeros((70, 3)), np.eye(3), 1.0).tolist() == [0.0, 0.0, 0.0]

@@ -247,6 +247,17 @@ class Judgement:
     person: PersonBelief
 
 
+def widening(jac: np.ndarray, spread: np.ndarray, size: float) -> np.ndarray:
+    """σᵢ² (k,), the squared singular values of J L / s (Q = ``spread`` = L Lᵀ, s = ``size``),
+    so that log det(I + t Q JᵀJ / s²) = Σ log(1 + t σᵢ²): each term >= 0 and finite however
+    large J is. (The determinant of I + t Q JᵀJ / s² itself cancels to 0 for a near rank-one
+    J of norm 1e10 — a secant across a jump of the planner — giving a log of −inf and a NaN
+    belief: measured on run 75 of the FERL study's third column, under OpenBLAS's SkylakeX
+    kernel.)"""
+    sv = np.linalg.svd(jac @ np.linalg.cholesky(spread), compute_uv=False) / size
+    return np.concatenate([sv**2, np.zeros(spread.shape[0] - sv.shape[0])])
+
+
 def judge(
     book: PlanBook,
     env: Environment,
@@ -332,16 +343,13 @@ def judge(
         if jac is None:
             jac = np.zeros((search.target.shape[0], k))
         d = root_inv @ (search.thetas[best] - center)
-        gram = spread @ (jac.T @ jac) / search.size**2
-        places.append((best, search.costs[best] / search.size, float(d @ d), gram))
+        sv2 = widening(jac, spread, search.size)
+        places.append((best, search.costs[best] / search.size, float(d @ d), sv2))
     rho_star = min(min(search.costs) / search.size, 1.0)
 
     def log_place(t: float, place) -> float:
-        _, rho_q, d2, gram = place
-        return (
-            -0.5 * (t * (rho_q**2 - rho_star**2) + d2)
-            - 0.5 * np.linalg.slogdet(np.eye(k) + t * gram)[1]
-        )
+        _, rho_q, d2, sv2 = place
+        return -0.5 * (t * (rho_q**2 - rho_star**2) + d2) - 0.5 * float(np.sum(np.log1p(t * sv2)))
 
     def log_mean(values, weights=None) -> float:
         """log of the (weighted) mean of exp(values)."""
