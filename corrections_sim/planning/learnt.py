@@ -18,9 +18,11 @@ linear output; its inputs (:data:`INPUTS`) are the cup's position, the hand's ap
 and the cup relative to the scene's objects. The planner builds one NLP per network *shape*
 (its slot) with the weights as parameters, so a newly learnt feature costs no compile.
 
-Training is CasADi's algorithmic differentiation of the full-batch loss and SciPy's L-BFGS
-(both already dependencies; measured against torch in the docs: no CUDA wheels, one
-definition of the network).
+Training is CasADi's algorithmic differentiation of the full-batch loss and our own L-BFGS
+(:mod:`corrections_sim.planning.lbfgs`, whose path is the same bits on every CPU: SciPy's took
+its inner products from the machine's BLAS kernel and ended in another local optimum on
+another processor); measured against torch in the docs: no CUDA wheels, one definition of the
+network.
 """
 
 from __future__ import annotations
@@ -38,6 +40,7 @@ import casadi as ca
 import numpy as np
 
 from corrections_sim.planning import features as feats
+from corrections_sim.planning import lbfgs
 from corrections_sim.scene import geometry as g
 from corrections_sim.scene.environments import Environment, n_env_params
 from corrections_sim.scene.robot import N_ARM_JOINTS, joint_limits, symbolic_fk
@@ -247,7 +250,8 @@ class Training:
     Attributes:
         equal_weight: weight of the "starts alike, ends alike" terms (FERL: 10).
         decay: L2 weight decay on the weights (not the biases).
-        max_iter: L-BFGS iterations.
+        max_iter: iterations of :func:`corrections_sim.planning.lbfgs.minimize` (which stops
+            sooner where ‖∇‖∞ ≤ 1e-7 or the loss stops falling).
         workspace: reachable configurations the output is normalised over.
     """
 
@@ -298,8 +302,6 @@ def train(
 ) -> tuple[np.ndarray, float]:
     """Weights ψ (raw, not normalised) minimising FERL's ranking loss over the traces'
     ``inputs`` (each (n_in, n_i)); returns them and the final loss."""
-    from scipy.optimize import minimize
-
     x = np.concatenate(inputs, axis=1)
     ordered, equal = ranking_pairs([a.shape[1] for a in inputs])
     n = x.shape[1]
@@ -321,14 +323,9 @@ def train(
         value, grad = fg(v)
         return float(value), np.asarray(grad).ravel()
 
-    result = minimize(
-        objective,
-        network.initial(rng),
-        jac=True,
-        method="L-BFGS-B",
-        options={"maxiter": training.max_iter, "gtol": 1e-7},
-    )
-    return np.asarray(result.x, float), float(result.fun)
+    # Our own L-BFGS, not SciPy's: its path is the same bits on every CPU (see lbfgs.py).
+    result = lbfgs.minimize(objective, network.initial(rng), max_iter=training.max_iter, gtol=1e-7)
+    return result.x, result.fun
 
 
 def _softplus(z):
