@@ -473,3 +473,41 @@ def test_updates_refuse_bad_input():
         select_environment([np.eye(2), np.eye(3)])
     with pytest.raises(ValueError, match="cov"):
         frobenius(np.ones(3))
+
+
+def test_every_gaussian_learner_holds_the_observation_its_likelihood_names():
+    """The observation model is a component (``learning/observation.py``): a learner with a
+    Gaussian likelihood holds Φ(ξ*(θ, E)) when it takes corrections as they come, and its
+    correction model's Φ(C(ξᵗ, ξ*(θ, E))) otherwise — the one its exact reference reads."""
+    from corrections_sim.learning.base import LEARNERS, make_learner
+    from corrections_sim.learning.observation import CorrectedPlanFeatures, PlanFeatures
+
+    seen = set()
+    for name in LEARNERS:
+        learner = make_learner(name)
+        likelihood = learner.likelihood()
+        if likelihood is None or likelihood.kind != "gaussian":
+            continue
+        observation = learner.observation()
+        if likelihood.correction is None:
+            assert observation == PlanFeatures(), name
+            assert not observation.needs_robot
+        else:
+            assert observation == CorrectedPlanFeatures(likelihood.correction), name
+            assert observation.needs_robot
+        seen.add(type(observation))
+    assert seen == {PlanFeatures, CorrectedPlanFeatures}
+    assert make_learner("PP").observation() is None
+
+
+def test_active_learning_over_a_learner_that_predicts_no_covariance_is_refused():
+    from dataclasses import dataclass
+
+    from corrections_sim.learning.learners.active import ActiveMixin
+    from corrections_sim.learning.learners.perceptron import Perceptron
+
+    with pytest.raises(TypeError, match="predicts its covariance"):
+
+        @dataclass(frozen=True)
+        class ActivePerceptron(ActiveMixin, Perceptron):
+            pass

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from corrections_sim.learning.learners.kalman import correction_observer
+from corrections_sim.learning.observation import CorrectedPlanFeatures
 from corrections_sim.people.users import BiasedUser, NoisyOptimalUser
 from corrections_sim.planning.planner import Plan, Planner, PlannerConfig, PlanningError
 from corrections_sim.planning.plans import PlanBook, Target, evaluate
@@ -381,7 +381,7 @@ def test_kf_c_observes_the_modelled_correction(planner, envs, target):
     book = PlanBook(planner)
     robot = book.plan(np.array(THETA0), env).trajectory
     model = settings().learners["KF-C"].model
-    h = correction_observer(book, env, robot, model, planner.config.features)
+    h = CorrectedPlanFeatures(model).observe(book, env, robot, planner.config.features)
     phi = h(np.array([THETA_STAR]))[0]
     user = BiasedUser().model().apply(robot, target.plans[1].trajectory)
     np.testing.assert_allclose(phi, feature_counts(user, env.params(), planner.config.features))

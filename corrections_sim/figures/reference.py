@@ -97,14 +97,10 @@ def _filter_step(model, study, book: PlanBook, env, robot, z, start, row) -> Bel
     record)."""
     from corrections_sim.belief import KalmanNoise
     from corrections_sim.learning.kalman import ukf_update
-    from corrections_sim.learning.learners.kalman import correction_observer
 
     names = book.planner.config.features
     likelihood = model.likelihood()
-    if likelihood.correction is not None:
-        observe = correction_observer(book, env, robot.trajectory, likelihood.correction, names)
-    else:
-        observe = book.observe(env)
+    observe = model.observation().observe(book, env, robot.trajectory, names)
     noise = study.noise()
     if likelihood.relevance == "per-correction" and row.get("relevance"):
         beta = float(row["relevance"])

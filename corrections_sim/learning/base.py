@@ -41,7 +41,8 @@ import numpy as np
 
 from corrections_sim import components
 from corrections_sim.belief import Belief, KalmanNoise
-from corrections_sim.learning.kalman import SigmaPoints
+from corrections_sim.learning.kalman import Observe, SigmaPoints
+from corrections_sim.learning.observation import Observation
 from corrections_sim.learning.step import Step  # noqa: F401  (what update returns)
 from corrections_sim.planning.planner import Plan
 from corrections_sim.registry import Registry
@@ -172,6 +173,28 @@ class Learner(abc.ABC):
         """What it assumes a correction tells about θ (None: no model an exact reference can
         be computed under, e.g. the perceptron's or KF-A's)."""
         return None
+
+    def observation(self) -> Observation | None:
+        """The observation model it holds, hₜ(θ) (:mod:`corrections_sim.learning.observation`),
+        or None when it reads no function of θ (the perceptron)."""
+        return None
+
+    def observer(self, ctx: LearnerContext, belief: Belief, env: Environment) -> Observe:
+        """hₜ for a correction not yet made in ``env``: to the plan ξ*(θ̂, E) the robot would
+        show now (planned only when the observation model reads it)."""
+        observation = self._observation()
+        robot = ctx.book.plan(belief.theta, env).trajectory if observation.needs_robot else None
+        return observation.observe(ctx.book, env, robot, ctx.features)
+
+    def observer_of(self, ctx: LearnerContext, env: Environment, robot: np.ndarray) -> Observe:
+        """hₜ for a correction made in ``env`` to the robot's trajectory ``robot`` (T, 7)."""
+        return self._observation().observe(ctx.book, env, robot, ctx.features)
+
+    def _observation(self) -> Observation:
+        observation = self.observation()
+        if observation is None:
+            raise TypeError(f"{type(self).__name__} holds no observation model")
+        return observation
 
     def learns_features(self) -> bool:
         """Whether it may ask its person for feature traces and learn the feature it lacks

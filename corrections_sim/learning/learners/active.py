@@ -10,9 +10,6 @@ from dataclasses import dataclass
 from corrections_sim.belief import Belief
 from corrections_sim.learning.active import select_environment
 from corrections_sim.learning.base import LearnerContext
-from corrections_sim.learning.kalman import (
-    ukf_predicted_covariance,
-)
 from corrections_sim.learning.learners.kalman import (
     CorrectionAwareKalman,
     CorrectionAwareKalmanLearntNoise,
@@ -22,12 +19,23 @@ from corrections_sim.planning.planner import PlanningError
 
 
 class ActiveMixin:
-    """Mix-in: Eᵗ = argmin_E ‖P_{t+1}(E)‖_F, eq. (A1), over the environments whose plans
-    exist and that were not declined since the last correction (one that fails, or that the
-    person skipped, is no candidate; if none is left, the run's draw)."""
+    """Mix-in over a learner that predicts its covariance: Eᵗ = argmin_E ‖P_{t+1}(E)‖_F,
+    eq. (A1), over the environments whose plans exist and that were not declined since the
+    last correction (one that fails, or that the person skipped, is no candidate; if none is
+    left, the run's draw). What it needs of the learner it is mixed into is one method,
+    ``predicted_covariance(ctx, belief, env)`` (every Kalman learner has it; a class that
+    mixes it into a learner without it is refused when it is defined)."""
 
     active = True
     stream = 1
+
+    def __init_subclass__(cls, **kwargs) -> None:
+        super().__init_subclass__(**kwargs)
+        if not callable(getattr(cls, "predicted_covariance", None)):
+            raise TypeError(
+                f"{cls.__name__}: active learning mixes into a learner that predicts its "
+                "covariance (predicted_covariance(ctx, belief, env) -> (k, k))"
+            )
 
     def choose(self, ctx: LearnerContext, belief: Belief, draw: int) -> int:
         candidates, covs = [], []
@@ -35,9 +43,7 @@ class ActiveMixin:
             if i in ctx.declined:
                 continue
             try:
-                observe = self.observer(ctx, belief, env)
-                noise = self.filter_noise(ctx, belief)
-                covs.append(ukf_predicted_covariance(belief, observe, noise, ctx.sigma))
+                covs.append(self.predicted_covariance(ctx, belief, env))
                 candidates.append(i)
             except PlanningError:
                 continue

@@ -15,6 +15,7 @@ from corrections_sim.learning.attenuated import Attenuation
 from corrections_sim.learning.attenuated import update as attenuated_update
 from corrections_sim.learning.base import Learner, LearnerContext, Step
 from corrections_sim.learning.learners.params import renamed_keys
+from corrections_sim.learning.observation import Observation, PlanFeatures
 from corrections_sim.planning.planner import Plan
 from corrections_sim.scene.environments import Environment
 
@@ -57,12 +58,15 @@ class AttenuatedKalman(Learner):
             _ATTENUATION_NAMES,
         )
 
+    def observation(self) -> Observation:
+        return PlanFeatures()
+
     def update(
         self, ctx: LearnerContext, belief: Belief, env: Environment, plan: Plan, phi_h: np.ndarray
     ) -> Step:
         return attenuated_update(
             belief,
-            ctx.book.observe(env),
+            self.observer(ctx, belief, env),
             plan.features,
             phi_h,
             ctx.noise,

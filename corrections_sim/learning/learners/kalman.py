@@ -23,21 +23,24 @@ from corrections_sim.components import ParameterError
 from corrections_sim.learning.base import Learner, LearnerContext, Likelihood, Step
 from corrections_sim.learning.iterated import batch_update, iterated_update
 from corrections_sim.learning.kalman import (
-    Observe,
     ekf_update,
     finite_difference_jacobian,
+    ukf_predicted_covariance,
     ukf_update,
 )
 from corrections_sim.learning.learners.params import require_count, require_positive
 from corrections_sim.learning.learnt_noise import vb_ukf_update
+from corrections_sim.learning.observation import (
+    CorrectedPlanFeatures,
+    Observation,
+    PlanFeatures,
+)
 from corrections_sim.people.corrections import (
     CORRECTIONS,
     CorrectionModel,
     WaypointCorrection,
 )
-from corrections_sim.planning.features import feature_counts
 from corrections_sim.planning.planner import Plan
-from corrections_sim.planning.plans import PlanBook
 from corrections_sim.scene.environments import Environment
 
 #: How a filter treats the person's observation noise N (the ``noise`` parameter).
@@ -122,13 +125,18 @@ class UnscentedKalman(Learner):
             return ctx.noise
         return KalmanNoise(process=ctx.noise.process, observation=belief.noise.estimate())
 
-    def observer(self, ctx: LearnerContext, belief: Belief, env: Environment) -> Observe:
-        """What this learner believes a correction in ``env`` shows, as a function of θ."""
-        return ctx.book.observe(env)
+    def observation(self) -> Observation:
+        """h(θ) = Φ(ξ*(θ, E), E), the paper's; a correction model's for KF-C and its kin."""
+        correction = self.assumed_correction()
+        return PlanFeatures() if correction is None else CorrectedPlanFeatures(correction)
 
-    def observer_of(self, ctx: LearnerContext, env: Environment, robot: np.ndarray) -> Observe:
-        """What a correction in ``env`` to the robot's trajectory ``robot`` shows."""
-        return ctx.book.observe(env)
+    def predicted_covariance(
+        self, ctx: LearnerContext, belief: Belief, env: Environment
+    ) -> np.ndarray:
+        """P after a correction in ``env`` as the UKF predicts it before the correction is
+        made (k, k): what active learning (eq. A1) compares environments by."""
+        observe = self.observer(ctx, belief, env)
+        return ukf_predicted_covariance(belief, observe, self.filter_noise(ctx, belief), ctx.sigma)
 
     def update(
         self, ctx: LearnerContext, belief: Belief, env: Environment, plan: Plan, phi_h: np.ndarray
@@ -184,10 +192,13 @@ class ExtendedKalman(Learner):
     def __post_init__(self) -> None:
         require_positive("step", self.step)
 
+    def observation(self) -> Observation:
+        return PlanFeatures()
+
     def update(
         self, ctx: LearnerContext, belief: Belief, env: Environment, plan: Plan, phi_h: np.ndarray
     ) -> Step:
-        jac = finite_difference_jacobian(ctx.book.observe(env), belief.theta, self.step)
+        jac = finite_difference_jacobian(self.observer(ctx, belief, env), belief.theta, self.step)
         return ekf_update(belief, jac, plan.features, phi_h, ctx.noise)
 
 
@@ -203,28 +214,6 @@ def model_fits(model: CorrectionModel, n_waypoints: int) -> None:
         model.check(n_waypoints)
     except ParameterError as exc:
         raise ParameterError(f"model.{exc.name}", exc.message) from None
-
-
-def correction_observer(
-    book: PlanBook, env: Environment, robot: np.ndarray, model: CorrectionModel, names
-) -> Observe:
-    """hₜ(θ) = Φ(C(ξᵗ, ξ*(θ, E)), E) as a batch callable (n, k) -> (n, k).
-
-    The correction a person with preference θ would make to the robot's trajectory ``robot``
-    (T, 7) under the correction model ``model``; ξ*(θ, E) comes from ``book`` (memoized, so
-    the plans the paper's filter would solve are the only ones solved).
-    """
-    params = env.params()
-
-    def h(thetas: np.ndarray) -> np.ndarray:
-        return np.array(
-            [
-                feature_counts(model.apply(robot, book.plan(t, env).trajectory), params, names)
-                for t in np.atleast_2d(thetas)
-            ]
-        )
-
-    return h
 
 
 @dataclass(frozen=True)
@@ -251,13 +240,6 @@ class CorrectionAwareKalman(UnscentedKalman):
 
     def check(self, n_waypoints: int) -> None:
         model_fits(self.model, n_waypoints)
-
-    def observer(self, ctx: LearnerContext, belief: Belief, env: Environment) -> Observe:
-        robot = ctx.book.plan(belief.theta, env).trajectory
-        return self.observer_of(ctx, env, robot)
-
-    def observer_of(self, ctx: LearnerContext, env: Environment, robot: np.ndarray) -> Observe:
-        return correction_observer(ctx.book, env, robot, self.model, ctx.features)
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,91 @@
+"""What a correction shows about θ, as a component a learner holds: the observation function
+hₜ(θ) its filter, its particles and its exact reference all read.
+
+Two models, one question (:meth:`Observation.observe`): given the plans ξ*(θ, E) of a run
+(its :class:`~corrections_sim.planning.plans.PlanBook`), the environment E and the robot's
+trajectory ξᵗ the person corrected, h as a batch callable (n, k) -> (n, k):
+
+* :class:`PlanFeatures`, the paper's filter: h(θ) = Φ(ξ*(θ, E), E), the person shows their
+  own optimum (ξᵗ plays no part);
+* :class:`CorrectedPlanFeatures`, KF-C's: hₜ(θ) = Φ(C(ξᵗ, ξ*(θ, E)), E), the correction a
+  person with preference θ would make to ξᵗ under the correction model C.
+
+Where plans come from is the book's business (memoized per run today), so a learner does not
+say how ξ* is computed, only what it believes a correction is.
+"""
+
+from __future__ import annotations
+
+import abc
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from corrections_sim.learning.kalman import Observe
+from corrections_sim.planning.features import feature_counts
+from corrections_sim.scene.environments import Environment
+
+if TYPE_CHECKING:
+    from corrections_sim.people.corrections import CorrectionModel
+    from corrections_sim.planning.plans import PlanBook
+
+
+class Observation(abc.ABC):
+    """hₜ(θ): what a correction in E to the robot's ξᵗ shows, as a function of θ."""
+
+    #: Whether h depends on the robot's trajectory ξᵗ (a learner then plans ξ*(θ̂, E) to ask
+    #: about a correction not yet made; one that does not plans nothing for it).
+    needs_robot: bool = True
+
+    @abc.abstractmethod
+    def observe(
+        self,
+        book: PlanBook,
+        env: Environment,
+        robot: np.ndarray | None,
+        names: Sequence[str],
+    ) -> Observe:
+        """h as a batch callable (n, k) -> (n, k) for a correction in ``env`` to ``robot``
+        (T, 7) over the features ``names``; ``robot`` may be None when :attr:`needs_robot` is
+        false."""
+
+
+@dataclass(frozen=True)
+class PlanFeatures(Observation):
+    """h(θ) = Φ(ξ*(θ, E), E): a correction shows the person's own optimal trajectory (the
+    paper's filter, KF)."""
+
+    needs_robot = False
+
+    def observe(self, book, env, robot, names) -> Observe:
+        return book.observe(env)
+
+
+@dataclass(frozen=True)
+class CorrectedPlanFeatures(Observation):
+    """hₜ(θ) = Φ(C(ξᵗ, ξ*(θ, E)), E) under the correction model C (KF-C): ξ*(θ, E) from the
+    book, so the plans the paper's filter would solve are the only ones solved.
+
+    Attributes:
+        model: C, the correction a person with preference θ makes to ξᵗ.
+    """
+
+    model: CorrectionModel
+
+    def observe(self, book, env, robot, names) -> Observe:
+        if robot is None:
+            raise ValueError("a correction model's observation needs the robot's trajectory")
+        params = env.params()
+        model = self.model
+
+        def h(thetas: np.ndarray) -> np.ndarray:
+            return np.array(
+                [
+                    feature_counts(model.apply(robot, book.plan(t, env).trajectory), params, names)
+                    for t in np.atleast_2d(thetas)
+                ]
+            )
+
+        return h
