@@ -60,15 +60,25 @@ def test_the_readme_is_two_screens():
     assert len(README.read_text().splitlines()) <= 110
 
 
-def test_a_stale_quote_is_found_and_filled(tmp_path):
-    """The check finds a hand-edited number and --fill puts the file's back, nothing else."""
+def test_a_stale_quote_is_found_and_filled(tmp_path, monkeypatch, capsys):
+    """``run quotes`` finds a hand-edited number (exit 1, the quote named) and --fill puts the
+    file's back, nothing else; run where there is no results/, it refuses in one line."""
+    from corrections_sim.cli import main as cli
+
+    monkeypatch.chdir(ROOT)  # where results/ is
     page = tmp_path / "page.md"
     right = quotes.fill("took <!-- quote minutes fig4 -->0<!-- /quote --> minutes", ROOT)
     page.write_text(right.replace("-->" + quotes.minutes(ROOT, "fig4"), "-->999"))
-    assert quotes.main(["--root", str(ROOT), str(page)]) == 1
-    assert quotes.main(["--root", str(ROOT), "--fill", str(page)]) == 0
+    assert cli.main(["quotes", str(page)]) == 1
+    out, err = capsys.readouterr()
+    assert "quote minutes fig4: the page says '999'" in out and "1 quoted numbers differ" in err
+    assert cli.main(["quotes", str(page), "--fill"]) == 0
     assert page.read_text() == right
-    assert quotes.main(["--root", str(ROOT), str(page)]) == 0
+    assert cli.main(["quotes", str(page)]) == 0
+    monkeypatch.chdir(tmp_path)  # no results/ here: one line, exit 2
+    capsys.readouterr()
+    assert cli.main(["quotes"]) == 2
+    assert "results/" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(
@@ -81,11 +91,14 @@ def test_a_stale_quote_is_found_and_filled(tmp_path):
         ("paired-table fig4 PP/XX", "no paired comparison PP/XX"),
     ],
 )
-def test_a_bad_quote_is_one_line_and_changes_nothing(tmp_path, capsys, quote, named):
+def test_a_bad_quote_is_one_line_and_changes_nothing(tmp_path, monkeypatch, capsys, quote, named):
+    from corrections_sim.cli import main as cli
+
+    monkeypatch.chdir(ROOT)
     page = tmp_path / "page.md"
     text = f"<!-- quote minutes fig4 -->0<!-- /quote --> <!-- quote {quote} -->1<!-- /quote -->"
     page.write_text(text)
-    assert quotes.main(["--root", str(ROOT), "--fill", str(page)]) == 2
+    assert cli.main(["quotes", str(page), "--fill"]) == 2
     err = capsys.readouterr().err
     assert named in err and quote in err and len(err.strip().splitlines()) == 1
     assert page.read_text() == text

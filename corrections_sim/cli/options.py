@@ -226,6 +226,11 @@ def catalogue() -> argparse.ArgumentParser:
         help="learn during the motion: a physical user's push updates the learner and the robot "
         "replans the rest of the motion (= --set online=true)",
     )
+    p.add_argument(
+        "--fill",
+        action="store_true",
+        help="rewrite each quoted number from its file in results/ (without it: only check)",
+    )
     v = p.add_argument_group("video (reads OUT/<figure>/curves.csv of a finished fig4/fig5)")
     v.add_argument("--from", dest="source", metavar="FIG", help="fig4 or fig5 (default fig4)")
     v.add_argument(

@@ -14,21 +14,18 @@ A page marks each quoted number or table with what it quotes, a name and its arg
 
 The comments render as nothing (GitHub, MkDocs); what stands between them is what
 :data:`QUOTES` computes from ``results/<figure>/summary.json`` (or another JSON file under
-``results/``, named by its path there) now. ``python -m
-corrections_sim.figures.quotes README.md docs/*.md`` lists every quote that differs from its
-file (exit status 1), ``--fill`` rewrites them in place (``--root DIR``: the folder that holds
-``results/``, by default the working directory); the test suite runs the check, so a
-page and its file cannot disagree unnoticed.
+``results/``, named by its path there) now. ``python -m corrections_sim.run quotes`` lists
+every quote of README.md and docs/*.md that differs from its file (exit status 1), and
+``--fill`` rewrites them in place (:mod:`corrections_sim.cli.commands.quotes`); the test suite
+runs the check, so a page and its file cannot disagree unnoticed.
 """
 
 from __future__ import annotations
 
 import csv
 import json
-import os
 import re
-import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from pathlib import Path
 
 from corrections_sim.figures import report
@@ -304,39 +301,3 @@ def stale(text: str, root: Path) -> list[tuple[str, str, str]]:
         if m[2].strip() != now.strip():
             found.append((m[1], m[2].strip(), now.strip()))
     return found
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    args = list(sys.argv[1:] if argv is None else argv)
-    write = "--fill" in args
-    root = Path.cwd()
-    if "--root" in args:
-        at = args.index("--root")
-        root = Path(args[at + 1]) if at + 1 < len(args) else Path(os.devnull)  # no folder
-        del args[at : at + 2]
-    paths = [Path(a) for a in args if a != "--fill"]
-    if not paths or not (root / "results").is_dir():
-        print(
-            "error: usage: python -m corrections_sim.figures.quotes [--fill] [--root DIR] "
-            "PAGE.md ... (DIR holds results/; default: here)",
-            file=sys.stderr,
-        )
-        return 2
-    bad = 0
-    for path in paths:
-        try:
-            text = path.read_text()
-            if write:
-                path.write_text(fill(text, root))
-                continue
-            for name, page, file in stale(text, root):
-                bad += 1
-                print(f"{path}: quote {name}: the page says {page!r}, results/ says {file!r}")
-        except (OSError, QuoteError) as exc:
-            print(f"error: {path}: {exc}", file=sys.stderr)
-            return 2
-    return 1 if bad else 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -18,6 +18,7 @@ from corrections_sim.cli.commands import (
     models,
     pilot,
     power,
+    quotes,
     reference,
     reference_plot,
     relevance_fit,
@@ -47,6 +48,7 @@ TOOLS = (
     relevance_fit,
     relevance_scores,
     report,
+    quotes,
     models,
 )
 
