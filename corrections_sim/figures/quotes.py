@@ -132,10 +132,10 @@ def pair(root: Path, figure: str, names: str, metric: str, digits: str = "3") ->
 def user_pair(
     root: Path, figure: str, names: str, user: str, metric: str, digits: str, mean_only: str = ""
 ) -> str:
-    """A paired difference a − b (``names``: ``a/b``) of ``metric`` (``:`` for spaces:
-    ``final:regret``) for one ``user`` (``_`` for spaces) of a learners × users study, with its
-    95% interval (``mean``: the mean alone)."""
-    a, b = names.split("/")
+    """A paired difference a − b (``names``: ``a/b``, ``_`` for spaces) of ``metric`` (``:``
+    for spaces: ``final:regret``) for one ``user`` (``_`` for spaces) of a learners × users
+    study, with its 95% interval (``mean``: the mean alone)."""
+    a, b = names.replace("_", " ").split("/")
     want = {"a": a, "b": b, "user": user.replace("_", " "), "metric": metric.replace(":", " ")}
     row = _one(_summary(root, figure)["paired"], want, figure)
     return _difference(row, int(digits), interval=mean_only != "mean")

@@ -16,8 +16,10 @@ from corrections_sim.cli.errors import UsageError
 
 
 def pages(root: Path) -> list[Path]:
-    """The pages that quote results: the README and every docs page under ``root``."""
-    return [p for p in [root / "README.md", *sorted((root / "docs").glob("*.md"))] if p.is_file()]
+    """The pages that quote results: the README and every docs page under ``root``, as paths
+    relative to it."""
+    found = [root / "README.md", *sorted((root / "docs").glob("*.md"))]
+    return [p.relative_to(root) for p in found if p.is_file()]
 
 
 def run_quotes(args: argparse.Namespace) -> list[Path]:
