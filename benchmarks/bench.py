@@ -383,7 +383,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         "NASA-TLX answered in chromium as fast as the page takes input, and whether every value "
         "set reaches the log (--problems questionnaires, default 20). 'catch': how often a "
         "hand catches the moving handle on the physical page, against a binomial bar "
-        "(--problems tries, default 62).",
+        "(--problems tries, default 62). 'atlas': the plan atlas of fig. 4's planner over "
+        "its prior box (build time, size) and its plans' optimality against random restarts "
+        "(--problems off-grid problems, default 200; --envs, --grid).",
     )
     parser.add_argument(
         "what",
@@ -399,9 +401,14 @@ def main(argv: Sequence[str] | None = None) -> None:
             "study",
             "questionnaire",
             "catch",
+            "atlas",
         ],
         help="which benchmark to run",
     )
+    parser.add_argument(
+        "--envs", type=int, default=48, help="atlas: the first N paper environments (default 48)"
+    )
+    parser.add_argument("--grid", type=int, default=31, help="atlas: points a weight (default 31)")
     parser.add_argument(
         "--learners",
         help="interact: the learners, one session each (default KF-CL,KF-C,BP); relevance: "
@@ -562,6 +569,23 @@ def main(argv: Sequence[str] | None = None) -> None:
         if n < 2:
             parser.error("--problems: learnt takes >= 2 problems (default 24)")
         print("\n".join(run_learnt(n, 0 if args.seed is None else args.seed, args.build)))
+        return
+    if args.what == "atlas":
+        from benchmarks.bench_atlas import report as report_atlas
+        from benchmarks.bench_atlas import run as run_atlas
+
+        n = 200 if args.problems is None else args.problems
+        if n < 1 or not 1 <= args.envs <= 48 or args.grid < 3:
+            parser.error("atlas: --problems >= 1, --envs in [1, 48], --grid >= 3")
+        bench = run_atlas(
+            envs=args.envs,
+            count=args.grid,
+            problems=n,
+            restarts=args.restarts,
+            theta_range=args.theta_range if args.theta_range != THETA_RANGE[1] else 2.0,
+            seed=0 if args.seed is None else args.seed,
+        )
+        print("\n".join(report_atlas(bench)), flush=True)
         return
     if args.what == "catch":
         from benchmarks.bench_catch import report as report_catch

@@ -1,0 +1,132 @@
+"""``python -m benchmarks.bench atlas``: what a plan atlas costs and what it buys.
+
+Builds fig. 4's planner's atlas (:mod:`corrections_sim.planning.atlas`) over the study's prior
+box (θ̂⁰ ± ``width`` sd, ``count`` points a weight) for the first ``envs`` paper environments on
+a process pool, then draws off-grid problems (θ ~ U[−range, range]^k, a random environment of
+those) and compares, against the best of ``restarts`` random restarts:
+
+* the figure's planner from its cold starts (what a fresh plan book answers), and
+* the atlas: warm from each distinct plan at the corners of θ's cell, the best kept.
+
+Prints the build's wall and CPU time, solves, size on disk and in memory, and the fraction of
+problems within 1% of the restarts' best; it never asserts.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+
+from benchmarks.restarts import random_restarts, relative_gap
+from corrections_sim.planning import atlas as A
+from corrections_sim.planning.planner import PlannerConfig, PlanningError, shared_planner
+from corrections_sim.scene.environments import paper_environments
+
+#: Fig. 4's planner (experiments/fig4.toml: four cold starts).
+CONFIG = PlannerConfig(n_starts=4)
+
+
+def _build_one(args) -> tuple[int, A.EnvironmentAtlas, float]:
+    index, grid, cold_stride = args
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    planner = shared_planner(CONFIG)
+    t0 = time.process_time()
+    built = A.build(planner, paper_environments()[index], grid, cold_stride=cold_stride)
+    return index, built, time.process_time() - t0
+
+
+@dataclass(frozen=True)
+class AtlasBench:
+    grid: A.AtlasGrid
+    envs: int
+    build_wall: float
+    build_cpu: float
+    solves: int
+    missing: int
+    bytes_per_env: int
+    gaps_planner: np.ndarray
+    gaps_atlas: np.ndarray
+    atlas_solves: float
+
+
+def run(
+    envs: int = 48,
+    count: int = 31,
+    width: float = 5.0,
+    problems: int = 200,
+    restarts: int = 30,
+    theta_range: float = 2.0,
+    cold_stride: int = 10,
+    workers: int = 2,
+    seed: int = 0,
+) -> AtlasBench:
+    grid = A.AtlasGrid.around([0.0, 0.0], [1.0, 1.0], width=width, count=count)
+    indices = list(range(envs))
+    t0 = time.perf_counter()
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        built = sorted(pool.map(_build_one, [(i, grid, cold_stride) for i in indices]))
+    wall = time.perf_counter() - t0
+    atlases = {i: a for i, a, _ in built}
+    planner = shared_planner(CONFIG)
+    all_envs = paper_environments()
+    rng = np.random.default_rng(seed)
+    gaps_planner, gaps_atlas, used = [], [], []
+    for _ in range(problems):
+        theta = rng.uniform(-theta_range, theta_range, 2)
+        i = int(rng.choice(indices))
+        env = all_envs[i]
+        starts = random_restarts(env, CONFIG.n_waypoints, restarts, rng)
+        try:
+            best = planner.solve(theta, env, inits=starts).reward
+        except PlanningError:
+            continue
+        try:
+            own = planner.solve(theta, env).reward
+        except PlanningError:
+            own = -np.inf
+        rewards, n = [], 0
+        for start in A.cell_starts(atlases[i], theta, CONFIG.smoothness):
+            n += 1
+            try:
+                rewards.append(planner.solve(theta, env, inits=[start]).reward)
+            except PlanningError:
+                continue
+        used.append(n)
+        gaps_planner.append(relative_gap(best, own))
+        gaps_atlas.append(relative_gap(best, max(rewards, default=-np.inf)))
+    return AtlasBench(
+        grid,
+        envs,
+        wall,
+        sum(c for _, _, c in built),
+        sum(a.solves for a in atlases.values()),
+        sum(int((~a.found).sum()) for a in atlases.values()),
+        grid.size * CONFIG.n_waypoints * 7 * 8,
+        np.array(gaps_planner),
+        np.array(gaps_atlas),
+        float(np.mean(used)) if used else 0.0,
+    )
+
+
+def report(b: AtlasBench) -> list[str]:
+    g = b.grid
+    box = " × ".join(f"[{lo:g}, {hi:g}]" for lo, hi in zip(g.lows, g.highs, strict=True))
+    within = lambda gaps: f"{100 * np.mean(gaps <= 0.01):.1f}%"  # noqa: E731
+    worst = lambda gaps: f"{100 * np.max(gaps):.1f}%"  # noqa: E731
+    return [
+        f"atlas of fig. 4's planner: {b.envs} environments, {' × '.join(map(str, g.counts))} "
+        f"nodes over {box}",
+        f"  build: {b.build_wall:.1f} s wall, {b.build_cpu:.1f} s CPU, {b.solves} solves "
+        f"({b.solves / (b.envs * g.size):.1f} a node), {b.missing} nodes without a plan",
+        f"  size: {b.bytes_per_env / 1e6:.2f} MB of trajectories an environment, "
+        f"{b.envs * b.bytes_per_env / 1e6:.1f} MB in all (on disk and memory-mapped)",
+        f"  {len(b.gaps_atlas)} off-grid problems against the best of the random restarts:",
+        f"    planner's cold starts: within 1% on {within(b.gaps_planner)}, "
+        f"worst gap {worst(b.gaps_planner)}",
+        f"    atlas cell starts ({b.atlas_solves:.2f} warm solves a problem): within 1% on "
+        f"{within(b.gaps_atlas)}, worst gap {worst(b.gaps_atlas)}  (target: >= 99%)",
+    ]

@@ -1,0 +1,361 @@
+"""A plan atlas: ξ*(θ, E) solved on a grid of θ per environment, once, and global at its
+nodes — so that a plan can start from the atlas instead of from whatever a run solved before.
+
+The grid (:class:`AtlasGrid`) spans a box of θ with n_i points per weight, nodes in C order.
+For one environment, :func:`build` solves every node by continuation from cold starts:
+
+1. **seeds**: the planner's cold starts at every ``cold_stride``-th node per axis;
+2. **continuation**: every plan that improves a node (a higher reward θ·Φ − λS) is offered,
+   warm, to each of the node's grid neighbours, first in first out, until no node improves.
+   So each node is offered the plan of every basin that reaches it from any seed, and keeps
+   the best; the order depends on the grid alone, never on what a run solved before.
+
+A node no start converges at keeps NaN (and reward −inf). :func:`cell_starts` gives the
+warm starts of an off-grid θ: the plans at the corners of its cell, best first by their
+reward *at θ* (linear in θ, so no solve is needed to rank them).
+
+Pure: plain values in and out. The cache on disk (:class:`AtlasStore`) keeps one file per
+(planner build, solver options, environment, grid) under the compile cache, written atomically
+and checked on reading: a truncated, corrupt or foreign file is rebuilt, never trusted.
+"""
+
+from __future__ import annotations
+
+import collections
+import hashlib
+import itertools
+import json
+import os
+import tempfile
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from corrections_sim.planning.planner import (
+    Planner,
+    PlannerConfig,
+    PlanningError,
+    build_key,
+    cache_dir,
+    smoothness_cost,
+)
+from corrections_sim.scene.environments import Environment
+
+#: Bumped when the build's algorithm changes: older atlases are rebuilt, never read.
+ALGORITHM = 1
+
+
+@dataclass(frozen=True)
+class AtlasGrid:
+    """A box of θ with ``counts[i]`` evenly spaced values of weight i from ``lows[i]`` to
+    ``highs[i]`` (both included); nodes in C order (the last weight fastest).
+
+    Raises:
+        ValueError: in one line, for fewer than 3 points on an axis, an empty or non-finite
+            box, or lengths that differ.
+    """
+
+    lows: tuple[float, ...]
+    highs: tuple[float, ...]
+    counts: tuple[int, ...]
+
+    def __post_init__(self) -> None:
+        lows = tuple(float(v) for v in self.lows)
+        highs = tuple(float(v) for v in self.highs)
+        counts = tuple(self.counts)
+        if not len(lows) == len(highs) == len(counts) >= 1:
+            raise ValueError("atlas grid: lows, highs and counts need one entry per weight")
+        for i, (lo, hi, n) in enumerate(zip(lows, highs, counts, strict=True)):
+            if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 3:
+                raise ValueError(f"atlas grid: axis {i} needs an integer >= 3 points, got {n!r}")
+            if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
+                raise ValueError(f"atlas grid: axis {i} needs finite low < high, got {lo}, {hi}")
+        object.__setattr__(self, "lows", lows)
+        object.__setattr__(self, "highs", highs)
+        object.__setattr__(self, "counts", tuple(int(n) for n in counts))
+
+    @classmethod
+    def around(
+        cls, mean: Sequence[float], sd: Sequence[float], *, width: float = 5.0, count: int = 31
+    ) -> AtlasGrid:
+        """mean ± ``width`` sd on every axis, ``count`` points each (a study's prior box)."""
+        mean, sd = np.asarray(mean, float), np.asarray(sd, float)
+        if not np.all(sd > 0):
+            raise ValueError(f"atlas grid: every prior sd must be > 0, got {sd.tolist()}")
+        return cls(tuple(mean - width * sd), tuple(mean + width * sd), (count,) * len(mean))
+
+    @property
+    def k(self) -> int:
+        return len(self.counts)
+
+    @property
+    def size(self) -> int:
+        return int(np.prod(self.counts))
+
+    def axes(self) -> list[np.ndarray]:
+        return [
+            np.linspace(lo, hi, n)
+            for lo, hi, n in zip(self.lows, self.highs, self.counts, strict=True)
+        ]
+
+    def thetas(self) -> np.ndarray:
+        """Every node's θ (size, k), C order."""
+        mesh = np.meshgrid(*self.axes(), indexing="ij")
+        return np.stack([m.ravel() for m in mesh], axis=1)
+
+    def contains(self, theta: Sequence[float]) -> bool:
+        t = np.asarray(theta, float)
+        return bool(np.all(t >= self.lows) and np.all(t <= self.highs))
+
+    def require(self, theta: Sequence[float], what: str = "the prior mean") -> None:
+        """Refuse, in one line, a box that does not contain ``theta``."""
+        if not self.contains(theta):
+            box = ", ".join(
+                f"[{lo:g}, {hi:g}]" for lo, hi in zip(self.lows, self.highs, strict=True)
+            )
+            raise ValueError(f"atlas grid {box} does not contain {what} {list(theta)}")
+
+    def cell(self, theta: Sequence[float]) -> list[int]:
+        """The node indices of the corners of θ's cell (2^k, deduplicated; θ inside the box)."""
+        t = np.asarray(theta, float)
+        lower = []
+        for x, lo, hi, n in zip(t, self.lows, self.highs, self.counts, strict=True):
+            pos = (x - lo) / (hi - lo) * (n - 1)
+            lower.append(int(np.clip(np.floor(pos), 0, n - 2)))
+        corners = {
+            int(
+                np.ravel_multi_index(
+                    tuple(i + d for i, d in zip(lower, bits, strict=True)), self.counts
+                )
+            )
+            for bits in itertools.product((0, 1), repeat=self.k)
+        }
+        return sorted(corners)
+
+    def neighbours(self) -> list[list[int]]:
+        """Per node, its 2k axis neighbours (fewer at the box's faces)."""
+        out = []
+        for node in range(self.size):
+            at = np.unravel_index(node, self.counts)
+            mine = []
+            for axis in range(self.k):
+                for step in (-1, 1):
+                    j = list(at)
+                    j[axis] += step
+                    if 0 <= j[axis] < self.counts[axis]:
+                        mine.append(int(np.ravel_multi_index(tuple(j), self.counts)))
+            out.append(mine)
+        return out
+
+
+@dataclass(frozen=True)
+class EnvironmentAtlas:
+    """The atlas of one environment: the best plan found at every node.
+
+    Attributes:
+        grid: the nodes.
+        trajectories: (size, T, 7), NaN where no start converged.
+        features: Φ (size, k), NaN there.
+        smoothness: S(ξ) (size,), NaN there.
+        rewards: θ·Φ − λS at the node (size,), −inf there.
+        solves: planner calls the build took (warm and cold).
+    """
+
+    grid: AtlasGrid
+    trajectories: np.ndarray
+    features: np.ndarray
+    smoothness: np.ndarray
+    rewards: np.ndarray
+    solves: int
+
+    @property
+    def found(self) -> np.ndarray:
+        return np.isfinite(self.rewards)
+
+
+def build(
+    planner: Planner,
+    env: Environment,
+    grid: AtlasGrid,
+    *,
+    cold_stride: int = 10,
+) -> EnvironmentAtlas:
+    """Solve every node of ``grid`` in ``env`` (module docstring): the planner's cold starts
+    on a lattice of every ``cold_stride``-th node per axis, then continuation: each plan
+    that improves a node is offered, warm, to each of its grid neighbours, until no node
+    improves (first in, first out, so the answer depends on nothing but the grid); each
+    node keeps its best."""
+    if grid.k != planner.config.k:
+        raise ValueError(f"atlas grid has {grid.k} weights, the planner {planner.config.k}")
+    if isinstance(cold_stride, bool) or not isinstance(cold_stride, int) or cold_stride < 1:
+        raise ValueError(f"cold_stride = {cold_stride!r} must be an integer >= 1")
+    thetas = grid.thetas()
+    n, T = grid.size, planner.config.n_waypoints
+    trajectories = np.full((n, T, 7), np.nan)
+    rewards = np.full(n, -np.inf)
+    solves = 0
+
+    def offer(node: int, inits) -> bool:
+        """Solve ``node`` from ``inits`` (None: the cold starts); keep it if better."""
+        nonlocal solves
+        solves += 1
+        try:
+            plan = planner.solve(thetas[node], env, inits=inits)
+        except PlanningError:
+            return False
+        if plan.reward > rewards[node] + 1e-9 * max(1.0, abs(plan.reward)):
+            rewards[node] = plan.reward
+            trajectories[node] = plan.trajectory
+            return True
+        return False
+
+    lattice = np.ones(grid.counts, bool)
+    for axis, count in enumerate(grid.counts):
+        keep = np.zeros(count, bool)
+        keep[::cold_stride] = True
+        keep[-1] = True
+        shape = [1] * grid.k
+        shape[axis] = count
+        lattice &= keep.reshape(shape)
+    neighbours = grid.neighbours()
+    queue: collections.deque[int] = collections.deque()
+    queued = np.zeros(n, bool)
+    source = np.full(n, -1)  # the neighbour whose plan a node's came from (-1: cold)
+
+    def propagate() -> None:
+        while queue:
+            node = queue.popleft()
+            queued[node] = False
+            plan = trajectories[node].copy()
+            for other in neighbours[node]:
+                if other == source[node]:
+                    continue  # it came from there: that node's own basin, solved already
+                if offer(other, [plan]):
+                    source[other] = node
+                    if not queued[other]:
+                        queue.append(other)
+                        queued[other] = True
+
+    for node in np.flatnonzero(lattice.ravel()).tolist():
+        if offer(node, None):
+            queue.append(node)
+            queued[node] = True
+    propagate()
+    for node in np.flatnonzero(~np.isfinite(rewards)).tolist():  # never reached: cold, once
+        if not np.isfinite(rewards[node]) and offer(node, None):
+            queue.append(node)
+            queued[node] = True
+            propagate()
+    features = np.full((n, grid.k), np.nan)
+    smooth = np.full(n, np.nan)
+    names, found = planner.config.features, np.isfinite(rewards)
+    from corrections_sim.planning.features import feature_counts
+
+    params = env.params()
+    for node in np.flatnonzero(found):
+        features[node] = feature_counts(trajectories[node], params, names)
+        smooth[node] = smoothness_cost(trajectories[node])
+    return EnvironmentAtlas(grid, trajectories, features, smooth, rewards, solves)
+
+
+def cell_starts(atlas: EnvironmentAtlas, theta: Sequence[float], smoothness: float) -> list:
+    """The warm starts of θ from its cell: the corner plans (T, 7) that exist, distinct, best
+    first by their reward at θ (θ·Φ − λS: linear in θ, no solve). Empty outside the box."""
+    t = np.asarray(theta, float)
+    if not atlas.grid.contains(t):
+        return []
+    corners = [c for c in atlas.grid.cell(t) if atlas.found[c]]
+    value = {c: float(t @ atlas.features[c] - smoothness * atlas.smoothness[c]) for c in corners}
+    out: list[np.ndarray] = []
+    for c in sorted(corners, key=lambda c: (-value[c], c)):
+        if not any(np.allclose(atlas.trajectories[c], o, atol=1e-4) for o in out):
+            out.append(atlas.trajectories[c])
+    return out
+
+
+# --- the cache on disk ------------------------------------------------------------------
+
+
+def atlas_key(config: PlannerConfig, env: Environment, grid: AtlasGrid, **options) -> str:
+    """What an atlas depends on: the planner's build key (its sources, the NLP's settings and
+    CasADi's version), the solver options that can change an answer, the environment, the
+    grid, the build's options and :data:`ALGORITHM`."""
+    shaping = asdict(config)
+    shaping["features"] = list(shaping["features"])
+    h = hashlib.sha256()
+    h.update(build_key(config).encode())
+    h.update(json.dumps(shaping, sort_keys=True, default=str).encode())
+    h.update(env.key())
+    h.update(json.dumps(asdict(grid), sort_keys=True).encode())
+    h.update(json.dumps(options, sort_keys=True).encode())
+    h.update(str(ALGORITHM).encode())
+    return h.hexdigest()[:24]
+
+
+class AtlasStore:
+    """Atlases on disk, one ``<key>.npy`` (trajectories, memory-mapped when read) and one
+    ``<key>.json`` (the grid, the rewards, and the .npy's SHA-256) per atlas, under
+    ``cache_dir()/atlas`` by default. Written atomically (the JSON last, so a reader that
+    finds it finds the whole .npy); read back only if the key, the shape and the checksum
+    agree — anything else is reported (:attr:`rejected`) and rebuilt."""
+
+    def __init__(self, root: Path | None = None) -> None:
+        self.root = Path(root) if root is not None else cache_dir() / "atlas"
+        #: (key, why) of every file found and not trusted.
+        self.rejected: list[tuple[str, str]] = []
+
+    def load(self, key: str, grid: AtlasGrid, T: int) -> EnvironmentAtlas | None:
+        meta_path, data_path = self.root / f"{key}.json", self.root / f"{key}.npy"
+        if not meta_path.exists():
+            return None
+        try:
+            meta = json.loads(meta_path.read_text())
+            if meta.get("key") != key or AtlasGrid(**meta["grid"]) != grid:
+                raise ValueError("another atlas's file")
+            digest = hashlib.sha256(data_path.read_bytes()).hexdigest()
+            if digest != meta["sha256"]:
+                raise ValueError("its data does not match its checksum (truncated or changed)")
+            trajectories = np.load(data_path, mmap_mode="r")
+            if trajectories.shape != (grid.size, T, 7):
+                raise ValueError(f"shape {trajectories.shape}, expected {(grid.size, T, 7)}")
+            return EnvironmentAtlas(
+                grid,
+                trajectories,
+                np.asarray(meta["features"], float).reshape(grid.size, grid.k),
+                np.asarray(meta["smoothness"], float),
+                np.asarray(meta["rewards"], float),
+                int(meta["solves"]),
+            )
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            self.rejected.append((key, str(exc).splitlines()[0]))
+            return None
+
+    def save(self, key: str, atlas: EnvironmentAtlas) -> Path:
+        self.root.mkdir(parents=True, exist_ok=True)
+        data_path = self.root / f"{key}.npy"
+        fd, tmp = tempfile.mkstemp(dir=self.root, suffix=".npy.tmp")
+        with os.fdopen(fd, "wb") as fh:
+            np.save(fh, np.ascontiguousarray(atlas.trajectories, float))
+        digest = hashlib.sha256(Path(tmp).read_bytes()).hexdigest()
+        os.replace(tmp, data_path)
+        meta = {
+            "key": key,
+            "grid": asdict(atlas.grid),
+            "sha256": digest,
+            # NaN and −inf as JSON null / strings would lose the type: keep them as text.
+            "features": [_num(v) for v in atlas.features.ravel()],
+            "smoothness": [_num(v) for v in atlas.smoothness],
+            "rewards": [_num(v) for v in atlas.rewards],
+            "solves": atlas.solves,
+        }
+        fd, tmp = tempfile.mkstemp(dir=self.root, suffix=".json.tmp")
+        with os.fdopen(fd, "w") as fh:
+            json.dump(meta, fh)
+        os.replace(tmp, self.root / f"{key}.json")
+        return data_path
+
+
+def _num(v: float) -> float | str:
+    return float(v) if np.isfinite(v) else str(float(v))

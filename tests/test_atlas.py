@@ -1,0 +1,119 @@
+"""The plan atlas (``planning/atlas.py``): its grid, its build on a small grid in one paper
+environment, warm starts from a cell, and the cache that never trusts a bad file."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from corrections_sim.planning import atlas as A
+from corrections_sim.scene.environments import paper_environments
+
+
+def test_a_grid_knows_its_nodes_and_their_neighbours():
+    grid = A.AtlasGrid((-1.0, -2.0, 0.0), (1.0, 2.0, 1.0), (3, 4, 5))
+    assert grid.size == 60 and grid.thetas().shape == (60, 3)
+    thetas, neighbours = grid.thetas(), grid.neighbours()
+    steps = np.array([1.0, 4.0 / 3.0, 0.25])
+    for node, mine in enumerate(neighbours):
+        assert 3 <= len(mine) <= 6  # a corner has 3, an inner node 6
+        for other in mine:
+            d = np.abs(thetas[other] - thetas[node])
+            assert np.count_nonzero(d > 1e-12) == 1 and np.isclose(d[d > 1e-12], steps).any()
+            assert node in neighbours[other]
+
+
+def test_a_cell_is_its_corners_and_its_theta_is_inside_them():
+    grid = A.AtlasGrid((-3.0, -3.0), (3.0, 3.0), (31, 31))
+    thetas = grid.thetas()
+    for theta in ([0.05, -1.93], [3.0, 3.0], [-3.0, 0.2]):
+        corners = grid.cell(theta)
+        assert len(corners) == 4
+        box = thetas[corners]
+        assert np.all(box.min(axis=0) <= np.add(theta, 1e-12))
+        assert np.all(np.subtract(theta, 1e-12) <= box.max(axis=0))
+        assert np.all(box.max(axis=0) - box.min(axis=0) == pytest.approx(0.2))
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"lows": (0.0,), "highs": (1.0,), "counts": (2,)}, "integer >= 3"),
+        ({"lows": (0.0,), "highs": (0.0,), "counts": (5,)}, "low < high"),
+        ({"lows": (0.0, 1.0), "highs": (1.0,), "counts": (5,)}, "one entry per weight"),
+        ({"lows": (float("nan"),), "highs": (1.0,), "counts": (5,)}, "finite"),
+    ],
+)
+def test_a_bad_grid_is_one_line(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        A.AtlasGrid(**kwargs)
+
+
+def test_a_box_that_misses_the_prior_mean_is_refused():
+    grid = A.AtlasGrid.around([0.0, 0.0], [0.1, 1.0])
+    grid.require([0.4, -4.9])
+    with pytest.raises(ValueError, match=r"does not contain the prior mean \[0.6, 0.0\]"):
+        grid.require([0.6, 0.0])
+
+
+@pytest.fixture(scope="module")
+def small(planner):
+    """A 5 × 5 atlas over [−2, 2]² in one paper environment."""
+    env = paper_environments()[7]
+    grid = A.AtlasGrid((-2.0, -2.0), (2.0, 2.0), (5, 5))
+    return env, grid, A.build(planner, env, grid, cold_stride=2)
+
+
+def test_every_node_is_at_least_as_good_as_the_planners_own_answer(planner, small):
+    """Global at its nodes as far as the planner can tell: no node is worse than the planner's
+    cold starts there, and each node's reward is its plan's reward at its θ."""
+    env, grid, atlas = small
+    assert atlas.found.all() and atlas.solves >= grid.size
+    for node, theta in enumerate(grid.thetas()):
+        own = planner.solve(theta, env)
+        assert atlas.rewards[node] >= own.reward - 1e-6 * abs(own.reward)
+        again = planner.reward(theta, atlas.trajectories[node], env)
+        assert again == pytest.approx(atlas.rewards[node], rel=1e-9, abs=1e-9)
+
+
+def test_cell_starts_rank_the_corners_by_their_reward_at_theta(planner, small):
+    env, _, atlas = small
+    theta = np.array([0.3, -1.1])
+    starts = A.cell_starts(atlas, theta, planner.config.smoothness)
+    assert 1 <= len(starts) <= 4
+    values = [planner.reward(theta, s, env) for s in starts]
+    assert values == sorted(values, reverse=True)
+    assert A.cell_starts(atlas, [2.5, 0.0], planner.config.smoothness) == []  # outside
+
+
+def test_the_store_reads_back_what_it_wrote_and_rebuilds_a_bad_file(planner, small, tmp_path):
+    env, grid, atlas = small
+    store = A.AtlasStore(tmp_path)
+    key = A.atlas_key(planner.config, env, grid, cold_stride=2)
+    assert store.load(key, grid, 12) is None  # nothing yet
+    store.save(key, atlas)
+    back = store.load(key, grid, 12)
+    assert np.array_equal(back.trajectories, atlas.trajectories)
+    assert np.array_equal(back.rewards, atlas.rewards) and back.solves == atlas.solves
+    assert not store.rejected
+    # Truncated data: refused by its checksum, said, and not trusted.
+    data = tmp_path / f"{key}.npy"
+    data.write_bytes(data.read_bytes()[:-100])
+    assert store.load(key, grid, 12) is None
+    assert "checksum" in store.rejected[-1][1]
+    # Another atlas's file under this key (a foreign grid): refused.
+    store.save(key, atlas)
+    meta = json.loads((tmp_path / f"{key}.json").read_text())
+    meta["grid"]["counts"] = [7, 7]
+    (tmp_path / f"{key}.json").write_text(json.dumps(meta))
+    assert store.load(key, grid, 12) is None and "another atlas" in store.rejected[-1][1]
+    # Another planner, environment, grid or build option: another key.
+    other = A.AtlasGrid((-2.0, -2.0), (2.0, 2.0), (7, 7))
+    assert len({
+        key,
+        A.atlas_key(planner.config, env, other, cold_stride=2),
+        A.atlas_key(planner.config, paper_environments()[8], grid, cold_stride=2),
+        A.atlas_key(planner.config, env, grid, cold_stride=3),
+    }) == 4  # fmt: skip
