@@ -222,21 +222,19 @@ def build(
     neighbours = grid.neighbours()
     queue: collections.deque[int] = collections.deque()
     queued = np.zeros(n, bool)
-    source = np.full(n, -1)  # the neighbour whose plan a node's came from (-1: cold)
 
     def propagate() -> None:
         while queue:
             node = queue.popleft()
             queued[node] = False
             plan = trajectories[node].copy()
+            # Every neighbour, the one this plan came from included: re-solved there from
+            # another start, it can land in a better basin (not offering it back saved 26% of
+            # the solves and left a node 0.06% below the planner's own cold starts).
             for other in neighbours[node]:
-                if other == source[node]:
-                    continue  # it came from there: that node's own basin, solved already
-                if offer(other, [plan]):
-                    source[other] = node
-                    if not queued[other]:
-                        queue.append(other)
-                        queued[other] = True
+                if offer(other, [plan]) and not queued[other]:
+                    queue.append(other)
+                    queued[other] = True
 
     for node in np.flatnonzero(lattice.ravel()).tolist():
         if offer(node, None):
