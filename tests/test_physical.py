@@ -109,6 +109,37 @@ def test_same_seed_same_push(task):
     assert person.stochastic
 
 
+def test_two_threads_push_at_once_as_each_would_alone(task):
+    """An arm is not thread-safe, so each thread has its own: two pushes played at the same
+    time in two threads (two participants' motions on one study server) give the bits each
+    gives alone. With one arm per process they stepped each other's arm."""
+    import threading
+
+    person = make_user("physical", {"force_noise": 2.0, "torque_noise": 0.2})
+    alone = [person.perform(task, np.random.default_rng(seed)) for seed in (7, 8)]
+    together: dict[int, object] = {}
+    start = threading.Barrier(2)
+
+    def push(seed: int) -> None:
+        start.wait()
+        together[seed] = person.perform(task, np.random.default_rng(seed))
+
+    threads = [threading.Thread(target=push, args=(seed,)) for seed in (7, 8)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=120)
+    for seed, outcome in zip((7, 8), alone, strict=True):
+        assert np.array_equal(together[seed].phi_h, outcome.phi_h)
+        assert np.array_equal(together[seed].trace.q, outcome.trace.q)
+    mine = physical._simulation(0.2)
+    theirs: list = []
+    other = threading.Thread(target=lambda: theirs.append(physical._simulation(0.2)))
+    other.start()
+    other.join()
+    assert physical._simulation(0.2) is mine and theirs[0] is not mine
+
+
 def test_online_the_arm_joins_the_new_plan_after_the_push(task, planner, rng):
     calls = []
 

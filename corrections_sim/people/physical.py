@@ -31,7 +31,7 @@ each side, deformed the same way.
 
 from __future__ import annotations
 
-import functools
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import ClassVar
@@ -263,12 +263,25 @@ class PhysicalUser(User):
         return _perform(self, situation, rng, replan, keep)
 
 
-@functools.cache
+#: Each thread's arms, one per sensing noise (see :func:`_simulation`).
+_ARMS = threading.local()
+
+
 def _simulation(torque_noise: float) -> dynamics.ArmSimulation:
-    """This process's arm (one per sensing noise), moved to each task's environment."""
+    """This thread's arm (one per sensing noise), moved to each task's environment. One per
+    thread, not per process: an ArmSimulation is not thread-safe, and a page's motion thread
+    that outlives its tab (or a second participant's motion on a study server) stepped the
+    arm another motion was using — a push felt where nobody pushed, and MuJoCo asking for a
+    19 GB arena (seen in a full suite run). Each task resets the arm, so a thread's first arm
+    and its reused one give the same motion."""
     from corrections_sim.scene.environments import paper_environments
 
-    return dynamics.ArmSimulation(paper_environments()[0], torque_noise=torque_noise)
+    arms = vars(_ARMS).setdefault("arms", {})
+    if torque_noise not in arms:
+        arms[torque_noise] = dynamics.ArmSimulation(
+            paper_environments()[0], torque_noise=torque_noise
+        )
+    return arms[torque_noise]
 
 
 def _arm(env: Environment, torque_noise: float) -> dynamics.ArmSimulation:

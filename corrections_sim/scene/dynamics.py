@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import copy
 import functools
+import threading
 from dataclasses import dataclass
 
 import mujoco
@@ -543,16 +544,22 @@ class Chunk:
     contacts: int
 
 
-@functools.cache
+#: Each thread's kinematic model and data (an MjData is not thread-safe).
+_KINEMATICS = threading.local()
+
+
 def _kinematics() -> tuple[mujoco.MjModel, mujoco.MjData]:
-    model = robot_model(dynamics_model())
-    return model, mujoco.MjData(model)
+    mine = getattr(_KINEMATICS, "pair", None)
+    if mine is None:
+        model = robot_model(dynamics_model())
+        mine = _KINEMATICS.pair = (model, mujoco.MjData(model))
+    return mine
 
 
 def cup_kinematics(qs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The cup's centre of mass (n, 3) and its position Jacobian (n, 3, 7) at configurations
     ``qs`` (n, 7): where a push at the cup acts, and how a force there maps to joint torques
-    (Jᵀ F). One kinematic model per process."""
+    (Jᵀ F). One kinematic model per thread."""
     model, data = _kinematics()
     qs = np.atleast_2d(np.asarray(qs, dtype=float))
     cup = model.body(world.CUP_BODY).id
