@@ -194,6 +194,8 @@ def build(
     thetas = grid.thetas()
     n, T = grid.size, planner.config.n_waypoints
     trajectories = np.full((n, T, 7), np.nan)
+    features = np.full((n, grid.k), np.nan)
+    smooth = np.full(n, np.nan)
     rewards = np.full(n, -np.inf)
     solves = 0
 
@@ -208,6 +210,8 @@ def build(
         if plan.reward > rewards[node] + 1e-9 * max(1.0, abs(plan.reward)):
             rewards[node] = plan.reward
             trajectories[node] = plan.trajectory
+            features[node] = plan.features
+            smooth[node] = smoothness_cost(plan.trajectory)
             return True
         return False
 
@@ -223,6 +227,12 @@ def build(
     queue: collections.deque[int] = collections.deque()
     queued = np.zeros(n, bool)
 
+    def improve(node: int, inits) -> None:
+        """Offer ``node`` a start; if its plan improves, its neighbours get offered it."""
+        if offer(node, inits) and not queued[node]:
+            queue.append(node)
+            queued[node] = True
+
     def propagate() -> None:
         while queue:
             node = queue.popleft()
@@ -232,29 +242,15 @@ def build(
             # another start, it can land in a better basin (not offering it back saved 26% of
             # the solves and left a node 0.06% below the planner's own cold starts).
             for other in neighbours[node]:
-                if offer(other, [plan]) and not queued[other]:
-                    queue.append(other)
-                    queued[other] = True
+                improve(other, [plan])
 
     for node in np.flatnonzero(lattice.ravel()).tolist():
-        if offer(node, None):
-            queue.append(node)
-            queued[node] = True
+        improve(node, None)
     propagate()
     for node in np.flatnonzero(~np.isfinite(rewards)).tolist():  # never reached: cold, once
-        if not np.isfinite(rewards[node]) and offer(node, None):
-            queue.append(node)
-            queued[node] = True
+        if not np.isfinite(rewards[node]):
+            improve(node, None)
             propagate()
-    features = np.full((n, grid.k), np.nan)
-    smooth = np.full(n, np.nan)
-    names, found = planner.config.features, np.isfinite(rewards)
-    from corrections_sim.planning.features import feature_counts
-
-    params = env.params()
-    for node in np.flatnonzero(found):
-        features[node] = feature_counts(trajectories[node], params, names)
-        smooth[node] = smoothness_cost(trajectories[node])
     return EnvironmentAtlas(grid, trajectories, features, smooth, rewards, solves)
 
 
