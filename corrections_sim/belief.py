@@ -147,6 +147,45 @@ class Particles:
 
 
 @dataclass(frozen=True, eq=False)
+class GridPosterior:
+    """An exact learner's posterior over θ on the nodes of a grid (its plan atlas's): the
+    :class:`Belief`'s θ̂ and P are its moments.
+
+    Attributes:
+        thetas: the nodes (n, k).
+        log_density: the unnormalized log posterior at each node (n,), −inf where it is
+            impossible; with N learnt, the log prior only (the corrections are in
+            ``scatter``).
+        scatter: with N learnt, Σᵢ rᵢ rᵢᵀ at each node (n, k, k), rᵢ = zᵢ − hᵢ(θ); else None.
+        count: corrections taken in.
+    """
+
+    thetas: np.ndarray
+    log_density: np.ndarray
+    scatter: np.ndarray | None = None
+    count: int = 0
+
+    def __post_init__(self) -> None:
+        thetas = np.array(self.thetas, dtype=float, copy=True)
+        log_d = np.array(self.log_density, dtype=float, copy=True)
+        if thetas.ndim != 2 or log_d.shape != (thetas.shape[0],) or np.any(np.isnan(log_d)):
+            raise ValueError(
+                f"GridPosterior: expected nodes (n, k) and n log densities without NaN, got "
+                f"{thetas.shape} and {log_d.shape}"
+            )
+        if not np.any(np.isfinite(log_d)):
+            raise ValueError("GridPosterior.log_density: every node is impossible")
+        object.__setattr__(self, "thetas", _freeze(thetas))
+        object.__setattr__(self, "log_density", _freeze(log_d))
+        if self.scatter is not None:
+            scatter = np.array(self.scatter, dtype=float, copy=True)
+            k = thetas.shape[1]
+            if scatter.shape != (thetas.shape[0], k, k):
+                raise ValueError(f"GridPosterior.scatter: expected (n, k, k), got {scatter.shape}")
+            object.__setattr__(self, "scatter", _freeze(scatter))
+
+
+@dataclass(frozen=True, eq=False)
 class PriorEntry:
     """The first entry of a belief's history: the prior N(θ̂⁰, P⁰) the past is read from."""
 
@@ -204,6 +243,7 @@ class Belief:
             :class:`CorrectionEntry` for an iterated or particle learner.
         particles: the particle learner's weighted sample (θ̂ and P are its moments), or
             None.
+        grid: the exact learner's posterior on its grid (θ̂ and P are its moments), or None.
 
     Raises:
         ValueError: on wrong shapes, non-finite values, or a cov that is not symmetric
@@ -218,6 +258,7 @@ class Belief:
     asked: bool = False
     history: tuple[HistoryEntry, ...] = ()
     particles: Particles | None = None
+    grid: GridPosterior | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "extra", tuple(self.extra))

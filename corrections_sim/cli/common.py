@@ -85,6 +85,11 @@ class Progress:
         self._start = time.perf_counter()
         self._last = -np.inf
 
+    def phase(self, label: str, unit: str) -> Progress:
+        """The progress of a step before the batch (e.g. building a plan atlas), on the same
+        stream, labelled ``<label> <label of this step>``."""
+        return Progress(f"{self.label} {label}", unit=unit, every=self.every, stream=self.stream)
+
     def __call__(self, done: int, total: int) -> None:
         if self.stream.isatty():
             if self._bar is None:

@@ -35,6 +35,7 @@ from corrections_sim.belief import Belief, PersonBelief
 from corrections_sim.learning import exact_posterior as ref
 from corrections_sim.learning.base import LearnerContext
 from corrections_sim.learning.learners.particles import particle_reference
+from corrections_sim.learning.observation import features_at_plans
 from corrections_sim.learning.particles import smoothed_kl
 from corrections_sim.learning.relevance import (
     MOVED,
@@ -44,8 +45,8 @@ from corrections_sim.learning.relevance import (
     random_direction_shape,
 )
 from corrections_sim.people.users import Situation
+from corrections_sim.planning.atlas import AtlasGrid
 from corrections_sim.planning.compiled import build_once
-from corrections_sim.planning.features import waypoint_features
 from corrections_sim.planning.planner import Planner, PlanningError, build_key, cache_dir
 from corrections_sim.planning.plans import PlanBook
 from corrections_sim.scene.environments import Environment
@@ -112,15 +113,8 @@ def _filter_step(model, study, book: PlanBook, env, robot, z, start, row) -> Bel
 
 def grid_observations(plans: np.ndarray, robot: np.ndarray, correct, env, names) -> np.ndarray:
     """h(θ) at every grid point (n, k): Φ of ``correct(robot, ξ*(θ))``, NaN where the grid
-    has no plan; the features of every corrected trajectory in one call."""
-    n, T = plans.shape[:2]
-    finite = np.all(np.isfinite(plans), axis=(1, 2))
-    out = np.full((n, len(names)), np.nan)
-    if finite.any():
-        corrected = np.stack([correct(robot, p) for p in plans[finite]])
-        per_waypoint = waypoint_features(corrected.reshape(-1, 7), env.params(), names)
-        out[finite] = per_waypoint.reshape(-1, T, len(names)).sum(axis=1)
-    return out
+    has no plan (:func:`~corrections_sim.learning.observation.features_at_plans`)."""
+    return features_at_plans(plans, robot, correct, env, names)
 
 
 #: Equal-probability nodes of KF-CRP's prior on τ in its exact reference.
@@ -237,7 +231,16 @@ def reference_run(
         raise ValueError(
             f"learner {learner}: --one-step and --restart need a Kalman learner with N fixed"
         )
-    book = PlanBook(planner)
+    # With the study's plan atlas, the robot's plans are replayed from it, as the run made
+    # them, and ξ*(θ, E) at the grid's points is the atlas's over the grid (the study's own
+    # where the grid is its atlas's, so an exact learner's posterior is this one).
+    study_atlas = settings.atlas()
+    book = PlanBook(planner, atlas=study_atlas)
+    at_nodes = None
+    if study_atlas is not None and grid is not None:
+        spec = settings.atlas_spec()
+        box = AtlasGrid(grid.low, grid.high, (grid.points,) * k)
+        at_nodes = dataclasses.replace(spec, grid=box).atlas()
     restarted: dict[int, Belief] = {}
     if engine is not None:
         cloud = engine.initial(study.prior(), study.noise())
@@ -259,7 +262,11 @@ def reference_run(
                 restarted[s] = study.prior() if s == 0 else Belief(theta=start[0], cov=start[1])
         t, env = int(row["iteration"]), envs[row["environment"]]
         before = _belief(rows[t - 1], k)
-        robot = planner.solve(before.theta, env)
+        robot = (
+            planner.solve(before.theta, env)
+            if study_atlas is None
+            else book.plan(before.theta, env)
+        )
         seen = Situation(robot.trajectory, intended[env.name], env, names, target.theta_star)
         outcome = study.user.perform(seen, np.random.default_rng(0))
         z = np.asarray(outcome.phi_h, float)
@@ -275,7 +282,10 @@ def reference_run(
             log_p = log_p + log_l
             log_post = log_p
         else:
-            plans = grid_plans(planner, env, grid)
+            if at_nodes is None:
+                plans = grid_plans(planner, env, grid)
+            else:
+                plans = at_nodes.environment(env).trajectories
             c = likelihood.correction
             correct = c.apply if c is not None else (lambda r, x: x)
             h = grid_observations(plans, robot.trajectory, correct, env, names)

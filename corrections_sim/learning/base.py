@@ -127,6 +127,8 @@ class Learner(abc.ABC):
         has_covariance: whether its P means something (NEES, the calibration panel).
         rate_from: the learner whose Kalman gains give this learner's rate αᵗ (PP-type);
             its runs go after that learner's, and ``ctx.alphas`` holds the rate.
+        needs_atlas: it reads the study's plan atlas (``ctx.book.atlas``; an exact learner
+            on its grid), so a study without one refuses it.
     """
 
     label: ClassVar[str] = ""
@@ -135,6 +137,7 @@ class Learner(abc.ABC):
     active: ClassVar[bool] = False
     has_covariance: ClassVar[bool] = True
     rate_from: ClassVar[str | None] = None
+    needs_atlas: ClassVar[bool] = False
 
     @classmethod
     def needs_rates(cls) -> bool:

@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from corrections_sim.learning.kalman import Observe
-from corrections_sim.planning.features import feature_counts
+from corrections_sim.planning.features import feature_counts, waypoint_features
 from corrections_sim.scene.environments import Environment
 
 if TYPE_CHECKING:
@@ -51,6 +51,18 @@ class Observation(abc.ABC):
         (T, 7) over the features ``names``; ``robot`` may be None when :attr:`needs_robot` is
         false."""
 
+    def at_plans(
+        self, plans: np.ndarray, robot: np.ndarray | None, env: Environment, names: Sequence[str]
+    ) -> np.ndarray:
+        """h at given plans instead of a book's: ``plans`` (n, T, 7) stand for ξ*(θ, E) at n
+        values of θ (a grid's, an atlas's), NaN where there is none; returns (n, k), NaN
+        there. The features of every trajectory in one call."""
+        return features_at_plans(plans, robot, self.shown, env, names)
+
+    def shown(self, robot: np.ndarray | None, plan: np.ndarray) -> np.ndarray:
+        """The trajectory whose features h is, given the plan ξ*(θ, E) (the plan itself)."""
+        return plan
+
 
 @dataclass(frozen=True)
 class PlanFeatures(Observation):
@@ -74,6 +86,11 @@ class CorrectedPlanFeatures(Observation):
 
     model: CorrectionModel
 
+    def shown(self, robot, plan) -> np.ndarray:
+        if robot is None:
+            raise ValueError("a correction model's observation needs the robot's trajectory")
+        return self.model.apply(robot, plan)
+
     def observe(self, book, env, robot, names) -> Observe:
         if robot is None:
             raise ValueError("a correction model's observation needs the robot's trajectory")
@@ -89,3 +106,17 @@ class CorrectedPlanFeatures(Observation):
             )
 
         return h
+
+
+def features_at_plans(plans: np.ndarray, robot, shown, env: Environment, names) -> np.ndarray:
+    """Φ(shown(robot, ξ)) for each of ``plans`` (n, T, 7), (n, k); NaN rows where a plan is
+    NaN. The features of every shown trajectory in one call."""
+    plans = np.asarray(plans, float)
+    n, T = plans.shape[:2]
+    finite = np.all(np.isfinite(plans), axis=(1, 2))
+    out = np.full((n, len(names)), np.nan)
+    if finite.any():
+        stacked = np.stack([shown(robot, p) for p in plans[finite]])
+        per_waypoint = waypoint_features(stacked.reshape(-1, 7), env.params(), names)
+        out[finite] = per_waypoint.reshape(-1, T, len(names)).sum(axis=1)
+    return out

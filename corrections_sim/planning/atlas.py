@@ -22,18 +22,21 @@ and checked on reading: a truncated, corrupt or foreign file is rebuilt, never t
 from __future__ import annotations
 
 import collections
+import functools
 import hashlib
 import itertools
 import json
 import os
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Callable, Iterable, Sequence
+from concurrent.futures import Executor
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
 from corrections_sim.planning.planner import (
+    Plan,
     Planner,
     PlannerConfig,
     PlanningError,
@@ -272,16 +275,17 @@ def cell_starts(atlas: EnvironmentAtlas, theta: Sequence[float], smoothness: flo
 # --- the cache on disk ------------------------------------------------------------------
 
 
-def atlas_key(config: PlannerConfig, env: Environment, grid: AtlasGrid, **options) -> str:
+def atlas_key(config: PlannerConfig, env: Environment | None, grid: AtlasGrid, **options) -> str:
     """What an atlas depends on: the planner's build key (its sources, the NLP's settings and
-    CasADi's version), the solver options that can change an answer, the environment, the
-    grid, the build's options and :data:`ALGORITHM`."""
+    CasADi's version), the solver options that can change an answer, the environment (None:
+    the key of everything but the environment, an atlas's identity), the grid, the build's
+    options and :data:`ALGORITHM`."""
     shaping = asdict(config)
     shaping["features"] = list(shaping["features"])
     h = hashlib.sha256()
     h.update(build_key(config).encode())
     h.update(json.dumps(shaping, sort_keys=True, default=str).encode())
-    h.update(env.key())
+    h.update(b"" if env is None else env.key())
     h.update(json.dumps(asdict(grid), sort_keys=True).encode())
     h.update(json.dumps(options, sort_keys=True).encode())
     h.update(str(ALGORITHM).encode())
@@ -353,3 +357,167 @@ class AtlasStore:
 
 def _num(v: float) -> float | str:
     return float(v) if np.isfinite(v) else str(float(v))
+
+
+# --- plans as a function of (θ, E) ---------------------------------------------------------
+
+
+class Atlas:
+    """One planner's atlas over one grid, environment by environment: read from the store,
+    or built there on first use (:meth:`environment`), or ahead, in parallel (:meth:`prepare`).
+
+    :meth:`solve` answers ξ*(θ, E) from the atlas alone, so the answer depends on (θ, E) and
+    never on what was asked before: inside the box, warm from the plan at the corner of θ's
+    cell whose reward at θ is highest (:func:`cell_starts`; the next corner if that solve
+    fails, the planner's cold starts if every corner's does); outside it, the cold starts
+    (counted in :attr:`outside`). Measured
+    (200 problems, θ ~ U[−2, 2]², fig. 4's 48 environments, 31 × 31 over [−5, 5]²): the best
+    corner alone is within 1% of 30 random restarts on 100% (worst 0.49%, 0.64 ms a
+    problem); every corner, best kept, 100% (worst 0.19%, 4 solves); the nearest node's
+    plan, 100% (worst 0.81%); the planner's cold starts, 97.5% (worst 215%, 16.6 ms).
+
+    Args:
+        planner: the planner (its configuration is part of every key).
+        grid: the nodes.
+        store: where atlases live (None: memory only, built per process).
+        cold_stride: the build's cold-start lattice (:func:`build`).
+    """
+
+    def __init__(
+        self,
+        planner: Planner,
+        grid: AtlasGrid,
+        *,
+        store: AtlasStore | None = None,
+        cold_stride: int = 10,
+    ) -> None:
+        if grid.k != planner.config.k:
+            raise ValueError(f"atlas grid has {grid.k} weights, the planner {planner.config.k}")
+        self.planner = planner
+        self.grid = grid
+        self.store = store
+        self.cold_stride = cold_stride
+        self._atlases: dict[bytes, EnvironmentAtlas] = {}
+        #: Problems answered outside the box (the planner's cold starts).
+        self.outside = 0
+        #: Environments this process built (not read).
+        self.built = 0
+
+    def key(self, env: Environment) -> str:
+        return atlas_key(self.planner.config, env, self.grid, cold_stride=self.cold_stride)
+
+    def identity(self) -> str:
+        """What every plan depends on besides (θ, E): the planner's build and options, the
+        grid and the build's algorithm (the environment's own key completes a file's)."""
+        return atlas_key(self.planner.config, None, self.grid, cold_stride=self.cold_stride)
+
+    def hold(self, env: Environment, built: EnvironmentAtlas) -> None:
+        """Keep E's atlas built elsewhere (e.g. by a benchmark's pool) for this process."""
+        if built.grid != self.grid:
+            raise ValueError("Atlas.hold: an atlas over another grid")
+        self._atlases[env.key()] = built
+
+    def environment(self, env: Environment) -> EnvironmentAtlas:
+        """E's atlas: in memory, else from the store, else built (and stored)."""
+        found = self._atlases.get(env.key())
+        if found is None:
+            key = self.key(env)
+            found = None
+            if self.store is not None:
+                found = self.store.load(key, self.grid, self.planner.config.n_waypoints)
+            if found is None:
+                found = build(self.planner, env, self.grid, cold_stride=self.cold_stride)
+                self.built += 1
+                if self.store is not None:
+                    self.store.save(key, found)
+            self._atlases[env.key()] = found
+        return found
+
+    def solve(self, theta: Sequence[float], env: Environment) -> Plan:
+        """ξ*(θ, E) from the atlas (class docstring); PlanningError if no start converges."""
+        t = np.asarray(theta, float)
+        if not self.grid.contains(t):
+            self.outside += 1
+            return self.planner.solve(t, env)
+        starts = cell_starts(self.environment(env), t, self.planner.config.smoothness)
+        for start in starts:  # the corner best at θ first; the next only if it fails
+            try:
+                return self.planner.solve(t, env, inits=[start])
+            except PlanningError:
+                continue
+        return self.planner.solve(t, env)  # no corner's plan converged: the cold starts
+
+
+@dataclass(frozen=True)
+class AtlasSpec:
+    """What makes an atlas, as plain picklable data (a worker process rebuilds the atlas from
+    it, :meth:`atlas`): the planner's configuration, the grid, the build's cold-start stride
+    and the store's folder (None: the compile cache's)."""
+
+    config: PlannerConfig
+    grid: AtlasGrid
+    cold_stride: int = 10
+    root: str | None = None
+
+    def store(self) -> AtlasStore:
+        return AtlasStore(None if self.root is None else Path(self.root))
+
+    def key(self, env: Environment | None) -> str:
+        return atlas_key(self.config, env, self.grid, cold_stride=self.cold_stride)
+
+    def missing(self, envs: Iterable[Environment]) -> list[Environment]:
+        """The distinct environments of ``envs`` whose atlas the store lacks (or holds a file
+        of it cannot trust)."""
+        store, out, seen = self.store(), [], set()
+        for env in envs:
+            if env.key() not in seen:
+                seen.add(env.key())
+                if store.load(self.key(env), self.grid, self.config.n_waypoints) is None:
+                    out.append(env)
+        return out
+
+    def atlas(self) -> Atlas:
+        """This process's atlas of the spec (one per process, so its memory maps are shared
+        by every run the process executes)."""
+        return _shared_atlas(self)
+
+    def __call__(self) -> Atlas:
+        return self.atlas()
+
+
+@functools.cache
+def _shared_atlas(spec: AtlasSpec) -> Atlas:
+    from corrections_sim.planning.planner import shared_planner
+
+    planner = shared_planner(spec.config)
+    return Atlas(planner, spec.grid, store=spec.store(), cold_stride=spec.cold_stride)
+
+
+def prepare(
+    spec: AtlasSpec,
+    envs: Sequence[Environment],
+    executor: Executor | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> int:
+    """Build into the store the atlases of ``envs`` it lacks (or holds only rejected files
+    of), one task an environment on ``executor`` (None: here); ``progress(done, total)``
+    after each. Returns how many were built."""
+    todo = spec.missing(envs)
+    if progress is not None and todo:
+        progress(0, len(todo))
+    futures = [
+        executor.submit(_build_into_store, spec, env) if executor is not None else None
+        for env in todo
+    ]
+    for i, (env, future) in enumerate(zip(todo, futures, strict=True)):
+        if future is None:
+            _build_into_store(spec, env)
+        else:
+            future.result()
+        if progress is not None:
+            progress(i + 1, len(todo))
+    return len(todo)
+
+
+def _build_into_store(spec: AtlasSpec, env: Environment) -> None:
+    spec.atlas().environment(env)

@@ -8,8 +8,10 @@ through a :class:`PlanBook`.
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -17,6 +19,10 @@ from corrections_sim.metrics import regret_terms
 from corrections_sim.planning.features import feature_counts
 from corrections_sim.planning.planner import Plan, Planner, PlanningError, smoothness_cost
 from corrections_sim.scene.environments import Environment
+from corrections_sim.scene.robot import N_ARM_JOINTS, joint_limits
+
+if TYPE_CHECKING:
+    from corrections_sim.planning.atlas import Atlas
 
 PlanEntries = dict[tuple[bytes, bytes], "Plan | PlanningError"]
 """Memoized solves: (θ bytes, environment key) -> the plan or the failure."""
@@ -29,18 +35,31 @@ class PlanBook:
     ``known`` seeds the book with plans solved elsewhere (e.g. the shared prior's, see
     :meth:`entries`); they count as neither solves nor failures here.
 
-    With ``warm_start``, a new problem starts from the book's plan in the same environment
-    whose θ is nearest (Euclidean; the first solved wins a tie), and falls back to the
-    planner's cold starts if that fails. Along a run θ̂ moves in small steps, so this saves
-    IPOPT iterations; the answer can then depend on what was solved before (the same local
-    optimum up to the solver's tolerance when the landscape has one basin nearby: docs/speed.md).
+    With an ``atlas``, every problem is answered by the atlas (warm from its cell's corner
+    plans, cold outside its box), so a plan is a function of (θ, E) alone and ``warm_start``
+    is ignored. Without, and with ``warm_start``, a new problem starts from the book's plan
+    in the same environment whose θ is nearest (Euclidean; the first solved wins a tie), and
+    falls back to the planner's cold starts if that fails. Along a run θ̂ moves in small
+    steps, so this saves IPOPT iterations; the answer can then depend on what was solved
+    before (the same local optimum up to the solver's tolerance when the landscape has one
+    basin nearby: docs/speed.md).
     """
 
     def __init__(
-        self, planner: Planner, known: PlanEntries | None = None, *, warm_start: bool = False
+        self,
+        planner: Planner,
+        known: PlanEntries | None = None,
+        *,
+        warm_start: bool = False,
+        atlas: Atlas | None = None,
     ) -> None:
+        if atlas is not None and atlas.planner.config != planner.config:
+            raise ValueError("PlanBook: the atlas was built for another planner configuration")
         self.planner = planner
-        self.warm_start = warm_start
+        self.warm_start = warm_start and atlas is None
+        #: Where plans come from when set: ξ*(θ, E) from the atlas alone, whatever was
+        #: solved before (:meth:`~corrections_sim.planning.atlas.Atlas.solve`).
+        self.atlas = atlas
         self._plans: dict[tuple[bytes, bytes], Plan | PlanningError] = dict(known or {})
         # Per environment, the converged plans in the order they were solved.
         self._by_env: dict[bytes, _History] = {}
@@ -65,6 +84,8 @@ class PlanBook:
         return None if history is None else history.nearest(np.asarray(theta, float))
 
     def _solve(self, theta: np.ndarray, env: Environment) -> Plan:
+        if self.atlas is not None:
+            return self.atlas.solve(theta, env)
         near = self.nearest(theta, env)
         if near is not None:
             try:
@@ -97,6 +118,37 @@ class PlanBook:
             return np.array([self.plan(t, env).features for t in np.atleast_2d(thetas)])
 
         return h
+
+
+RESTART_BUMP_STD = 0.4  # rad, std of each sine coefficient of a random restart
+RESTART_MODES = 3  # sine modes per joint in a random restart's perturbation
+
+
+def random_starts(
+    env: Environment, n_waypoints: int, count: int, rng: np.random.Generator
+) -> list[np.ndarray]:
+    """The straight joint-space line, then ``count - 1`` smooth random bends of it.
+
+    A bend adds Σ_m a_m sin(mπs) per joint (s ∈ [0, 1] along the path, m = 1..RESTART_MODES,
+    a_m ~ N(0, (RESTART_BUMP_STD/m)²)), so start and goal stay fixed; clipped to the limits.
+    """
+    s = np.linspace(0.0, 1.0, n_waypoints)[:, None]  # (T, 1)
+    line = (1 - s) * env.q_start + s * env.q_goal  # (T, 7)
+    lo, hi = joint_limits()
+    modes = np.arange(1, RESTART_MODES + 1)
+    out = [line]
+    for _ in range(count - 1):
+        coeffs = rng.normal(0.0, RESTART_BUMP_STD / modes[:, None], (RESTART_MODES, N_ARM_JOINTS))
+        bend = np.sin(np.pi * s * modes) @ coeffs  # (T, 7)
+        out.append(np.clip(line + bend, lo, hi))
+    return out
+
+
+def own_starts(env: Environment, n_waypoints: int, count: int) -> list[np.ndarray]:
+    """:func:`random_starts` drawn from a generator seeded by the environment alone, so that
+    the same environment gets the same starts in any run, order or process."""
+    seed = int.from_bytes(hashlib.sha256(b"starts|" + env.key()).digest()[:8], "little")
+    return random_starts(env, n_waypoints, count, np.random.default_rng(seed))
 
 
 class _History:
@@ -135,13 +187,28 @@ class Target:
     features: tuple[str, ...] | None = None
 
     @classmethod
-    def solve(cls, planner: Planner, theta_star, envs: Sequence[Environment]) -> Target:
+    def solve(
+        cls,
+        planner: Planner,
+        theta_star,
+        envs: Sequence[Environment],
+        *,
+        atlas: Atlas | None = None,
+        restarts: int = 0,
+    ) -> Target:
         """θ* and its plans with ``planner``, whose features are the person's; they are
-        recorded when they differ from the robot's (see :func:`evaluate`)."""
+        recorded when they differ from the robot's (see :func:`evaluate`).
+
+        With ``restarts`` > 0 each plan is the best of the planner's cold starts, ``atlas``'s
+        answer (when given; an atlas of the person's planner) and ``restarts`` random starts
+        of the environment's own (:func:`own_starts`): the person's plans are what regret is
+        measured against, so they get the search a figure's plans do not."""
         theta = np.asarray(theta_star, float)
+        if atlas is not None and atlas.planner.config != planner.config:
+            raise ValueError("Target.solve: the atlas was built for another planner")
         return cls(
             theta_star=theta,
-            plans=tuple(planner.solve(theta, e) for e in envs),
+            plans=tuple(_best_plan(planner, theta, e, atlas, restarts) for e in envs),
             features=planner.config.features,
         )
 
@@ -151,6 +218,29 @@ class Target:
         if self.features is None or tuple(self.features) == tuple(robot):
             return plan.features
         return feature_counts(plan.trajectory, env, self.features)
+
+
+def _best_plan(
+    planner: Planner, theta: np.ndarray, env: Environment, atlas: Atlas | None, restarts: int
+) -> Plan:
+    """The best of the cold starts, the atlas's answer and ``restarts`` random starts."""
+    if isinstance(restarts, bool) or not isinstance(restarts, int) or restarts < 0:
+        raise ValueError(f"restarts = {restarts!r}: expected an integer >= 0")
+    candidates, failures = [], []
+    tries = [lambda: planner.solve(theta, env)]
+    if atlas is not None:
+        tries.append(lambda: atlas.solve(theta, env))
+    if restarts:
+        starts = own_starts(env, planner.config.n_waypoints, restarts)
+        tries.append(lambda: planner.solve(theta, env, inits=starts))
+    for attempt in tries:
+        try:
+            candidates.append(attempt())
+        except PlanningError as exc:
+            failures.append(exc)
+    if not candidates:
+        raise failures[0]
+    return max(candidates, key=lambda plan: plan.reward)  # the first of equals
 
 
 def evaluate(

@@ -220,7 +220,10 @@ class Session:
         # With the study's warm_start, each plan starts from the nearest solved θ in its
         # environment (eq. (A1)'s 48 × (2k + 1) predictions for AL in well under a second);
         # --resume then repeats the very same solves in the same order.
-        self.book = PlanBook(self.planner, warm_start=s.warm_start)
+        # With the study's plan atlas, every plan is the atlas's answer (a function of (θ, E)
+        # alone, so --resume and replay give the same plans in any order).
+        atlas = settings.atlas() if self.planner.config == settings.planner_config() else None
+        self.book = PlanBook(self.planner, warm_start=s.warm_start, atlas=atlas)
         if agent.learns_features() and self.planner.config.jit:
             # A learner that may learn a feature: its shape's planner is built now, not while
             # the person waits for the plan over it (a first build takes about two minutes).
@@ -300,6 +303,9 @@ class Session:
             corrector=corrector,
         )
         log.add_event(session_id, -1, "machine", provenance.machine())
+        spec = settings.atlas_spec()
+        if spec is not None:  # what the plans depend on besides (θ, E): planner build, grid
+            log.add_event(session_id, -1, "atlas", {"identity": spec.key(None)})
         asked = {"kinds": asks, "preference": preference.tolist()} if asks else None
         if asked:
             log.add_event(session_id, -1, "asks", asked)

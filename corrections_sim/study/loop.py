@@ -33,6 +33,7 @@ from corrections_sim import calibration
 from corrections_sim.learning.base import LEARNERS, LearnerContext, Step
 from corrections_sim.metrics import estimate_error, regret_terms
 from corrections_sim.people.users import Situation, TaskOutcome, User
+from corrections_sim.planning.atlas import Atlas
 from corrections_sim.planning.features import feature_counts
 from corrections_sim.planning.planner import (
     Planner,
@@ -68,6 +69,7 @@ def run_learner(
     alphas: np.ndarray | None = None,
     known: PlanEntries | None = None,
     plan_book: type[PlanBook] = PlanBook,
+    atlas: Atlas | None = None,
 ) -> RunResult:
     """One run of ``learner`` (a name in :data:`LEARNERS`) for ``settings.iterations``
     corrections.
@@ -80,12 +82,15 @@ def run_learner(
             with or without them, only the solve count differs.
         plan_book: the class that memoizes the run's plans (a benchmark passes a subclass
             that records what it solves).
+        atlas: the study's plan atlas (every plan over the study's features from it), or
+            None. A learner that learns a feature plans over features the atlas lacks: those
+            plans come from a book of their own, warm-started as ``settings.warm_start`` says.
     """
     cls = LEARNERS[learner]
     if cls.needs_rates() and alphas is None:
         raise ValueError(f"alphas: {learner} needs a learning rate per iteration")
     agent = settings.learners[learner]
-    book = plan_book(planner, known, warm_start=settings.warm_start)
+    book = plan_book(planner, known, warm_start=settings.warm_start, atlas=atlas)
     names = planner.config.features
     # A learner that learns features (belief.extra) plans over more: one book per feature list.
     books = {names: book}

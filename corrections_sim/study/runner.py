@@ -26,6 +26,7 @@ import numpy as np
 from corrections_sim import components
 from corrections_sim.learning import learning_rate_schedule
 from corrections_sim.learning.base import LEARNERS, make_learner
+from corrections_sim.planning import atlas
 from corrections_sim.planning.planner import shared_planner
 from corrections_sim.planning.plans import PlanBook, PlanEntries, Target, evaluate
 from corrections_sim.study.loop import RunResult, run_learner
@@ -69,7 +70,7 @@ def prepare(settings: FigureSettings) -> Shared:
     planner = shared_planner(settings.planner_config())
     envs = settings.envs()
     target = settings.person_target(envs)
-    book = PlanBook(planner)
+    book = PlanBook(planner, atlas=settings.atlas())
     evaluate(book, target, envs, np.array(s.theta0, float))
     return Shared(target=target, prior=book.entries(), solves=len(envs) + book.solves)
 
@@ -99,6 +100,7 @@ def run_one(
         alphas=alphas,
         known=shared.prior,
         plan_book=plan_book,
+        atlas=settings.atlas(),
     )
 
 
@@ -113,7 +115,9 @@ def mean_estimate_chain(
     """
     load_plugins(settings.plugins)
     planner = shared_planner(settings.planner_config())
-    book = PlanBook(planner, shared.prior, warm_start=settings.study.warm_start)
+    book = PlanBook(
+        planner, shared.prior, warm_start=settings.study.warm_start, atlas=settings.atlas()
+    )
     envs = settings.envs()
     out = []
     for theta in thetas:
@@ -208,6 +212,12 @@ def run(
         wanted = set(keys)
         results.update((k, v) for k, v in cache.load_all().items() if k in wanted)
     resumed = len(results)
+    spec = settings.atlas_spec()
+    if spec is not None and len(results) < len(keys):
+        phase = getattr(progress, "phase", None)
+        atlas.prepare(
+            spec, settings.envs(), executor, phase("atlas", "environment") if phase else None
+        )
     shared = executor.submit(prepare, settings).result()
     total = len(keys)
     done = resumed
@@ -284,6 +294,9 @@ def run_key(settings: FigureSettings) -> dict:
     key = {k: v for k, v in settings.as_dict().items() if k != "learners"}
     # The clearance certificate only skips checks whose answer it proves: no number moves.
     key["planner"] = {k: v for k, v in key["planner"].items() if k != "certificate"}
+    spec = settings.atlas_spec()
+    if spec is not None:  # the planner's build and options, the grid and the algorithm
+        key["atlas_identity"] = spec.key(None)
     key["learner_params"] = {
         name: params
         for name, params in settings.study.learner_params().items()

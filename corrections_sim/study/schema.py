@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from corrections_sim import components
+from corrections_sim.components import ParameterError
 from corrections_sim.learning.base import LEARNERS, make_learner
 from corrections_sim.people.teacher import Teacher
 from corrections_sim.people.users import USERS, make_user
@@ -51,6 +52,7 @@ from corrections_sim.study.settings import (
     MAX_COUNT,
     MAX_RECORDS,
     PLANNER_SETTINGS,
+    AtlasSettings,
     FigureSettings,
     FilterSettings,
     StudySettings,
@@ -115,6 +117,12 @@ STUDY_KEYS: dict[str, tuple[Any, str]] = {
         "proves collision-free; never changes a number)",
     ),
     "warm_start": (False, "start each solve from the run's nearest solved θ̂ (faster)"),
+    "atlas": (
+        False,
+        "plans from a plan atlas (docs/atlas.md), every plan a function of (θ, E) alone: true, "
+        "or a table of width (the box θ̂⁰ ± width sd, 5), points (a weight, 31), cold_stride "
+        "(cold starts on every n-th node, 10); false: each run's own plan book",
+    ),
     "online": (
         False,
         "learn during the motion: when a physical user's push ends, the learner updates and "
@@ -264,6 +272,23 @@ def _teacher(value) -> Teacher:
         raise ValueError(str(exc)) from None
 
 
+def _atlas(value) -> AtlasSettings | None:
+    """The ``atlas`` key: false (each run's plan book), true (the defaults) or a table."""
+    if value is False or value is None:
+        return None
+    if value is True:
+        return AtlasSettings()
+    value = as_table(value, "atlas")
+    known = AtlasSettings.__dataclass_fields__
+    for key in value:
+        if key not in known:
+            raise ValueError(f"atlas.{key}: unknown key (an atlas takes {', '.join(known)})")
+    try:
+        return AtlasSettings(**value)
+    except ParameterError as exc:
+        raise ValueError(f"atlas.{exc.name}: {exc.message}") from None
+
+
 def parse_study(
     values: Mapping[str, Any], *, name: str = "", base: Path | None = None
 ) -> FigureSettings:
@@ -327,6 +352,7 @@ def parse_study(
     if not isinstance(online, bool):
         raise ValueError(f"online = {online!r}: expected true or false")
     teacher = _teacher(values.get("teacher", {}))
+    atlas = _atlas(values.get("atlas"))
     study = StudySettings(
         theta_star=theta_star,
         user_theta=person,
@@ -342,6 +368,7 @@ def parse_study(
         warm_start=warm_start,
         online=online,
         teacher=teacher,
+        atlas=atlas,
     )
     return FigureSettings(
         study=study,

@@ -23,6 +23,7 @@ from corrections_sim.learning.base import LEARNERS, Learner, make_learner
 from corrections_sim.learning.kalman import SigmaPoints
 from corrections_sim.people.teacher import Teacher
 from corrections_sim.people.users import USERS, BiasedUser, User
+from corrections_sim.planning.atlas import AtlasGrid, AtlasSpec
 from corrections_sim.planning.planner import PlannerConfig, shared_planner
 from corrections_sim.planning.plans import Target
 from corrections_sim.scene.environments import Environment
@@ -33,6 +34,9 @@ DEFAULT_LEARNERS = ("PP", "KF", "AL")
 #: Largest counts accepted: a run is ~50 planner solves per iteration (≈ 0.1 s), so these are
 #: far beyond a week on one machine, and refusing them up front beats running out of memory.
 MAX_COUNT = {"runs": 100_000, "iterations": 10_000}
+#: Random starts of the person's plans ξ*(θ*, E) in a study with a plan atlas, beside the
+#: planner's cold starts and the atlas's answer (issue 52: "≥ 30 starts").
+PERSON_RESTARTS = 30
 #: Records (learner × run × iteration) a study may hold in memory (≈ 2 kB each).
 MAX_RECORDS = 2_000_000
 
@@ -78,6 +82,29 @@ class FilterSettings:
         return SigmaPoints(alpha=self.sigma_alpha, beta=self.sigma_beta, kappa=self.sigma_kappa)
 
 
+@dataclass(frozen=True)
+class AtlasSettings:
+    """Where a study's plans come from when they come from a plan atlas
+    (:mod:`corrections_sim.planning.atlas`): a grid of ``points`` values a weight over the
+    prior's box θ̂⁰ ± ``width`` sd, built with cold starts on every ``cold_stride``-th node."""
+
+    width: float = 5.0
+    points: int = 31
+    cold_stride: int = 10
+
+    def __post_init__(self) -> None:
+        _finite("width", self.width, low=0.0, strict=True)
+        for name, low in (("points", 3), ("cold_stride", 1)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < low:
+                raise ParameterError(name, f"must be an integer >= {low}, got {v!r}")
+
+    def grid(self, theta0, cov0) -> AtlasGrid:
+        """The box θ̂⁰ ± width · sd (sd from P⁰'s diagonal), ``points`` nodes a weight."""
+        sd = np.sqrt(np.diag(np.asarray(cov0, float)))
+        return AtlasGrid.around(theta0, sd, width=self.width, count=self.points)
+
+
 def _default_learners() -> dict[str, Learner]:
     return {name: make_learner(name) for name in DEFAULT_LEARNERS}
 
@@ -108,6 +135,9 @@ class StudySettings:
             current state. Needs a user who corrects during the motion (``physical``).
         teacher: how the person gives feature traces when a learner asks for them
             (:class:`~corrections_sim.people.teacher.Teacher`).
+        atlas: plans from a plan atlas over the prior's box (:class:`AtlasSettings`): every
+            plan a function of (θ, E) alone, and ``warm_start`` moot; None: each run's own
+            plan book.
     """
 
     theta_star: tuple[float, ...]
@@ -124,6 +154,7 @@ class StudySettings:
     online: bool = False
     user_theta: tuple[float, ...] = ()
     teacher: Teacher = field(default_factory=Teacher)
+    atlas: AtlasSettings | None = None
 
     def __post_init__(self) -> None:
         if not np.all(np.isfinite(np.asarray(self.user_theta, float))):
@@ -157,6 +188,11 @@ class StudySettings:
                 raise ValueError(
                     f"learners: {name} takes its learning rate from {source}'s gains; add "
                     f"{source} or set learners.{name}.fixed_alpha (--fixed-alpha)"
+                )
+            if learner.needs_atlas and self.atlas is None:
+                raise ValueError(
+                    f"learners.{name}: its grid is the study's plan atlas; set atlas = true "
+                    "(docs/atlas.md)"
                 )
         if not isinstance(self.user, USERS[self.user_name]):
             raise ValueError(f"user: {self.user!r} is not a {self.user_name} user")
@@ -234,6 +270,7 @@ class StudySettings:
             # Only when set, so that the run keys of studies without it stay as they were.
             **({"online": True} if self.online else {}),
             **({"teacher": asdict(self.teacher)} if self.teacher != Teacher() else {}),
+            **({"atlas": asdict(self.atlas)} if self.atlas is not None else {}),
         }
 
 
@@ -295,6 +332,19 @@ class FigureSettings:
     def planner_config(self) -> PlannerConfig:
         return PlannerConfig(features=self.features, **dict(self.planner))
 
+    def atlas_spec(self) -> AtlasSpec | None:
+        """The study's plan atlas as picklable data (None: plans from each run's book)."""
+        a = self.study.atlas
+        if a is None:
+            return None
+        grid = a.grid(self.study.theta0, self.study.cov0)
+        return AtlasSpec(self.planner_config(), grid, a.cold_stride)
+
+    def atlas(self):
+        """This process's atlas of the study (:class:`~.planning.atlas.Atlas`), or None."""
+        spec = self.atlas_spec()
+        return None if spec is None else spec.atlas()
+
     def user_planner_config(self) -> PlannerConfig:
         """The planner the simulated person plans with: the learners' over the person's own
         features (the same smoothness, waypoints and solver)."""
@@ -305,7 +355,15 @@ class FigureSettings:
         ``envs`` (default: the study's). Every figure that needs the person's plans solves
         them here, so a person with features of their own is planned alike everywhere."""
         planner = shared_planner(self.user_planner_config())
-        return Target.solve(planner, self.study.person(), self.envs() if envs is None else envs)
+        envs = self.envs() if envs is None else envs
+        if self.study.atlas is None:
+            return Target.solve(planner, self.study.person(), envs)
+        # With an atlas, the person's plans get the atlas (when the person weighs the robot's
+        # features) and the restarts a global answer needs.
+        atlas = self.atlas() if planner.config == self.planner_config() else None
+        return Target.solve(
+            planner, self.study.person(), envs, atlas=atlas, restarts=PERSON_RESTARTS
+        )
 
     def envs(self) -> tuple[Environment, ...]:
         """The study's environments (memoized per process)."""

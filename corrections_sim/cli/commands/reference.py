@@ -53,7 +53,12 @@ def run_reference(args: argparse.Namespace) -> list[Path]:
                 f"--check-grid: the grid exists only for k = 2, not {settings.study.k}"
             )
         k = settings.study.k
-        grid = ref.Grid((-3.0,) * k, (3.0,) * k, points) if k == 2 else None
+        spec = settings.atlas_spec()
+        if spec is not None and k == 2:  # the atlas's box, at its spacing unless --points
+            box = spec.grid
+            grid = ref.Grid(box.lows, box.highs, args.points or box.counts[0])
+        else:
+            grid = ref.Grid((-3.0,) * k, (3.0,) * k, points) if k == 2 else None
         planner = Planner(settings.planner_config())
         records = []
         for run in sorted(runs)[:count]:

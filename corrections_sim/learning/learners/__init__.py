@@ -5,7 +5,7 @@ tables list them (a plug-in's learner registers itself with
 * :mod:`.perceptron`: PP, PP-C, PP-MAX; :mod:`.kalman`: KF, EKF, KF-C, KF-CL, KF-CI, KF-CB;
   :mod:`.active`: AL, AL-C, AL-CL; :mod:`.attenuated`: KF-A; :mod:`.boltzmann`: BP;
   :mod:`.relevance`: KF-CR, KF-CRP, PP-R; :mod:`.expansion`: KF-CRX; :mod:`.particles`: PF-C,
-  AL-PF.
+  AL-PF; :mod:`.exact`: EX-C, EX-CL (on the study's plan atlas).
 
 Each is a frozen dataclass whose fields are its own parameters (``[learners.KF-A]
 attenuation_min = 0.1`` in a study file); the filters' shared M, N and sigma points come from
@@ -20,6 +20,10 @@ from corrections_sim.learning.learners.active import (
 )
 from corrections_sim.learning.learners.attenuated import AttenuatedKalman
 from corrections_sim.learning.learners.boltzmann import BoltzmannPosterior
+from corrections_sim.learning.learners.exact import (
+    ExactCorrectionAware,
+    ExactCorrectionAwareLearntNoise,
+)
 from corrections_sim.learning.learners.expansion import ExpandingRelevanceKalman
 from corrections_sim.learning.learners.kalman import (
     BatchCorrectionAwareKalman,
@@ -61,3 +65,5 @@ LEARNERS.register("KF-CI", IteratedCorrectionAwareKalman)
 LEARNERS.register("KF-CB", BatchCorrectionAwareKalman)
 LEARNERS.register("PF-C", ParticleCorrectionAware)
 LEARNERS.register("AL-PF", ParticleActive)
+LEARNERS.register("EX-C", ExactCorrectionAware)
+LEARNERS.register("EX-CL", ExactCorrectionAwareLearntNoise)

@@ -1,0 +1,141 @@
+"""Plans from a plan atlas, and the exact learners on its grid (issue 52): a study with
+``atlas`` plans every (θ, E) from the atlas alone; EX-C and EX-CL *are* the exact reference on
+the atlas's grid (the same posterior, to round-off); a study that asks for an exact learner
+without an atlas, or for a bad atlas, is refused in one line."""
+
+from __future__ import annotations
+
+import csv
+
+import numpy as np
+import pytest
+
+from corrections_sim.cli import main as cli
+from corrections_sim.planning import atlas as A
+from corrections_sim.planning.planner import PlannerConfig, shared_planner
+from corrections_sim.planning.plans import PlanBook, Target
+from corrections_sim.scene.environments import paper_environments
+from corrections_sim.study import schema
+from corrections_sim.study.runner import run_key
+
+STUDY = """\
+theta_star = [1.0, -1.0]
+runs = 1
+iterations = 2
+seed = 3
+environments = ["s0-t0-l1", "s1-t1-l2"]
+learners = ["KF-C", "EX-C", "EX-CL"]
+atlas = { points = 9 }
+"""
+
+
+@pytest.fixture(scope="module")
+def figure(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("exact")
+    (folder / "tiny.toml").write_text(STUDY)
+    argv = ["study", str(folder / "tiny.toml"), "--out", str(folder / "out"), "--workers", "1"]
+    assert cli.main(argv) == 0
+    return folder / "out" / "tiny"
+
+
+def _rows(path, learner=None):
+    with open(path, newline="") as fh:
+        return [r for r in csv.DictReader(fh) if learner is None or r["learner"] == learner]
+
+
+@pytest.mark.parametrize("learner", ["EX-C", "EX-CL"])
+def test_the_exact_learner_is_its_reference_on_the_atlas_grid(figure, learner, capsys):
+    """The reference tool, on a study with an atlas, reads the atlas's grid and plans: the
+    exact learner's mean and covariance after every correction are the reference's."""
+    assert cli.main(["reference", str(figure), "--learner", learner, "--runs", "1"]) == 0
+    reference = _rows(figure / f"reference-{learner}.csv")
+    curves = _rows(figure / "curves.csv", learner)
+    assert [int(r["iteration"]) for r in reference] == [1, 2]
+    for r in reference:
+        mine = curves[int(r["iteration"])]
+        for key in ("theta_0", "theta_1", "cov_00", "cov_01", "cov_11"):
+            assert float(mine[key]) == pytest.approx(float(r[f"ref_{key}"]), rel=1e-9, abs=1e-12)
+        assert float(r["ref_kl_gaussian"]) == pytest.approx(0.0, abs=1e-9)
+    # It learns: the first correction moves the mean and shrinks the covariance.
+    assert float(curves[1]["cov_00"]) < float(curves[0]["cov_00"])
+    assert "ref NEES" in capsys.readouterr().out
+
+
+def test_the_exact_learner_without_an_atlas_is_one_line(tmp_path, capsys):
+    path = tmp_path / "bare.toml"
+    path.write_text(STUDY.replace("atlas = { points = 9 }\n", ""))
+    assert cli.main(["study", str(path), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "learners.EX-C: its grid is the study's plan atlas" in err
+
+
+@pytest.mark.parametrize(
+    ("value", "message"),
+    [
+        ("atlas = { points = 2 }", "atlas.points: must be an integer >= 3, got 2"),
+        ("atlas = { width = -1.0 }", "atlas.width: must be finite and > 0"),
+        ("atlas = { box = 3 }", "atlas.box: unknown key"),
+    ],
+)
+def test_a_bad_atlas_is_one_line(tmp_path, capsys, value, message):
+    path = tmp_path / "bad.toml"
+    path.write_text(STUDY.replace("atlas = { points = 9 }", value))
+    assert cli.main(["study", str(path), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message in err
+
+
+def test_the_run_key_names_the_atlas_only_when_there_is_one():
+    values = {"theta_star": [1.0, -1.0], "environments": ["s0-t0-l1"]}
+    bare = run_key(schema.parse_study(values))
+    assert "atlas" not in bare and "atlas_identity" not in bare
+    mine = run_key(schema.parse_study({**values, "atlas": {"points": 9}}))
+    other = run_key(schema.parse_study({**values, "atlas": {"points": 11}}))
+    assert mine["atlas"] == {"width": 5.0, "points": 9, "cold_stride": 10}
+    assert mine["atlas_identity"] != other["atlas_identity"]
+
+
+@pytest.fixture(scope="module")
+def small_atlas(tmp_path_factory):
+    config = PlannerConfig(n_starts=2)
+    grid = A.AtlasGrid.around([0.0, 0.0], [1.0, 1.0], width=3.0, count=7)
+    spec = A.AtlasSpec(config, grid, cold_stride=3, root=str(tmp_path_factory.mktemp("atlas")))
+    return spec
+
+
+def test_a_plan_from_the_atlas_depends_on_theta_and_e_alone(small_atlas):
+    """Two books asked the same problems in opposite orders give the same plans, bit for
+    bit; outside the box the cold starts answer and are counted."""
+    envs = paper_environments()[:2]
+    problems = [
+        (np.array([0.3, -1.1]), envs[0]),
+        (np.array([-2.2, 0.7]), envs[1]),
+        (np.array([0.31, -1.05]), envs[0]),
+        (np.array([1.9, 2.4]), envs[1]),
+    ]
+    atlas = small_atlas.atlas()
+    planner = shared_planner(small_atlas.config)
+    forward, backward = PlanBook(planner, atlas=atlas), PlanBook(planner, atlas=atlas)
+    ahead = [forward.plan(t, e).trajectory for t, e in problems]
+    behind = [backward.plan(t, e).trajectory for t, e in reversed(problems)][::-1]
+    for a, b in zip(ahead, behind, strict=True):
+        assert np.array_equal(a, b)
+    outside = atlas.outside
+    forward.plan(np.array([3.5, 0.0]), envs[0])
+    assert atlas.outside == outside + 1
+    with pytest.raises(ValueError, match="another planner configuration"):
+        PlanBook(shared_planner(PlannerConfig(n_starts=1)), atlas=atlas)
+
+
+def test_the_person_plans_with_the_atlas_and_restarts_at_least_as_well(small_atlas):
+    envs = paper_environments()[:2]
+    planner = shared_planner(small_atlas.config)
+    theta = np.array([1.0, -1.0])
+    cold = Target.solve(planner, theta, envs)
+    best = Target.solve(planner, theta, envs, atlas=small_atlas.atlas(), restarts=5)
+    for c, b in zip(cold.plans, best.plans, strict=True):
+        assert b.reward >= c.reward - 1e-12
+    again = Target.solve(planner, theta, envs[::-1], atlas=small_atlas.atlas(), restarts=5)
+    assert np.array_equal(again.plans[1].trajectory, best.plans[0].trajectory)
+    with pytest.raises(ValueError, match="restarts = -1"):
+        Target.solve(planner, theta, envs, restarts=-1)
