@@ -139,3 +139,36 @@ def test_the_person_plans_with_the_atlas_and_restarts_at_least_as_well(small_atl
     assert np.array_equal(again.plans[1].trajectory, best.plans[0].trajectory)
     with pytest.raises(ValueError, match="restarts = -1"):
         Target.solve(planner, theta, envs, restarts=-1)
+
+
+def test_a_corrupt_atlas_file_is_built_again_and_says_so(small_atlas, tmp_path):
+    """A stored atlas whose data was truncated is not read: preparing the study's atlases
+    warns in one line naming why, and builds it again."""
+    import dataclasses
+
+    spec = dataclasses.replace(small_atlas, root=str(tmp_path / "store"))
+    env = paper_environments()[3]
+    assert A.prepare(spec, [env]) == 1 and A.prepare(spec, [env]) == 0
+    data = tmp_path / "store" / f"{spec.key(env)}.npy"
+    data.write_bytes(data.read_bytes()[:-64])
+    with pytest.warns(UserWarning, match="not trusted, built again: its data does not match"):
+        assert A.prepare(spec, [env]) == 1
+    assert spec.missing([env]) == []
+
+
+def test_an_atlas_study_gives_the_same_bytes_on_one_or_two_workers_and_on_dask(figure, tmp_path):
+    """The study's curves (EX-C among them) with its atlas, made again on two worker
+    processes and on a Dask cluster: byte for byte those of the one-worker run."""
+    from distributed import LocalCluster
+
+    study = figure.parent.parent / "tiny.toml"
+    made = (figure / "curves.csv").read_bytes()
+    argv = ["study", str(study), "--workers", "2", "--out", str(tmp_path / "two")]
+    assert cli.main(argv) == 0
+    assert (tmp_path / "two" / "tiny" / "curves.csv").read_bytes() == made
+    with LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None
+    ) as cluster:
+        argv = ["study", str(study), "--scheduler", cluster.scheduler_address]
+        assert cli.main([*argv, "--out", str(tmp_path / "dask")]) == 0
+    assert (tmp_path / "dask" / "tiny" / "curves.csv").read_bytes() == made

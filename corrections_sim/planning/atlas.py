@@ -28,7 +28,8 @@ import itertools
 import json
 import os
 import tempfile
-from collections.abc import Callable, Iterable, Sequence
+import warnings
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import Executor
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -260,16 +261,25 @@ def build(
 def cell_starts(atlas: EnvironmentAtlas, theta: Sequence[float], smoothness: float) -> list:
     """The warm starts of θ from its cell: the corner plans (T, 7) that exist, distinct, best
     first by their reward at θ (θ·Φ − λS: linear in θ, no solve). Empty outside the box."""
+    return list(iter_cell_starts(atlas, theta, smoothness))
+
+
+def iter_cell_starts(
+    atlas: EnvironmentAtlas, theta: Sequence[float], smoothness: float
+) -> Iterator[np.ndarray]:
+    """:func:`cell_starts` one at a time (a caller that needs only the first pays for no
+    comparison of the others)."""
     t = np.asarray(theta, float)
     if not atlas.grid.contains(t):
-        return []
+        return
     corners = [c for c in atlas.grid.cell(t) if atlas.found[c]]
     value = {c: float(t @ atlas.features[c] - smoothness * atlas.smoothness[c]) for c in corners}
     out: list[np.ndarray] = []
     for c in sorted(corners, key=lambda c: (-value[c], c)):
-        if not any(np.allclose(atlas.trajectories[c], o, atol=1e-4) for o in out):
-            out.append(atlas.trajectories[c])
-    return out
+        plan = atlas.trajectories[c]
+        if not any(np.allclose(plan, o, atol=1e-4) for o in out):
+            out.append(plan)
+            yield plan
 
 
 # --- the cache on disk ------------------------------------------------------------------
@@ -439,7 +449,7 @@ class Atlas:
         if not self.grid.contains(t):
             self.outside += 1
             return self.planner.solve(t, env)
-        starts = cell_starts(self.environment(env), t, self.planner.config.smoothness)
+        starts = iter_cell_starts(self.environment(env), t, self.planner.config.smoothness)
         for start in starts:  # the corner best at θ first; the next only if it fails
             try:
                 return self.planner.solve(t, env, inits=[start])
@@ -465,10 +475,13 @@ class AtlasSpec:
     def key(self, env: Environment | None) -> str:
         return atlas_key(self.config, env, self.grid, cold_stride=self.cold_stride)
 
-    def missing(self, envs: Iterable[Environment]) -> list[Environment]:
+    def missing(
+        self, envs: Iterable[Environment], store: AtlasStore | None = None
+    ) -> list[Environment]:
         """The distinct environments of ``envs`` whose atlas the store lacks (or holds a file
-        of it cannot trust)."""
-        store, out, seen = self.store(), [], set()
+        of it cannot trust: ``store.rejected`` says which and why)."""
+        store = store if store is not None else self.store()
+        out, seen = [], set()
         for env in envs:
             if env.key() not in seen:
                 seen.add(env.key())
@@ -502,7 +515,10 @@ def prepare(
     """Build into the store the atlases of ``envs`` it lacks (or holds only rejected files
     of), one task an environment on ``executor`` (None: here); ``progress(done, total)``
     after each. Returns how many were built."""
-    todo = spec.missing(envs)
+    store = spec.store()
+    todo = spec.missing(envs, store)
+    for key, why in store.rejected:  # rebuilt below, never read
+        warnings.warn(f"plan atlas {key}: not trusted, built again: {why}", stacklevel=2)
     if progress is not None and todo:
         progress(0, len(todo))
     futures = [
@@ -520,4 +536,8 @@ def prepare(
 
 
 def _build_into_store(spec: AtlasSpec, env: Environment) -> None:
-    spec.atlas().environment(env)
+    """E's atlas into the store (this process's copy if it holds one, else built)."""
+    built = spec.atlas().environment(env)
+    store = spec.store()
+    if store.load(spec.key(env), spec.grid, spec.config.n_waypoints) is None:
+        store.save(spec.key(env), built)
