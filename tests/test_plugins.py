@@ -421,12 +421,20 @@ def test_every_learner_runs_reproducibly_and_moves_toward_theta_star(name, small
     names = [name, *filter(None, [LEARNERS[name].rate_from])]
     # The contract does not need a paper-scale particle count (200: about 27 s a learner here).
     few = {"particles": 40} if "particles" in components.defaults(LEARNERS[name]) else {}
-    s = settings(iterations=3, learners={n: (few if n == name else {}) for n in names})
+    # An exact learner's grid is the study's plan atlas: a small one.
+    more = {"atlas": {"points": 9}} if LEARNERS[name].needs_atlas else {}
+    s = settings(iterations=3, learners={n: (few if n == name else {}) for n in names}, **more)
     alphas = np.full(3, 0.2) if LEARNERS[name].needs_rates() else None
+    atlas = None
+    if s.atlas is not None:
+        from corrections_sim.planning.atlas import AtlasSpec
+
+        grid = s.atlas.grid(s.theta0, s.cov0)
+        atlas = AtlasSpec(planner.config, grid, s.atlas.cold_stride).atlas()
 
     def once():
         rng = np.random.default_rng(7)
-        return run_learner(name, 0, s, planner, envs, target, s.user, rng, alphas)
+        return run_learner(name, 0, s, planner, envs, target, s.user, rng, alphas, atlas=atlas)
 
     a, b = once(), once()
     assert a.records == b.records
