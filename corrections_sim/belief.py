@@ -82,6 +82,18 @@ def _check_positive_semidefinite(name: str, matrix: np.ndarray) -> None:
         )
 
 
+def floored(cov: np.ndarray) -> np.ndarray:
+    """A weighted sample's covariance kept positive definite, as a filter's posterior is:
+    symmetrized, its eigenvalues at least 1e-9 of the largest (a sample whose mass sits on
+    one point or one line has none there)."""
+    cov = symmetrize(cov)
+    eigenvalues, vectors = np.linalg.eigh(cov)
+    floor = 1e-9 * max(float(eigenvalues[-1]), 1e-12)
+    if eigenvalues[0] < floor:
+        cov = symmetrize((vectors * np.maximum(eigenvalues, floor)) @ vectors.T)
+    return cov
+
+
 def _freeze(arr: np.ndarray) -> np.ndarray:
     arr.setflags(write=False)
     return arr
@@ -138,12 +150,7 @@ class Particles:
         w = self.weights()
         mean = w @ self.thetas
         d = self.thetas - mean
-        cov = symmetrize((w[:, None] * d).T @ d)
-        eigenvalues, vectors = np.linalg.eigh(cov)
-        floor = 1e-9 * max(float(eigenvalues[-1]), 1e-12)
-        if eigenvalues[0] < floor:
-            cov = symmetrize((vectors * np.maximum(eigenvalues, floor)) @ vectors.T)
-        return mean, cov
+        return mean, floored((w[:, None] * d).T @ d)
 
 
 @dataclass(frozen=True, eq=False)

@@ -172,3 +172,55 @@ def test_an_atlas_study_gives_the_same_bytes_on_one_or_two_workers_and_on_dask(f
         argv = ["study", str(study), "--scheduler", cluster.scheduler_address]
         assert cli.main([*argv, "--out", str(tmp_path / "dask")]) == 0
     assert (tmp_path / "dask" / "tiny" / "curves.csv").read_bytes() == made
+
+
+def test_an_atlas_session_replays_from_its_atlas_and_says_so(tmp_path):
+    """A page session planned from the study's atlas logs its identity; replayed from the
+    same atlas, its own learner (EX-C) gives back the logged θ̂ exactly, and the replay says
+    the atlas is the session's; a study whose atlas differs is told apart."""
+    from corrections_sim.people.users import make_user
+    from corrections_sim.session.log import StudyLog
+    from corrections_sim.session.replay import replay, same_atlas
+    from corrections_sim.session.session import Session
+    from corrections_sim.session.simulate import simulate
+
+    values = {
+        "environments": ["s0-t0-l1", "s1-t1-l2"],
+        "theta_star": [1.0, -1.0],
+        "learners": ["KF-C", "EX-C"],
+        "seed": 7,
+        "iterations": 2,
+        "atlas": {"points": 9},
+    }
+    settings = schema.parse_study(values, name="atlas")
+    with StudyLog(tmp_path / "s.sqlite") as log:
+        session = Session.start(settings, log, learner="EX-C", participant="sim-1")
+        assert session.book.atlas is not None
+        simulate(session, make_user("biased"), (1.0, -1.0), 2)
+        _, _, facts = replay(log, session.id, ["KF-C", "EX-C"])
+        assert facts["max_gap_to_log"] == 0.0 and facts["same_atlas"] is True
+        other = schema.parse_study({**values, "atlas": {"points": 11}}, name="atlas")
+        assert same_atlas(log, session.id, other) is False
+        assert (
+            same_atlas(
+                log, session.id, schema.parse_study(values | {"atlas": False, "learners": ["KF-C"]})
+            )
+            is None
+        )
+
+
+def test_runs_made_on_another_atlas_are_not_reused(figure, tmp_path):
+    """The run cache's key names the atlas: the same study on another grid computes every
+    run again, and on the same grid resumes them all."""
+    import json
+
+    study = figure.parent.parent / "tiny.toml"
+    out = tmp_path / "out"
+    assert cli.main(["study", str(study), "--workers", "1", "--out", str(out)]) == 0
+    again = ["study", str(study), "--workers", "1", "--out", str(out), "--force"]
+    assert cli.main(again) == 0
+    summary = json.loads((out / "tiny" / "summary.json").read_text())
+    assert summary["resumed_runs"] == 3
+    assert cli.main([*again, "--set", "atlas.points=7"]) == 0
+    summary = json.loads((out / "tiny" / "summary.json").read_text())
+    assert summary["resumed_runs"] == 0

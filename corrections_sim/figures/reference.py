@@ -262,11 +262,7 @@ def reference_run(
                 restarted[s] = study.prior() if s == 0 else Belief(theta=start[0], cov=start[1])
         t, env = int(row["iteration"]), envs[row["environment"]]
         before = _belief(rows[t - 1], k)
-        robot = (
-            planner.solve(before.theta, env)
-            if study_atlas is None
-            else book.plan(before.theta, env)
-        )
+        robot = book.plan(before.theta, env)
         seen = Situation(robot.trajectory, intended[env.name], env, names, target.theta_star)
         outcome = study.user.perform(seen, np.random.default_rng(0))
         z = np.asarray(outcome.phi_h, float)

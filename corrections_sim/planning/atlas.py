@@ -410,16 +410,9 @@ class Atlas:
         self._atlases: dict[bytes, EnvironmentAtlas] = {}
         #: Problems answered outside the box (the planner's cold starts).
         self.outside = 0
-        #: Environments this process built (not read).
-        self.built = 0
 
     def key(self, env: Environment) -> str:
         return atlas_key(self.planner.config, env, self.grid, cold_stride=self.cold_stride)
-
-    def identity(self) -> str:
-        """What every plan depends on besides (θ, E): the planner's build and options, the
-        grid and the build's algorithm (the environment's own key completes a file's)."""
-        return atlas_key(self.planner.config, None, self.grid, cold_stride=self.cold_stride)
 
     def hold(self, env: Environment, built: EnvironmentAtlas) -> None:
         """Keep E's atlas built elsewhere (e.g. by a benchmark's pool) for this process."""
@@ -437,7 +430,6 @@ class Atlas:
                 found = self.store.load(key, self.grid, self.planner.config.n_waypoints)
             if found is None:
                 found = build(self.planner, env, self.grid, cold_stride=self.cold_stride)
-                self.built += 1
                 if self.store is not None:
                     self.store.save(key, found)
             self._atlases[env.key()] = found
@@ -494,9 +486,6 @@ class AtlasSpec:
         by every run the process executes)."""
         return _shared_atlas(self)
 
-    def __call__(self) -> Atlas:
-        return self.atlas()
-
 
 @functools.cache
 def _shared_atlas(spec: AtlasSpec) -> Atlas:
@@ -521,15 +510,11 @@ def prepare(
         warnings.warn(f"plan atlas {key}: not trusted, built again: {why}", stacklevel=2)
     if progress is not None and todo:
         progress(0, len(todo))
-    futures = [
-        executor.submit(_build_into_store, spec, env) if executor is not None else None
-        for env in todo
-    ]
-    for i, (env, future) in enumerate(zip(todo, futures, strict=True)):
-        if future is None:
-            _build_into_store(spec, env)
-        else:
-            future.result()
+    if executor is None:
+        done = (_build_into_store(spec, env) for env in todo)
+    else:
+        done = (f.result() for f in [executor.submit(_build_into_store, spec, e) for e in todo])
+    for i, _ in enumerate(done):
         if progress is not None:
             progress(i + 1, len(todo))
     return len(todo)

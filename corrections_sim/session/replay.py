@@ -11,8 +11,10 @@ replayed on the same corrections (added to the replay if it was not asked for). 
 own learner replayed gives back the logged θ̂ (checked: ``max_gap_to_log``): exactly on the
 machine that logged a session planned from cold starts (every plan a pure function of (θ, E)),
 within :data:`~corrections_sim.session.session.LOG_TOLERANCE` on another processor, and at the
-solver's tolerance for a session planned warm (the replay plans cold). The summary says
-whether the machine is the one that logged the session (``same_machine``).
+solver's tolerance for a session planned warm (the replay plans cold); a session planned from
+a plan atlas is replayed from the same atlas. The summary says whether the machine is the one
+that logged the session (``same_machine``) and whether the atlas is the session's
+(``same_atlas``).
 """
 
 from __future__ import annotations
@@ -122,7 +124,7 @@ def replay(
     s = settings.study
     planner = shared_planner(settings.planner_config())
     envs = settings.envs()
-    book = PlanBook(planner)
+    book = PlanBook(planner, atlas=settings.atlas())  # as the session planned
     target = Target.solve(planner, stated, envs) if stated is not None and regret else None
     records: list[dict] = []
     gains_of: dict[str, np.ndarray] = {}
@@ -218,6 +220,7 @@ def replay(
         "max_gap_to_log": gap_to_log,
         "log_tolerance": LOG_TOLERANCE,
         "same_machine": same_machine(log, session_id),
+        "same_atlas": same_atlas(log, session_id, settings),
         "labelled": labelled_scores(records, order),
         "learnt_features": learnt_features(log, session_id, settings, records, row.learner),
         "final": {
@@ -322,7 +325,8 @@ def _book(books: dict, settings: FigureSettings, belief) -> PlanBook:
     mine = settings.features + tuple(belief.extra)
     if mine not in books:
         config = dataclasses.replace(settings.planner_config(), features=mine)
-        books[mine] = PlanBook(shared_planner(config))
+        atlas = settings.atlas() if mine == settings.features else None
+        books[mine] = PlanBook(shared_planner(config), atlas=atlas)
     return books[mine]
 
 
@@ -351,6 +355,17 @@ def same_machine(log: StudyLog, session_id: int) -> bool | None:
         return None
     here = provenance.machine()
     return all(m == here for m in logged)
+
+
+def same_atlas(log: StudyLog, session_id: int, settings: FigureSettings) -> bool | None:
+    """Whether the plan atlas the session was logged with (its ``atlas`` event: the planner's
+    build and options, the grid) is the one this replay plans from; None for a session
+    planned without one. Where it is not, the replay's plans can differ from the session's."""
+    logged = [e["detail"]["identity"] for e in log.events(session_id, "atlas")]
+    spec = settings.atlas_spec()
+    if spec is None:
+        return None
+    return bool(logged) and all(identity == spec.key(None) for identity in logged)
 
 
 def write(settings: FigureSettings, result: FigureResult, facts: dict, folder) -> dict:

@@ -259,13 +259,20 @@ def _planner(value) -> tuple[tuple[str, Any], ...]:
     return settings
 
 
-def _teacher(value) -> Teacher:
-    """The ``teacher`` table."""
-    value = as_table(value, "teacher")
-    known = Teacher.__dataclass_fields__
+def _fields_table(value, name: str, cls, who: str) -> dict:
+    """``value`` as the table ``name`` of the dataclass ``cls``'s fields (``who``: "a
+    teacher"), an unknown key refused in one line naming it."""
+    value = as_table(value, name)
+    known = cls.__dataclass_fields__
     for key in value:
         if key not in known:
-            raise ValueError(f"teacher.{key}: unknown key (a teacher takes {', '.join(known)})")
+            raise ValueError(f"{name}.{key}: unknown key ({who} takes {', '.join(known)})")
+    return value
+
+
+def _teacher(value) -> Teacher:
+    """The ``teacher`` table."""
+    value = _fields_table(value, "teacher", Teacher, "a teacher")
     try:
         return Teacher(**value)
     except (TypeError, ValueError) as exc:
@@ -278,11 +285,7 @@ def _atlas(value) -> AtlasSettings | None:
         return None
     if value is True:
         return AtlasSettings()
-    value = as_table(value, "atlas")
-    known = AtlasSettings.__dataclass_fields__
-    for key in value:
-        if key not in known:
-            raise ValueError(f"atlas.{key}: unknown key (an atlas takes {', '.join(known)})")
+    value = _fields_table(value, "atlas", AtlasSettings, "an atlas")
     try:
         return AtlasSettings(**value)
     except ParameterError as exc:

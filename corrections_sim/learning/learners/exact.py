@@ -15,17 +15,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from corrections_sim.belief import Belief, GridPosterior, symmetrize
+from corrections_sim.belief import Belief, GridPosterior, floored, symmetrize
 from corrections_sim.components import ParameterError
 from corrections_sim.learning import exact_posterior as ref
 from corrections_sim.learning.base import LearnerContext, Step
 from corrections_sim.learning.learners.kalman import CorrectionAwareKalman
 from corrections_sim.planning.planner import Plan, PlanningError
 from corrections_sim.scene.environments import Environment
-
-
-class NoAtlasError(ValueError):
-    """An exact learner run without a plan atlas."""
 
 
 @dataclass(frozen=True)
@@ -49,16 +45,17 @@ class ExactCorrectionAware(CorrectionAwareKalman):
     ) -> Step:
         atlas = ctx.book.atlas
         if atlas is None:
-            name = type(self).__name__
-            raise NoAtlasError(f"{name}: needs the study's plan atlas (atlas = true)")
+            raise ValueError(f"{type(self).__name__}: needs the study's plan atlas (atlas = true)")
         before = belief.grid or self._prior_grid(belief, atlas.grid.thetas())
         plans = atlas.environment(env).trajectories
         h = self.observation().at_plans(plans, plan.trajectory, env, ctx.features)
         z = np.asarray(phi_h, float)
         weights = ref.posterior(self._log_posterior(before, belief))
         seen = np.all(np.isfinite(h), axis=1) & (weights > 0)
-        if not np.any(np.all(np.isfinite(h), axis=1)):
-            raise PlanningError(f"{env.name}: the atlas has no plan here; the update is skipped")
+        if not seen.any():
+            raise PlanningError(
+                f"{env.name}: the atlas has no plan where the posterior lives; update skipped"
+            )
         # What it expected before the correction: the predictive mean and spread of h.
         w = weights[seen] / weights[seen].sum()
         expected = w @ h[seen]
@@ -123,12 +120,6 @@ class ExactCorrectionAwareLearntNoise(ExactCorrectionAware):
 
 def _moments(thetas: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The grid posterior's mean and covariance (the reference's, :func:`ref.moments`), the
-    covariance kept positive definite (eigenvalues at least 1e-9 of the largest) where the
-    mass sits on one node or one line of nodes."""
+    covariance kept positive definite where the mass sits on one node or one line of nodes."""
     mean, cov = ref.moments(thetas, weights)
-    cov = symmetrize(cov)
-    values, vectors = np.linalg.eigh(cov)
-    floor = 1e-9 * max(float(values[-1]), 1e-12)
-    if values[0] < floor:
-        cov = symmetrize((vectors * np.maximum(values, floor)) @ vectors.T)
-    return mean, cov
+    return mean, floored(cov)
