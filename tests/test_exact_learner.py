@@ -1,6 +1,7 @@
 """Plans from a plan atlas, and the exact learners on its grid (issue 52): a study with
 ``atlas`` plans every (θ, E) from the atlas alone; EX-C and EX-CL *are* the exact reference on
-the atlas's grid (the same posterior, to round-off); a study that asks for an exact learner
+the atlas's grid (the same posterior, to round-off), its cells cut finer where the posterior
+is narrower than the grid; a study that asks for an exact learner
 without an atlas, or for a bad atlas, is refused in one line."""
 
 from __future__ import annotations
@@ -10,7 +11,9 @@ import csv
 import numpy as np
 import pytest
 
+from corrections_sim.belief import Cells
 from corrections_sim.cli import main as cli
+from corrections_sim.learning import exact_posterior as ref
 from corrections_sim.planning import atlas as A
 from corrections_sim.planning.planner import PlannerConfig, shared_planner
 from corrections_sim.planning.plans import PlanBook, Target
@@ -24,8 +27,17 @@ runs = 1
 iterations = 2
 seed = 3
 environments = ["s0-t0-l1", "s1-t1-l2"]
-learners = ["KF-C", "EX-C", "EX-CL"]
 atlas = { points = 9 }
+
+# The reference tool's own refinement (twice the learners' default resolution, its core to
+# 1e-6 of the peak), so that on the same cells the learners are the reference.
+[learners.KF-C]
+[learners.EX-C]
+resolution = 2.0
+cut = 13.8
+[learners.EX-CL]
+resolution = 2.0
+cut = 13.8
 """
 
 
@@ -224,3 +236,79 @@ def test_runs_made_on_another_atlas_are_not_reused(figure, tmp_path):
     assert cli.main([*again, "--set", "atlas.points=7"]) == 0
     summary = json.loads((out / "tiny" / "summary.json").read_text())
     assert summary["resumed_runs"] == 0
+
+
+def test_the_reference_without_refinement_is_another_posterior(figure):
+    """The learners above refined their cells (else the reference's --resolution 0 would
+    give the same numbers)."""
+    argv = ["reference", str(figure), "--learner", "EX-C", "--runs", "1", "--resolution", "0"]
+    assert cli.main(argv) == 0
+    coarse = _rows(figure / "reference-EX-C.csv")
+    curves = _rows(figure / "curves.csv", "EX-C")
+    gaps = [
+        abs(float(curves[int(r["iteration"])]["cov_00"]) - float(r["ref_cov_00"]))
+        / float(r["ref_cov_00"])
+        for r in coarse
+    ]
+    assert max(gaps) > 1e-3
+
+
+def _gaussian(cells: Cells, mean, cov) -> np.ndarray:
+    d = cells.thetas() - mean
+    return -0.5 * np.einsum("ni,ij,nj->n", d, np.linalg.inv(cov), d)
+
+
+def test_cells_integrate_by_the_trapezoid_rule_and_keep_their_nodes_when_cut():
+    cells = Cells.base((-1.0, 0.0), (1.0, 4.0), (5, 3), depth=3)
+    assert cells.coefficients().sum() == pytest.approx(2.0 * 4.0)
+    grid = A.AtlasGrid((-1.0, 0.0), (1.0, 4.0), (5, 3))
+    assert np.allclose(cells.thetas()[:15], grid.thetas(), rtol=0.0, atol=1e-12)
+    which = np.zeros(len(cells.leaves), bool)
+    which[[0, 5]] = True
+    finer = cells.cut(which)
+    assert np.array_equal(finer.coords[: len(cells.coords)], cells.coords)
+    assert len(finer.leaves) == len(cells.leaves) + 2 * 3
+    assert finer.coefficients().sum() == pytest.approx(8.0)
+    # Linear functions are integrated exactly on any cut.
+    f = 1.0 + finer.thetas() @ np.array([0.3, -0.2])
+    assert finer.coefficients() @ f == pytest.approx(8.0 * (1.0 + 0.3 * 0.0 - 0.2 * 2.0))
+    with pytest.raises(ValueError, match="finest level"):
+        Cells.base((0.0,), (1.0,), (3,), depth=0).cut(np.ones(2, bool))
+
+
+def test_refinement_resolves_a_posterior_narrower_than_the_grid():
+    """A Gaussian of sd 0.1 on cells 1 wide: the base grid's moments are far off; cut
+    where it lives until an sd has a node, they are right, and the cells stay few."""
+    mean, cov = np.array([0.23, -0.41]), np.array([[0.01, 0.004], [0.004, 0.02]])
+    cells = Cells.base((-5.0, -5.0), (5.0, 5.0), (11, 11), depth=6)
+    refine = ref.Refinement(resolution=1.0)
+
+    def moments(c):
+        return ref.moments(c.thetas(), ref.posterior(_gaussian(c, mean, cov), c.coefficients()))
+
+    coarse = moments(cells)
+    assert abs(coarse[1][0, 0] - cov[0, 0]) / cov[0, 0] > 0.5
+    while (finer := refine.finer(cells, _gaussian(cells, mean, cov))) is not None:
+        cells = finer
+    got_mean, got_cov = moments(cells)
+    assert np.abs(got_mean - mean).max() < 1e-3 * np.sqrt(cov[0, 0])
+    assert np.abs(got_cov - cov).max() < 1e-3 * cov[0, 0]
+    assert len(cells.coords) < 1000  # 121 coarse nodes; only the core is cut
+    assert ref.Refinement(resolution=0.0).finer(cells, _gaussian(cells, mean, cov)) is None
+
+
+@pytest.mark.parametrize(
+    ("param", "value", "message"),
+    [
+        ("resolution", -1.0, "learners.EX-C.resolution: must be a number >= 0"),
+        ("cut", 0.0, "learners.EX-C.cut: must be a number > 0"),
+        ("max_level", -1, "learners.EX-C.max_level"),
+    ],
+)
+def test_a_bad_refinement_is_one_line(tmp_path, capsys, param, value, message):
+    path = tmp_path / "bad.toml"
+    path.write_text(STUDY)
+    argv = ["study", str(path), "--set", f"learners.EX-C.{param}={value}"]
+    assert cli.main([*argv, "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message in err

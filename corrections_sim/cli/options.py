@@ -313,7 +313,18 @@ def catalogue() -> argparse.ArgumentParser:
         "exact references, fits and the scene's files (reference, relevance-fit, models)"
     )
     r.add_argument(
-        "--points", type=positive_int, help="grid points per axis over [-3, 3]^k (default 61)"
+        "--points",
+        type=positive_int,
+        help="grid points per axis over [-3, 3]^k (default 61; with a plan atlas, over its "
+        "box, default its own)",
+    )
+    r.add_argument(
+        "--resolution",
+        type=float,
+        metavar="R",
+        help="on a study with a plan atlas: refine the reference's grid where its posterior "
+        "has fewer than R nodes in its narrowest sd (default 2, twice the exact learners'; "
+        "0: never)",
     )
     r.add_argument(
         "--one-step",

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from corrections_sim.belief import Belief, PersonBelief
+from corrections_sim.belief import Belief, Cells, PersonBelief
 from corrections_sim.learning import exact_posterior as ref
 from corrections_sim.learning.base import LearnerContext
 from corrections_sim.learning.learners.particles import particle_reference
@@ -169,6 +169,7 @@ def reference_run(
     restarts: tuple[int, ...] = (),
     particles: int = 0,
     seed: int = 0,
+    resolution: float | None = None,
 ) -> list[dict]:
     """The reference after every correction of one run (``rows``: its records, t = 0 … T).
 
@@ -187,7 +188,13 @@ def reference_run(
     from what earlier steps left (which the learner's own NEES and ``ref_kl`` include). With
     ``restarts`` (iterations s), also the learner's filter run on from the reference at each s
     (s = 0: the prior, i.e. the learner replayed), as ``restart_<s>_nees``: how much of the
-    final gap the steps before s leave."""
+    final gap the steps before s leave.
+
+    On a study with a plan atlas, a KF/KF-C-type model's grid is refined where the posterior
+    has fewer than ``resolution`` nodes in its narrowest sd (None: 2, twice the exact
+    learners' default; 0: never), as an exact learner's is
+    (:class:`~corrections_sim.learning.exact_posterior.Refinement`): every correction so far
+    weighed again at the finer nodes, ξ*(θ, E) there from the atlas over ``grid``."""
     study = settings.study
     model = study.learners[learner]
     if study.user.stochastic:
@@ -241,6 +248,27 @@ def reference_run(
         spec = settings.atlas_spec()
         box = AtlasGrid(grid.low, grid.high, (grid.points,) * k)
         at_nodes = dataclasses.replace(spec, grid=box).atlas()
+    refinable = (
+        at_nodes is not None
+        and likelihood.kind == "gaussian"
+        and likelihood.relevance == "none"
+        and person is None
+    )
+    if resolution is not None and resolution > 0 and not refinable:
+        raise ValueError(
+            f"--resolution {resolution:g}: refines only a KF/KF-C-type model's grid on a study "
+            "with a plan atlas"
+        )
+    cells, past = None, []  # a refinable grid's cells; the corrections so far, to weigh again
+    if refinable:
+        # The core to e^−13.8 = 1e-6 of the peak, not an exact learner's 1e-4.
+        refine = ref.Refinement(2.0 if resolution is None else resolution, cut=13.8)
+        # One level finer than an exact learner may go: at twice its resolution, it is at
+        # half its finest spacing.
+        depth = getattr(model, "max_level", 4) + 1
+        cells = Cells.base(box.lows, box.highs, box.counts, depth)
+        thetas = cells.thetas()
+        log_p = ref.gaussian_log_prior(thetas, study.prior())
     restarted: dict[int, Belief] = {}
     if engine is not None:
         cloud = engine.initial(study.prior(), study.noise())
@@ -255,7 +283,10 @@ def reference_run(
             sigma=study.sigma(),
         )
     for row in rows[1:]:
-        start = ref.moments(thetas, ref.posterior(log_p)) if one_step or restarts else None
+        start = None
+        if one_step or restarts:
+            at = None if cells is None else cells.coefficients()
+            start = ref.moments(thetas, ref.posterior(log_p, at))
         t = int(row["iteration"])
         for s in restarts:
             if s == t - 1:
@@ -281,7 +312,7 @@ def reference_run(
             if at_nodes is None:
                 plans = grid_plans(planner, env, grid)
             else:
-                plans = at_nodes.environment(env).trajectories
+                plans = at_nodes.plans(thetas, env)
             c = likelihood.correction
             correct = c.apply if c is not None else (lambda r, x: x)
             h = grid_observations(plans, robot.trajectory, correct, env, names)
@@ -328,12 +359,33 @@ def reference_run(
                 log_l = ref.gaussian_log_likelihood(z, h, noise)
                 log_p = log_p + log_l
                 log_post = log_p
+            if cells is not None:
+                past.append((env, robot.trajectory, z))
+                while (finer := refine.finer(cells, log_post)) is not None:
+                    new = finer.thetas()[len(thetas) :]
+                    new_hs = [
+                        grid_observations(at_nodes.plans(new, e), r, correct, e, names)
+                        for e, r, _ in past
+                    ]
+                    new_p = ref.gaussian_log_prior(new, study.prior())
+                    if learnt:
+                        hs = [np.concatenate(pair) for pair in zip(hs, new_hs, strict=True)]
+                        log_p = np.concatenate([log_p, new_p])
+                        log_post = log_p + ref.learnt_noise_log_likelihood(
+                            np.array(zs), np.array(hs), prior_noise.dof, prior_noise.scale
+                        )
+                    else:
+                        for (*_, seen_z), seen_h in zip(past, new_hs, strict=True):
+                            new_p = new_p + ref.gaussian_log_likelihood(seen_z, seen_h, noise)
+                        log_p = log_post = np.concatenate([log_p, new_p])
+                    cells, thetas = finer, finer.thetas()
+        coefficients = None if cells is None else cells.coefficients()
         belief = _belief(row, k)
         if log_post is None:  # the particles are the reference
             weights = None
             mean, cov = cloud.particles.moments()
         else:
-            weights = ref.posterior(log_post)
+            weights = ref.posterior(log_post, coefficients)
             mean, cov = ref.moments(thetas, weights)
         rec = {"learner": learner, "run": int(row["run"]), "iteration": t, "environment": env.name}
         for i in range(k):
@@ -344,7 +396,9 @@ def reference_run(
         rec["ref_nees"] = ref.nees(mean, cov, theta_star)
         rec["nees"] = float(row["nees"]) if row["nees"] else None
         rec["ref_kl"] = (
-            None if weights is None else ref.kl_to_gaussian(grid, thetas, weights, belief)
+            None
+            if weights is None
+            else ref.kl_to_gaussian(grid, thetas, weights, belief, coefficients)
         )
         rec["ref_kl_gaussian"] = ref.gaussian_kl(mean, cov, belief)
         if engine is not None and weights is not None:
@@ -355,7 +409,7 @@ def reference_run(
         if one_step:
             step = _filter_step(model, study, book, env, robot, z, start, row)
             rec["one_step_nees"] = ref.nees(step.theta, step.cov, theta_star)
-            rec["one_step_kl"] = ref.kl_to_gaussian(grid, thetas, weights, step)
+            rec["one_step_kl"] = ref.kl_to_gaussian(grid, thetas, weights, step, coefficients)
         for s, state in restarted.items():
             state = _filter_step(model, study, book, env, robot, z, (state.theta, state.cov), row)
             restarted[s] = state

@@ -408,6 +408,7 @@ class Atlas:
         self.store = store
         self.cold_stride = cold_stride
         self._atlases: dict[bytes, EnvironmentAtlas] = {}
+        self._between: dict[tuple[bytes, bytes], np.ndarray | None] = {}
         #: Problems answered outside the box (the planner's cold starts).
         self.outside = 0
 
@@ -448,6 +449,42 @@ class Atlas:
             except PlanningError:
                 continue
         return self.planner.solve(t, env)  # no corner's plan converged: the cold starts
+
+    def plans(self, thetas: np.ndarray, env: Environment) -> np.ndarray:
+        """ξ*(θ, E) at many θ (n, k) as trajectories (n, T, 7), NaN where no start converges:
+        a node's stored plan where θ is one of the grid's nodes, else :meth:`solve`'s answer,
+        kept for this process (the answer depends on (θ, E) alone, so keeping it changes no
+        number: it spares a refined grid's nodes a second solve in the next run)."""
+        thetas = np.atleast_2d(np.asarray(thetas, float))
+        grid, built = self.grid, self.environment(env)
+        out = np.full((len(thetas), self.planner.config.n_waypoints, 7), np.nan)
+        lows, highs = np.array(grid.lows), np.array(grid.highs)
+        pos = (thetas - lows) / (highs - lows) * (np.array(grid.counts) - 1)
+        index = np.rint(pos)
+        on = np.all(np.abs(pos - index) < 1e-9, axis=1) & np.all(
+            (index >= 0) & (index <= np.array(grid.counts) - 1), axis=1
+        )
+        if on.any():
+            nodes = np.ravel_multi_index(tuple(index[on].astype(int).T), grid.counts)
+            out[on] = built.trajectories[nodes]
+        key = env.key()
+        for i in np.flatnonzero(~on).tolist():
+            memo = (key, thetas[i].tobytes())
+            if memo not in self._between:
+                if len(self._between) >= _MAX_KEPT:
+                    self._between.clear()
+                try:
+                    self._between[memo] = self.solve(thetas[i], env).trajectory
+                except PlanningError:
+                    self._between[memo] = None
+            plan = self._between[memo]
+            if plan is not None:
+                out[i] = plan
+        return out
+
+
+#: Off-node plans an :class:`Atlas` keeps per process (about 0.7 kB each at T = 12).
+_MAX_KEPT = 400_000
 
 
 @dataclass(frozen=True)

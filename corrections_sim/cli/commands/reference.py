@@ -72,6 +72,7 @@ def run_reference(args: argparse.Namespace) -> list[Path]:
                 restarts=restarts,
                 particles=particles,
                 seed=seed + run,
+                resolution=args.resolution,
             )
             print(f"run {run}: done", file=sys.stderr, flush=True)
     except (OSError, KeyError, ValueError) as exc:
@@ -141,7 +142,9 @@ def run_reference(args: argparse.Namespace) -> list[Path]:
         fine = grid.halved()
         first = sorted(runs)[0]
         coarse = [r for r in records if r["run"] == first]
-        finer = reference_run(settings, learner, runs[first], fine, planner)
+        finer = reference_run(
+            settings, learner, runs[first], fine, planner, resolution=args.resolution
+        )
         pairs = list(zip(coarse, finer, strict=True))
         k = settings.study.k
         worst_mean = max(
@@ -170,6 +173,7 @@ COMMAND = Command(
         "learner",
         "runs",
         "points",
+        "resolution",
         "one_step",
         "restart",
         "particles",
