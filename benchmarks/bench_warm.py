@@ -213,24 +213,34 @@ def run_bench(problems: Sequence[WarmProblem], repeats: int = 2) -> list[str]:
     return lines
 
 
-def run_breakdown(runs: int, seed: int, modes: Sequence[str] = ("solver", "newton")) -> list[str]:
-    """Where a fig. 4 run's time goes, per warm mode: ``runs`` runs of every learner at paper
-    settings on one worker thread, every planner solve timed by how it started (cold: the
-    planner's guesses; warm: one start) and what answered it; the rest is outside the
-    planner (learners, users, records)."""
+#: The breakdown's rows: (warm mode, plans from the atlas?). The reference path and the default
+#: from each run's plan book, and the default from the plan atlas (fig. 4's own setting).
+BREAKDOWN = (("solver", False), ("newton", False), ("newton", True))
+
+
+def run_breakdown(
+    runs: int, seed: int, variants: Sequence[tuple[str, bool]] = BREAKDOWN
+) -> list[str]:
+    """Where a fig. 4 run's time goes, per warm mode and source of plans: ``runs`` runs of
+    every learner at paper settings on one worker thread, every planner solve timed by how it
+    started (cold: the planner's guesses; warm: one start) and what answered it; the rest is
+    outside the planner (learners, users, records). The learners that need the atlas (EX-C,
+    EX-CL) run only where the plans are the atlas's."""
     from corrections_sim.figures import learning_study
+    from corrections_sim.learning.learners import LEARNERS
     from corrections_sim.planning import planner as planner_module
+    from corrections_sim.planning.atlas import prepare as prepare_atlas
     from corrections_sim.study import runner
 
     lines = [
         f"fig. 4 at paper settings, {runs} runs of every learner (seed {seed}), one worker",
         "",
-        "| warm mode | solves by kind and answer: count, total, each | outside the planner "
-        "| wall |",
-        "|---|---|---|---|",
+        "| warm mode | plans from | solves by kind and answer: count, total, each "
+        "| outside the planner | wall |",
+        "|---|---|---|---|---|",
     ]
     original = planner_module.Planner.solve
-    for mode in modes:
+    for mode, atlas in variants:
         tally: dict[tuple[str, str], list[float]] = {}
 
         def timed(self, theta, env, inits=None, _tally=tally):
@@ -247,7 +257,15 @@ def run_breakdown(runs: int, seed: int, modes: Sequence[str] = ("solver", "newto
                 entry[1] += time.perf_counter() - t0
 
         overrides = {"runs": runs, "seed": seed, "set": [f"planner.warm={mode}"]}
+        overrides["atlas"] = atlas
+        if not atlas:
+            every = learning_study.load_settings("fig4", quick=False, overrides={})
+            names = every.study.learners
+            overrides["learners"] = [n for n in names if not LEARNERS[n].needs_atlas]
         settings = learning_study.load_settings("fig4", quick=False, overrides=overrides)
+        if atlas:  # built (or read) before the clock starts: a first build is timed apart
+            spec = settings.atlas_spec()
+            prepare_atlas(spec, settings.envs())
         planner_module.Planner.solve = timed
         t0 = time.perf_counter()
         try:
@@ -261,7 +279,8 @@ def run_breakdown(runs: int, seed: int, modes: Sequence[str] = ("solver", "newto
             for (kind, answer), (n, t) in sorted(tally.items())
         )
         inside = sum(t for _, t in tally.values())
-        lines.append(f"| {mode} | {kinds} | {wall - inside:.1f} s | {wall:.1f} s |")
+        source = "the atlas" if atlas else "each run's plan book"
+        lines.append(f"| {mode} | {source} | {kinds} | {wall - inside:.1f} s | {wall:.1f} s |")
     return lines
 
 

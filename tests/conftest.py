@@ -75,7 +75,8 @@ def _order(item) -> tuple[int, int, str]:
 
 def pytest_xdist_make_scheduler(config, log):
     """How the suite shares the machine's cores (pytest-xdist): each module's tests go to one
-    worker, so a module fixture (a compiled planner, a quick run) is built once, and the
+    worker (each class of a :data:`BY_CLASS` module to one), so a module fixture (a compiled
+    planner, a quick run) is built once, and the
     browser tests of every ``*_browser.py`` module go to one worker together, first: they share
     a chromium, are the longest group and wait on pages that must not starve. (xdist's own
     ``loadgroup`` cannot do this under pytest 9, which ignores the group it writes into a
@@ -85,10 +86,19 @@ def pytest_xdist_make_scheduler(config, log):
     class ModulesAndBrowser(LoadScopeScheduling):
         def _split_scope(self, nodeid: str) -> str:
             module = nodeid.split("::", 1)[0]
-            return "browser" if module.endswith("_browser.py") else module
+            if module.endswith("_browser.py"):
+                return "browser"
+            parts = nodeid.split("::")
+            if module.endswith(BY_CLASS) and len(parts) > 2:
+                return "::".join(parts[:2])  # the class: its fixtures are the class's
+            return module
 
     return ModulesAndBrowser(config, log)
 
+
+#: Modules whose test classes go to workers of their own (each class's fixture is its own:
+#: fig. 4's and fig. 5's quick runs side by side).
+BY_CLASS = ("test_regression.py",)
 
 #: The cores this suite may use, read before any test narrows them.
 CORES = sorted(os.sched_getaffinity(0))

@@ -139,6 +139,25 @@ def test_a_plan_from_the_atlas_depends_on_theta_and_e_alone(small_atlas):
         PlanBook(shared_planner(PlannerConfig(n_starts=1)), atlas=atlas)
 
 
+def test_plans_at_many_thetas_are_the_nodes_and_the_atlas_answers(small_atlas):
+    """Atlas.plans: a node's stored plan at a node (to round-off in θ), Atlas.solve's answer
+    between nodes, the same bits when asked again (kept) or by a fresh atlas (not kept)."""
+    env = paper_environments()[0]
+    atlas = small_atlas.atlas()
+    nodes = small_atlas.grid.thetas()
+    between = np.array([[0.3, -1.1], [-2.2, 0.7]])
+    asked = np.concatenate([nodes[[3, 17]] + 1e-13, between])
+    plans = atlas.plans(asked, env)
+    stored = atlas.environment(env).trajectories
+    assert np.array_equal(plans[:2], stored[[3, 17]])
+    for theta, plan in zip(between, plans[2:], strict=True):
+        assert np.array_equal(plan, atlas.solve(theta, env).trajectory)
+    planner, spec = shared_planner(small_atlas.config), small_atlas
+    fresh = A.Atlas(planner, spec.grid, store=spec.store(), cold_stride=spec.cold_stride)
+    assert np.array_equal(atlas.plans(asked, env), plans)
+    assert np.array_equal(fresh.plans(asked[::-1], env)[::-1], plans)
+
+
 def test_the_person_plans_with_the_atlas_and_restarts_at_least_as_well(small_atlas):
     envs = paper_environments()[:2]
     planner = shared_planner(small_atlas.config)

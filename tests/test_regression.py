@@ -37,85 +37,97 @@ def _mean_curves(rows: list[dict], learner: str, key: str) -> np.ndarray:
     )
 
 
-@pytest.fixture(scope="module", params=learning_study.FIGURES)
-def quick_run(request):
-    figure = request.param
-    settings = learning_study.load_settings(figure, quick=True)
-    # One worker thread: the same code path as the process pool, without process start-up.
-    with ThreadPoolExecutor(max_workers=1) as executor:
-        result = runner.run(settings, executor)
-    with open(REFERENCE / figure / "curves.csv", newline="") as fh:
-        reference = list(csv.DictReader(fh))
-    return figure, settings, result, reference
-
-
-def test_quick_curves_match_the_reference(quick_run):
-    figure, settings, result, reference = quick_run
-    assert len(result.records) == len(reference)
-    for learner in settings.study.learners:
-        for key, rtol in TOLERANCE.items():
-            now = _mean_curves(result.records, learner, key)
-            ref = _mean_curves(reference, learner, key)
-            np.testing.assert_allclose(now, ref, rtol=rtol, err_msg=f"{figure} {learner} {key}")
-
-
-def test_every_learner_improves_and_no_solve_fails(quick_run):
-    figure, settings, result, _ = quick_run
-    assert all(r["regret_failures"] == 0 for r in result.records)
-    assert not any(r["update_skipped"] for r in result.records)
-    for learner in settings.study.learners:
-        for key in ("estimate_error", "regret"):
-            curve = _mean_curves(result.records, learner, key)
-            assert curve[-1] < curve[0], f"{figure} {learner} {key} did not fall: {curve}"
-
-
 def _auc(records: list[dict], learner: str, key: str) -> float:
     """Area under the mean curve (sum over iterations of the mean over runs)."""
     return float(np.sum(_mean_curves(records, learner, key)))
 
 
-def test_fig5_paper_claims_hold_active_learning_best_and_kalman_below_perceptron(quick_run):
-    """Paper §6, fig. 5: KF learns faster than PP, and AL fastest, in error and regret."""
-    figure, _, result, _ = quick_run
-    if figure != "fig5":
-        pytest.skip("the paper's ordering is asserted on fig. 5; fig. 4's is not reproduced")
-    for key in ("estimate_error", "regret"):
-        pp, kf, al = (_auc(result.records, name, key) for name in ("PP", "KF", "AL"))
-        assert al < kf < pp, f"{key}: AUC AL {al:.3f}, KF {kf:.3f}, PP {pp:.3f}"
+class QuickFigure:
+    """The checks of one learning figure's quick preset; a subclass per figure (one class a
+    scheduling group: the suite's workers run fig. 4 and fig. 5 side by side)."""
+
+    figure: str
+
+    @pytest.fixture(scope="class")
+    def quick_run(self):
+        settings = learning_study.load_settings(self.figure, quick=True)
+        # One worker thread: the same code path as the process pool, without process start-up.
+        with ThreadPoolExecutor(max_workers=1) as executor:
+            result = runner.run(settings, executor)
+        with open(REFERENCE / self.figure / "curves.csv", newline="") as fh:
+            reference = list(csv.DictReader(fh))
+        return settings, result, reference
+
+    def test_quick_curves_match_the_reference(self, quick_run):
+        settings, result, reference = quick_run
+        assert len(result.records) == len(reference)
+        for learner in settings.study.learners:
+            for key, rtol in TOLERANCE.items():
+                now = _mean_curves(result.records, learner, key)
+                ref = _mean_curves(reference, learner, key)
+                np.testing.assert_allclose(
+                    now, ref, rtol=rtol, err_msg=f"{self.figure} {learner} {key}"
+                )
+
+    def test_every_learner_improves_and_no_solve_fails(self, quick_run):
+        settings, result, _ = quick_run
+        assert all(r["regret_failures"] == 0 for r in result.records)
+        assert not any(r["update_skipped"] for r in result.records)
+        for learner in settings.study.learners:
+            for key in ("estimate_error", "regret"):
+                curve = _mean_curves(result.records, learner, key)
+                assert curve[-1] < curve[0], f"{self.figure} {learner} {key} did not fall: {curve}"
+
+    def test_active_learning_shrinks_the_covariance_fastest(self, quick_run):
+        """What AL optimizes, eq. (A1): its final P is smaller than the random-environment
+        KF's.
+
+        In fig. 4 this is also why the paper's ordering does not reproduce here (see
+        docs/results.md): AL's P collapses so fast that its later gains vanish, and KF and PP
+        end within a few percent of each other, so no ordering of fig. 4 is asserted.
+        """
+        settings, result, _ = quick_run
+        last = settings.study.iterations
+
+        def trace(learner: str) -> float:
+            rows = [r for r in result.records if r["learner"] == learner and r["iteration"] == last]
+            return float(
+                np.mean([sum(r[f"cov_{i}{i}"] for i in range(settings.study.k)) for r in rows])
+            )
+
+        assert trace("AL") < trace("KF")
 
 
-def test_active_learning_shrinks_the_covariance_fastest(quick_run):
-    """What AL optimizes, eq. (A1): its final P is smaller than the random-environment KF's.
+class TestFig4(QuickFigure):
+    figure = "fig4"
 
-    In fig. 4 this is also why the paper's ordering does not reproduce here (see docs/results.md):
-    AL's P collapses so fast that its later gains vanish, and KF and PP end within a few
-    percent of each other, so no ordering of fig. 4 is asserted.
-    """
-    _, settings, result, _ = quick_run
-    last = settings.study.iterations
-
-    def trace(learner: str) -> float:
-        rows = [r for r in result.records if r["learner"] == learner and r["iteration"] == last]
-        return float(
-            np.mean([sum(r[f"cov_{i}{i}"] for i in range(settings.study.k)) for r in rows])
-        )
-
-    assert trace("AL") < trace("KF")
+    def test_kf_c_is_calibrated_where_the_papers_kf_is_not(self, quick_run):
+        """Issue 9's mechanism: the paper's observation model, Φ(ξ*(θ)), expects a correction
+        to show the whole intended change, the biased user shows a fraction, so KF's P shrinks
+        too fast and its mean NEES leaves the χ² band of a calibrated mean; KF-C predicts the
+        correction itself, and its mean NEES stays inside the band at every iteration."""
+        settings, result, _ = quick_run
+        stats = analysis.summarize(settings, result)["calibration"]
+        low, high = stats["KF"]["band"]
+        assert stats["KF"]["mean_nees"][-1] > high, stats["KF"]["mean_nees"]
+        kf_c = stats["KF-C"]
+        assert kf_c["inside_band"] == 1.0, (kf_c["mean_nees"], kf_c["band"])
+        assert kf_c["coverage_2sigma_mean"] > stats["KF"]["coverage_2sigma_mean"]
 
 
-def test_kf_c_is_calibrated_where_the_papers_kf_is_not(quick_run):
-    """Issue 9's mechanism: the paper's observation model, Φ(ξ*(θ)), expects a correction to
-    show the whole intended change, the biased user shows a fraction, so KF's P shrinks too
-    fast and its mean NEES leaves the χ² band of a calibrated mean; KF-C predicts the
-    correction itself, and its mean NEES stays inside the band at every iteration."""
-    figure, settings, result, _ = quick_run
-    if figure != "fig4":
-        pytest.skip("asserted with fig. 4's equal initial uncertainty")
-    stats = analysis.summarize(settings, result)["calibration"]
-    low, high = stats["KF"]["band"]
-    assert stats["KF"]["mean_nees"][-1] > high, stats["KF"]["mean_nees"]
-    assert stats["KF-C"]["inside_band"] == 1.0, (stats["KF-C"]["mean_nees"], stats["KF-C"]["band"])
-    assert stats["KF-C"]["coverage_2sigma_mean"] > stats["KF"]["coverage_2sigma_mean"]
+class TestFig5(QuickFigure):
+    figure = "fig5"
+
+    def test_paper_claims_hold_active_learning_best_and_kalman_below_perceptron(self, quick_run):
+        """Paper §6, fig. 5: KF learns faster than PP, and AL fastest, in error and regret."""
+        _, result, _ = quick_run
+        for key in ("estimate_error", "regret"):
+            pp, kf, al = (_auc(result.records, name, key) for name in ("PP", "KF", "AL"))
+            assert al < kf < pp, f"{key}: AUC AL {al:.3f}, KF {kf:.3f}, PP {pp:.3f}"
+
+
+def test_every_learning_figure_has_its_class():
+    assert {c.figure for c in QuickFigure.__subclasses__()} == set(learning_study.FIGURES)
 
 
 def _check_matrix(

@@ -483,8 +483,9 @@ class Atlas:
         return out
 
 
-#: Off-node plans an :class:`Atlas` keeps per process (about 0.7 kB each at T = 12).
-_MAX_KEPT = 400_000
+#: Off-node plans an :class:`Atlas` keeps per process (0.67 kB each at T = 12: 170 MB at
+#: most; past it, the kept plans are dropped and solved again when asked, with the same bits).
+_MAX_KEPT = 250_000
 
 
 @dataclass(frozen=True)
