@@ -7,7 +7,6 @@ surfacing as a failed Cholesky factorization several iterations later.
 
 from __future__ import annotations
 
-import itertools
 from dataclasses import dataclass
 from typing import Any
 
@@ -155,117 +154,6 @@ class Particles:
 
 
 @dataclass(frozen=True, eq=False)
-class Cells:
-    """The cells of a grid over θ, refined where needed: a box cut into ``counts[i] − 1``
-    cells a weight (level 0, corners at a plan atlas's nodes), each of which may be cut in
-    2^k children (level ℓ + 1, half as wide), down to level ``depth``. Integrals over θ are
-    the trapezoid rule's on every leaf cell (its volume times the mean of its 2^k corners),
-    so a node weighs :meth:`coefficients` (the volumes / 2^k of the leaves it is a corner
-    of); a node shared by cells of several levels is one node.
-
-    Attributes:
-        lows, highs, counts: the box and its nodes a weight at level 0.
-        depth: the finest level allowed.
-        coords: every node's position in units of the finest spacing (n, k), level 0's nodes
-            first in C order, every refinement's new nodes after them (sorted): a node keeps
-            its index when cells are cut.
-        leaves: the leaf cells (m, 1 + k): their level, then their lower corner's coords.
-    """
-
-    lows: tuple[float, ...]
-    highs: tuple[float, ...]
-    counts: tuple[int, ...]
-    depth: int
-    coords: np.ndarray
-    leaves: np.ndarray
-
-    @classmethod
-    def base(cls, lows, highs, counts, depth: int) -> Cells:
-        """Level 0: every node of the box's grid, every cell a leaf."""
-        counts = tuple(int(n) for n in counts)
-        k = len(counts)
-        index = np.stack(
-            np.meshgrid(*[np.arange(n) for n in counts], indexing="ij"), axis=-1
-        ).reshape(-1, k)
-        lower = index[np.all(index < np.array(counts) - 1, axis=1)]
-        leaves = np.concatenate([np.zeros((len(lower), 1), np.int64), lower * 2**depth], axis=1)
-        return cls(
-            tuple(float(v) for v in lows),
-            tuple(float(v) for v in highs),
-            counts,
-            int(depth),
-            index.astype(np.int64) * 2**depth,
-            leaves.astype(np.int64),
-        )
-
-    @property
-    def k(self) -> int:
-        return len(self.counts)
-
-    def unit(self) -> np.ndarray:
-        """The finest spacing (k,): level 0's / 2^depth."""
-        span = np.array(self.highs) - np.array(self.lows)
-        return span / ((np.array(self.counts) - 1) * 2.0**self.depth)
-
-    def spacing(self, level: int) -> np.ndarray:
-        """A level's cell widths (k,)."""
-        return self.unit() * 2 ** (self.depth - level)
-
-    def thetas(self) -> np.ndarray:
-        """Every node's θ (n, k)."""
-        return np.array(self.lows) + self.coords * self.unit()
-
-    def _keys(self, coords: np.ndarray) -> np.ndarray:
-        shape = tuple((np.array(self.counts) - 1) * 2**self.depth + 1)
-        return np.ravel_multi_index(tuple(np.asarray(coords).T), shape)
-
-    def corners(self) -> np.ndarray:
-        """Each leaf's corner nodes (m, 2^k), as indices into :attr:`coords`."""
-        keys = self._keys(self.coords)
-        order = np.argsort(keys)
-        width = 2 ** (self.depth - self.leaves[:, 0])
-        out = []
-        for bits in itertools.product((0, 1), repeat=self.k):
-            at = self.leaves[:, 1:] + np.outer(width, bits)
-            out.append(order[np.searchsorted(keys, self._keys(at), sorter=order)])
-        return np.stack(out, axis=1)
-
-    def coefficients(self) -> np.ndarray:
-        """Each node's trapezoid weight (n,): the volumes / 2^k of the leaves it is a
-        corner of."""
-        volume = np.prod(self.unit()) * (2.0 ** (self.depth - self.leaves[:, 0])) ** self.k
-        out = np.zeros(len(self.coords))
-        for column in self.corners().T:
-            np.add.at(out, column, volume / 2**self.k)
-        return out
-
-    def masses(self, density: np.ndarray) -> np.ndarray:
-        """Each leaf's integral of ``density`` (n,) by the trapezoid rule (m,)."""
-        volume = np.prod(self.unit()) * (2.0 ** (self.depth - self.leaves[:, 0])) ** self.k
-        return volume * density[self.corners()].mean(axis=1)
-
-    def cut(self, which: np.ndarray) -> Cells:
-        """The leaves ``which`` (m,) bool cut in 2^k children each; their new corner nodes
-        appended to :attr:`coords` (sorted), the old keeping their indices."""
-        which = np.asarray(which, bool)
-        chosen = self.leaves[which]
-        if np.any(chosen[:, 0] >= self.depth):
-            raise ValueError(f"Cells.cut: a leaf is already at the finest level {self.depth}")
-        half = 2 ** (self.depth - chosen[:, 0] - 1)
-        children, nodes = [], []
-        for bits in itertools.product((0, 1), repeat=self.k):
-            lower = chosen[:, 1:] + np.outer(half, bits)
-            children.append(np.concatenate([chosen[:, :1] + 1, lower], axis=1))
-        for bits in itertools.product((0, 1, 2), repeat=self.k):
-            nodes.append(chosen[:, 1:] + np.outer(half, bits))
-        candidates = np.unique(np.concatenate(nodes), axis=0)
-        known = np.isin(self._keys(candidates), self._keys(self.coords))
-        coords = np.concatenate([self.coords, candidates[~known]])
-        leaves = np.concatenate([self.leaves[~which], *children])
-        return Cells(self.lows, self.highs, self.counts, self.depth, coords, leaves)
-
-
-@dataclass(frozen=True, eq=False)
 class GridPosterior:
     """An exact learner's posterior over θ on the nodes of a grid (its plan atlas's): the
     :class:`Belief`'s θ̂ and P are its moments.
@@ -277,15 +165,15 @@ class GridPosterior:
             ``scatter``).
         scatter: with N learnt, Σᵢ rᵢ rᵢᵀ at each node (n, k, k), rᵢ = zᵢ − hᵢ(θ); else None.
         count: corrections taken in.
-        cells: the nodes as cells (:class:`Cells`; their trapezoid weights integrate the
-            density), or None: every node weighs the same.
+        cells: the nodes as cells (:class:`~corrections_sim.cells.Cells`; their trapezoid
+            weights integrate the density), or None: every node weighs the same.
     """
 
     thetas: np.ndarray
     log_density: np.ndarray
     scatter: np.ndarray | None = None
     count: int = 0
-    cells: Cells | None = None
+    cells: Any = None  # a corrections_sim.cells.Cells (a sibling of this module)
 
     def __post_init__(self) -> None:
         thetas = np.array(self.thetas, dtype=float, copy=True)

@@ -11,7 +11,7 @@ import csv
 import numpy as np
 import pytest
 
-from corrections_sim.belief import Cells
+from corrections_sim.cells import Cells
 from corrections_sim.cli import main as cli
 from corrections_sim.learning import exact_posterior as ref
 from corrections_sim.planning import atlas as A

@@ -31,7 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
-from corrections_sim.belief import Belief, Cells, PersonBelief
+from corrections_sim.belief import Belief, PersonBelief
+from corrections_sim.cells import Cells
 from corrections_sim.learning import exact_posterior as ref
 from corrections_sim.learning.base import LearnerContext
 from corrections_sim.learning.learners.particles import particle_reference

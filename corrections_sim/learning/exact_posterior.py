@@ -28,7 +28,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import expit
 
-from corrections_sim.belief import Belief, Cells
+from corrections_sim.belief import Belief
+from corrections_sim.cells import Cells
 from corrections_sim.learning import iterated
 
 
@@ -74,7 +75,7 @@ class Grid:
 
 @dataclass(frozen=True)
 class Refinement:
-    """Where to cut a grid posterior's cells (:class:`~corrections_sim.belief.Cells`) finer.
+    """Where to cut a grid posterior's cells (:class:`~corrections_sim.cells.Cells`) finer.
 
     The leaves with a corner where the density is within ``cut`` of its peak are the
     posterior's core; while the core's coarsest level ℓ leaves the posterior's narrowest sd

@@ -11,7 +11,7 @@ reference); the grid truncates the prior to the atlas's box (θ̂⁰ ± ``width`
 Where the posterior grows narrower than the atlas's spacing resolves (fewer than
 ``resolution`` nodes in its narrowest sd), the cells of its core are cut finer
 (:class:`~corrections_sim.learning.exact_posterior.Refinement`; the integrals are the
-trapezoid rule's on every cell, :class:`~corrections_sim.belief.Cells`): ξ*(θ, E) at each new
+trapezoid rule's on every cell, :class:`~corrections_sim.cells.Cells`): ξ*(θ, E) at each new
 node from the atlas (:meth:`Atlas.plans <corrections_sim.planning.atlas.Atlas.plans>`, warm
 from the best corner of its atlas cell), and every correction so far weighed again there (the
 learner keeps them). The reference tool refines the same way, at twice the resolution.
@@ -25,7 +25,6 @@ import numpy as np
 
 from corrections_sim.belief import (
     Belief,
-    Cells,
     CorrectionEntry,
     GridPosterior,
     KalmanNoise,
@@ -33,6 +32,7 @@ from corrections_sim.belief import (
     floored,
     symmetrize,
 )
+from corrections_sim.cells import Cells
 from corrections_sim.components import ParameterError
 from corrections_sim.learning import exact_posterior as ref
 from corrections_sim.learning.base import LearnerContext, Step
