@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import functools
 import itertools
 from dataclasses import dataclass
 
@@ -15,7 +16,7 @@ class Cells:
     cells a weight (level 0, corners at a plan atlas's nodes), each of which may be cut in
     2^k children (level ℓ + 1, half as wide), down to level ``depth``. Integrals over θ are
     the trapezoid rule's on every leaf cell (its volume times the mean of its 2^k corners),
-    so a node weighs :meth:`coefficients` (the volumes / 2^k of the leaves it is a corner
+    so a node weighs :attr:`coefficients` (the volumes / 2^k of the leaves it is a corner
     of); a node shared by cells of several levels is one node.
 
     Attributes:
@@ -74,8 +75,10 @@ class Cells:
         shape = tuple((np.array(self.counts) - 1) * 2**self.depth + 1)
         return np.ravel_multi_index(tuple(np.asarray(coords).T), shape)
 
+    @functools.cached_property
     def corners(self) -> np.ndarray:
-        """Each leaf's corner nodes (m, 2^k), as indices into :attr:`coords`."""
+        """Each leaf's corner nodes (m, 2^k), as indices into :attr:`coords` (computed once,
+        read-only)."""
         keys = self._keys(self.coords)
         order = np.argsort(keys)
         width = 2 ** (self.depth - self.leaves[:, 0])
@@ -83,21 +86,20 @@ class Cells:
         for bits in itertools.product((0, 1), repeat=self.k):
             at = self.leaves[:, 1:] + np.outer(width, bits)
             out.append(order[np.searchsorted(keys, self._keys(at), sorter=order)])
-        return np.stack(out, axis=1)
+        corners = np.stack(out, axis=1)
+        corners.setflags(write=False)
+        return corners
 
+    @functools.cached_property
     def coefficients(self) -> np.ndarray:
         """Each node's trapezoid weight (n,): the volumes / 2^k of the leaves it is a
-        corner of."""
+        corner of (computed once, read-only)."""
         volume = np.prod(self.unit()) * (2.0 ** (self.depth - self.leaves[:, 0])) ** self.k
         out = np.zeros(len(self.coords))
-        for column in self.corners().T:
+        for column in self.corners.T:
             np.add.at(out, column, volume / 2**self.k)
+        out.setflags(write=False)
         return out
-
-    def masses(self, density: np.ndarray) -> np.ndarray:
-        """Each leaf's integral of ``density`` (n,) by the trapezoid rule (m,)."""
-        volume = np.prod(self.unit()) * (2.0 ** (self.depth - self.leaves[:, 0])) ** self.k
-        return volume * density[self.corners()].mean(axis=1)
 
     def cut(self, which: np.ndarray) -> Cells:
         """The leaves ``which`` (m,) bool cut in 2^k children each; their new corner nodes

@@ -279,7 +279,7 @@ def _gaussian(cells: Cells, mean, cov) -> np.ndarray:
 
 def test_cells_integrate_by_the_trapezoid_rule_and_keep_their_nodes_when_cut():
     cells = Cells.base((-1.0, 0.0), (1.0, 4.0), (5, 3), depth=3)
-    assert cells.coefficients().sum() == pytest.approx(2.0 * 4.0)
+    assert cells.coefficients.sum() == pytest.approx(2.0 * 4.0)
     grid = A.AtlasGrid((-1.0, 0.0), (1.0, 4.0), (5, 3))
     assert np.allclose(cells.thetas()[:15], grid.thetas(), rtol=0.0, atol=1e-12)
     which = np.zeros(len(cells.leaves), bool)
@@ -287,10 +287,10 @@ def test_cells_integrate_by_the_trapezoid_rule_and_keep_their_nodes_when_cut():
     finer = cells.cut(which)
     assert np.array_equal(finer.coords[: len(cells.coords)], cells.coords)
     assert len(finer.leaves) == len(cells.leaves) + 2 * 3
-    assert finer.coefficients().sum() == pytest.approx(8.0)
+    assert finer.coefficients.sum() == pytest.approx(8.0)
     # Linear functions are integrated exactly on any cut.
     f = 1.0 + finer.thetas() @ np.array([0.3, -0.2])
-    assert finer.coefficients() @ f == pytest.approx(8.0 * (1.0 + 0.3 * 0.0 - 0.2 * 2.0))
+    assert finer.coefficients @ f == pytest.approx(8.0 * (1.0 + 0.3 * 0.0 - 0.2 * 2.0))
     with pytest.raises(ValueError, match="finest level"):
         Cells.base((0.0,), (1.0,), (3,), depth=0).cut(np.ones(2, bool))
 
@@ -303,7 +303,7 @@ def test_refinement_resolves_a_posterior_narrower_than_the_grid():
     refine = ref.Refinement(resolution=1.0)
 
     def moments(c):
-        return ref.moments(c.thetas(), ref.posterior(_gaussian(c, mean, cov), c.coefficients()))
+        return ref.moments(c.thetas(), ref.posterior(_gaussian(c, mean, cov), c.coefficients))
 
     coarse = moments(cells)
     assert abs(coarse[1][0, 0] - cov[0, 0]) / cov[0, 0] > 0.5

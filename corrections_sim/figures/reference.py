@@ -255,6 +255,8 @@ def reference_run(
         and likelihood.relevance == "none"
         and person is None
     )
+    if resolution is not None and not (np.isfinite(resolution) and resolution >= 0):
+        raise ValueError(f"--resolution {resolution!r}: expected a number >= 0")
     if resolution is not None and resolution > 0 and not refinable:
         raise ValueError(
             f"--resolution {resolution:g}: refines only a KF/KF-C-type model's grid on a study "
@@ -286,7 +288,7 @@ def reference_run(
     for row in rows[1:]:
         start = None
         if one_step or restarts:
-            at = None if cells is None else cells.coefficients()
+            at = None if cells is None else cells.coefficients
             start = ref.moments(thetas, ref.posterior(log_p, at))
         t = int(row["iteration"])
         for s in restarts:
@@ -380,7 +382,7 @@ def reference_run(
                             new_p = new_p + ref.gaussian_log_likelihood(seen_z, seen_h, noise)
                         log_p = log_post = np.concatenate([log_p, new_p])
                     cells, thetas = finer, finer.thetas()
-        coefficients = None if cells is None else cells.coefficients()
+        coefficients = None if cells is None else cells.coefficients
         belief = _belief(row, k)
         if log_post is None:  # the particles are the reference
             weights = None

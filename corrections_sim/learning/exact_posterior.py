@@ -109,11 +109,11 @@ class Refinement:
         with np.errstate(invalid="ignore"):
             density = np.exp(np.asarray(log_density, float) - np.max(log_density))
         density = np.where(np.isfinite(density), density, 0.0)
-        core = np.flatnonzero(density[cells.corners()].max(axis=1) >= np.exp(-self.cut))
+        core = np.flatnonzero(density[cells.corners].max(axis=1) >= np.exp(-self.cut))
         level = int(cells.leaves[core, 0].min())
         if level >= cells.depth:
             return None
-        weights = cells.coefficients() * density
+        weights = cells.coefficients * density
         _, cov = moments(cells.thetas(), weights / weights.sum())
         scale = 1.0 / cells.spacing(level)
         narrowest = float(np.linalg.eigvalsh(scale[:, None] * cov * scale[None, :])[0])
@@ -228,9 +228,9 @@ def kl_to_gaussian(
 ) -> float:
     """KL(reference ‖ N(θ̂, P)) in nats, the reference's density w / the volume a node
     weighs (``coefficients``, a refined grid's trapezoid weights; None: ``grid``'s cell)."""
-    volume = float(np.prod(grid.spacing)) if coefficients is None else coefficients
+    volume = np.prod(grid.spacing) if coefficients is None else np.asarray(coefficients)
     keep = weights > 0
-    density = weights[keep] / (volume if coefficients is None else volume[keep])
+    density = weights[keep] / (volume if volume.ndim == 0 else volume[keep])
     k = thetas.shape[1]
     d = thetas[keep] - belief.theta
     _, logdet = np.linalg.slogdet(belief.cov)

@@ -96,7 +96,7 @@ class ExactCorrectionAware(CorrectionAwareKalman):
         plans = atlas.plans(before.thetas, env)
         h = self.observation().at_plans(plans, plan.trajectory, env, ctx.features)
         z = np.asarray(phi_h, float)
-        coefficients = before.cells.coefficients()
+        coefficients = before.cells.coefficients
         weights = ref.posterior(self._log_posterior(before, belief), coefficients)
         seen = np.all(np.isfinite(h), axis=1) & (weights > 0)
         if not seen.any():
@@ -114,11 +114,11 @@ class ExactCorrectionAware(CorrectionAwareKalman):
             noise_mean = w @ self._noise_means(before, belief)[seen].reshape(len(w), -1)
             noise = noise_mean.reshape(z.size, z.size)
         else:
-            noise = ctx.noise.observation
+            noise = noise_n
         history = (*history, CorrectionEntry(env, plan.trajectory, z, noise_n))
         after = self._refined(ctx, after, history, belief)
         log_post = self._log_posterior(after, belief)
-        mean, cov = _moments(after.thetas, ref.posterior(log_post, after.cells.coefficients()))
+        mean, cov = _moments(after.thetas, ref.posterior(log_post, after.cells.coefficients))
         new = Belief(theta=mean, cov=cov, noise=belief.noise, history=history, grid=after)
         return Step(new, None, z - plan.features, symmetrize(spread + noise))
 
