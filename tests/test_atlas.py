@@ -117,3 +117,27 @@ def test_the_store_reads_back_what_it_wrote_and_rebuilds_a_bad_file(planner, sma
         A.atlas_key(planner.config, paper_environments()[8], grid, cold_stride=2),
         A.atlas_key(planner.config, env, grid, cold_stride=3),
     }) == 4  # fmt: skip
+
+
+def test_plans_between_nodes_are_kept_for_the_next_process_and_a_bad_shard_is_skipped(
+    planner, small, tmp_path
+):
+    """Off-node plans an atlas solved, saved, are what a fresh atlas on the same store answers
+    without solving (bit-identical); a shard whose bytes changed is refused by its checksum,
+    said, and its plans solved again."""
+    env, grid, built = small
+    thetas = np.array([[0.3, -0.7], [1.1, 0.4], [-1.7, 1.9]])
+    first = A.Atlas(planner, grid, store=A.AtlasStore(tmp_path), cold_stride=2)
+    first.hold(env, built)
+    solved = first.plans(thetas, env)
+    assert first.save() == 3 and first.save() == 0  # nothing new the second time
+    (shard,) = tmp_path.glob("*.extra-*.npz")
+    second = A.Atlas(planner, grid, store=A.AtlasStore(tmp_path), cold_stride=2)
+    second.hold(env, built)
+    second.solve = lambda *args, **kwargs: pytest.fail("solved again")
+    assert np.array_equal(second.plans(thetas, env), solved, equal_nan=True)
+    shard.write_bytes(shard.read_bytes()[:-10])
+    third = A.Atlas(planner, grid, store=A.AtlasStore(tmp_path), cold_stride=2)
+    third.hold(env, built)
+    assert np.array_equal(third.plans(thetas, env), solved, equal_nan=True)
+    assert "checksum" in third.store.rejected[-1][1]

@@ -276,7 +276,7 @@ def reference_run(
     if engine is not None:
         cloud = engine.initial(study.prior(), study.noise())
         ctx = LearnerContext(
-            book=PlanBook(planner, warm_start=study.warm_start),
+            book=PlanBook(planner, warm_start=study.warm_start, atlas=study_atlas),
             envs=tuple(envs.values()),
             features=names,
             n_waypoints=planner.config.n_waypoints,
@@ -405,7 +405,9 @@ def reference_run(
         )
         rec["ref_kl_gaussian"] = ref.gaussian_kl(mean, cov, belief)
         if engine is not None and weights is not None:
-            rec |= _particles_against_grid(cloud.particles, thetas, weights, mean, cov)
+            rec |= _particles_against_grid(
+                cloud.particles, thetas, weights, mean, cov, coefficients
+            )
         if judged:
             rec["relevance"] = float(row["relevance"]) if row.get("relevance") else None
             rec |= judged
@@ -421,13 +423,13 @@ def reference_run(
     return out
 
 
-def _particles_against_grid(cloud, thetas, weights, mean, cov) -> dict:
+def _particles_against_grid(cloud, thetas, weights, mean, cov, coefficients=None) -> dict:
     """How far the particles are from the grid reference: KL (the particles smoothed on the
-    grid), moments."""
+    grid, its refined cells' volumes ``coefficients`` if any), moments."""
     p_mean, p_cov = cloud.moments()
     sd = np.sqrt(np.diag(cov))
     return {
-        "particle_kl": smoothed_kl(thetas, weights, cloud),
+        "particle_kl": smoothed_kl(thetas, weights, cloud, coefficients),
         "particle_mean_gap": float(np.max(np.abs(p_mean - mean) / sd)),
         "particle_var_gap": float(np.max(np.abs(np.diag(p_cov) - np.diag(cov)) / np.diag(cov))),
         "particle_ess": cloud.effective_size(),

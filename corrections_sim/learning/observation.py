@@ -63,6 +63,20 @@ class Observation(abc.ABC):
         """The trajectory whose features h is, given the plan ξ*(θ, E) (the plan itself)."""
         return plan
 
+    def at_waypoints(
+        self,
+        plans: np.ndarray,
+        features: np.ndarray,
+        robot: np.ndarray | None,
+        env: Environment,
+        names: Sequence[str],
+    ) -> np.ndarray:
+        """h given the plans ``plans`` (n, T, 7) and their waypoints' features ``features``
+        (n, T, k) (e.g. both read off a plan atlas): the sum of the waypoints' features
+        where the shown trajectory's waypoints are the plan's or the robot's own (no
+        kinematics), else :meth:`at_plans`'s. (n, k), NaN where a plan is NaN."""
+        return features.sum(axis=1)
+
 
 @dataclass(frozen=True)
 class PlanFeatures(Observation):
@@ -90,6 +104,15 @@ class CorrectedPlanFeatures(Observation):
         if robot is None:
             raise ValueError("a correction model's observation needs the robot's trajectory")
         return self.model.apply(robot, plan)
+
+    def at_waypoints(self, plans, features, robot, env, names) -> np.ndarray:
+        if robot is None:
+            raise ValueError("a correction model's observation needs the robot's trajectory")
+        taken = self.model.taken(robot, plans)
+        if taken is None:
+            return self.at_plans(plans, robot, env, names)
+        own = waypoint_features(robot, env.params(), tuple(names))  # (T, k)
+        return np.where(taken[:, :, None], features, own[None]).sum(axis=1)
 
     def observe(self, book, env, robot, names) -> Observe:
         if robot is None:

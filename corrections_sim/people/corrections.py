@@ -192,6 +192,13 @@ class CorrectionModel(abc.ABC):
         explanation does not jump when another waypoint becomes the worst."""
         return self.apply(robot, intended)[rows]
 
+    def taken(self, robot: np.ndarray, intended: np.ndarray) -> np.ndarray | None:
+        """Which waypoints of ξ_h are ξ*'s own, for many ξ* at once (``intended`` (n, T, n_j))
+        -> (n, T) bool, when every other waypoint is the robot's (then Φ(ξ_h) needs no
+        kinematics beyond ξ*'s and ξ's own waypoints); None for a model that moves waypoints
+        elsewhere (a deformation, a partial step)."""
+        return None
+
 
 CORRECTIONS: Registry[type[CorrectionModel]] = Registry("correction model", base=CorrectionModel)
 """Every correction model by name."""
@@ -233,6 +240,18 @@ class WaypointCorrection(CorrectionModel):
     def apply(self, robot: np.ndarray, intended: np.ndarray) -> np.ndarray:
         return waypoint_correction(robot, intended, self.step, self.waypoints)
 
+    def taken(self, robot: np.ndarray, intended: np.ndarray) -> np.ndarray | None:
+        """The worst ``waypoints`` of each ξ*, when the step is whole (ties to the lower
+        index, as :func:`worst_waypoints`)."""
+        if self.step != 1.0:
+            return None
+        errors = np.linalg.norm(np.asarray(intended, float) - robot[None], axis=2)
+        errors[:, 0] = errors[:, -1] = -np.inf  # start and goal are fixed
+        order = np.argsort(-errors, axis=1, kind="stable")[:, : self.waypoints]
+        mask = np.zeros(errors.shape, bool)
+        np.put_along_axis(mask, order, True, axis=1)
+        return mask
+
 
 @register_correction("deform")
 @dataclass(frozen=True)
@@ -260,3 +279,6 @@ class OptimalCorrection(CorrectionModel):
     def apply(self, robot: np.ndarray, intended: np.ndarray) -> np.ndarray:
         _check_pair(robot, intended)
         return np.array(intended, dtype=float)
+
+    def taken(self, robot: np.ndarray, intended: np.ndarray) -> np.ndarray | None:
+        return np.ones(np.shape(intended)[:2], bool)

@@ -367,6 +367,40 @@ class AtlasStore:
         os.replace(tmp, self.root / f"{key}.json")
         return data_path
 
+    def load_extra(self, key: str, T: int, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """Every off-node plan kept for the atlas ``key`` (:meth:`save_extra`): θ (n, k) and
+        trajectories (n, T, 7), NaN where no start converged; a shard whose content does not
+        match its checksum, or of another shape, is reported (:attr:`rejected`) and skipped."""
+        thetas, plans = [np.zeros((0, k))], [np.zeros((0, T, 7))]
+        for path in sorted(self.root.glob(f"{key}.extra-*.npz")):
+            try:
+                digest = path.name[len(key) + len(".extra-") : -len(".npz")]
+                if hashlib.sha256(path.read_bytes()).hexdigest()[:16] != digest:
+                    raise ValueError("its data does not match its checksum (truncated or changed)")
+                with np.load(path) as data:
+                    t, p = data["thetas"], data["plans"]
+                if t.shape[1:] != (k,) or p.shape != (len(t), T, 7):
+                    raise ValueError(f"shapes {t.shape}, {p.shape}")
+            except (OSError, ValueError, KeyError) as exc:
+                self.rejected.append((path.name, str(exc).splitlines()[0]))
+                continue
+            thetas.append(t)
+            plans.append(p)
+        return np.concatenate(thetas), np.concatenate(plans)
+
+    def save_extra(self, key: str, thetas: np.ndarray, plans: np.ndarray) -> Path:
+        """Off-node plans of the atlas ``key`` (θ (n, k), trajectories (n, T, 7)), as a shard of
+        their own named by its checksum (written atomically; shards only add up: every plan
+        is a function of (θ, E), so two processes that solved the same θ wrote the same)."""
+        self.root.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=self.root, suffix=".npz.tmp")
+        with os.fdopen(fd, "wb") as fh:
+            np.savez(fh, thetas=np.asarray(thetas, float), plans=np.asarray(plans, float))
+        digest = hashlib.sha256(Path(tmp).read_bytes()).hexdigest()[:16]
+        path = self.root / f"{key}.extra-{digest}.npz"
+        os.replace(tmp, path)
+        return path
+
 
 def _num(v: float) -> float | str:
     return float(v) if np.isfinite(v) else str(float(v))
@@ -411,12 +445,21 @@ class Atlas:
         self.store = store
         self.cold_stride = cold_stride
         self._atlases: dict[bytes, EnvironmentAtlas] = {}
-        self._between: dict[tuple[bytes, bytes], np.ndarray | None] = {}
+        # Per environment: the off-node plans known (θ bytes -> trajectory, None where no
+        # start converged), and those not yet in the store.
+        self._between: dict[bytes, dict[bytes, np.ndarray | None]] = {}
+        self._unsaved: dict[bytes, list[bytes]] = {}
+        self._kept = 0
+        self._env_keys: dict[bytes, str] = {}
         #: Problems answered outside the box (the planner's cold starts).
         self.outside = 0
 
     def key(self, env: Environment) -> str:
-        return atlas_key(self.planner.config, env, self.grid, cold_stride=self.cold_stride)
+        found = self._env_keys.get(env.key())
+        if found is None:
+            found = atlas_key(self.planner.config, env, self.grid, cold_stride=self.cold_stride)
+            self._env_keys[env.key()] = found
+        return found
 
     def hold(self, env: Environment, built: EnvironmentAtlas) -> None:
         """Keep E's atlas built elsewhere (e.g. by a benchmark's pool) for this process."""
@@ -456,8 +499,9 @@ class Atlas:
     def plans(self, thetas: np.ndarray, env: Environment) -> np.ndarray:
         """ξ*(θ, E) at many θ (n, k) as trajectories (n, T, 7), NaN where no start converges:
         a node's stored plan where θ is one of the grid's nodes, else :meth:`solve`'s answer,
-        kept for this process (the answer depends on (θ, E) alone, so keeping it changes no
-        number: it spares a refined grid's nodes a second solve in the next run)."""
+        kept for this process and, once :meth:`save`d, for every later process on the machine
+        (the answer depends on (θ, E) alone, so keeping it changes no number: it spares a
+        refined grid's nodes and a particle learner's cells a second solve)."""
         thetas = np.atleast_2d(np.asarray(thetas, float))
         grid, built = self.grid, self.environment(env)
         out = np.full((len(thetas), self.planner.config.n_waypoints, 7), np.nan)
@@ -470,25 +514,69 @@ class Atlas:
         if on.any():
             nodes = np.ravel_multi_index(tuple(index[on].astype(int).T), grid.counts)
             out[on] = built.trajectories[nodes]
-        key = env.key()
+        known = self._known(env)
+        unsaved = self._unsaved.setdefault(env.key(), [])
         for i in np.flatnonzero(~on).tolist():
-            memo = (key, thetas[i].tobytes())
-            if memo not in self._between:
-                if len(self._between) >= _MAX_KEPT:
-                    self._between.clear()
+            memo = thetas[i].tobytes()
+            if memo not in known:
                 try:
-                    self._between[memo] = self.solve(thetas[i], env).trajectory
+                    known[memo] = self.solve(thetas[i], env).trajectory
                 except PlanningError:
-                    self._between[memo] = None
-            plan = self._between[memo]
+                    known[memo] = None
+                unsaved.append(memo)
+                self._kept += 1
+            plan = known[memo]
             if plan is not None:
                 out[i] = plan
         return out
 
+    def _known(self, env: Environment) -> dict[bytes, np.ndarray | None]:
+        """E's off-node plans known to this process, read from the store on first use (past
+        :data:`_MAX_KEPT` in all, unsaved ones saved and every environment's dropped, to be
+        read again when asked)."""
+        if self._kept >= _MAX_KEPT:
+            self.save()
+            self._between.clear()
+            self._kept = 0
+        known = self._between.get(env.key())
+        if known is None:
+            known = self._between[env.key()] = {}
+            if self.store is not None:
+                T = self.planner.config.n_waypoints
+                thetas, plans = self.store.load_extra(self.key(env), T, self.grid.k)
+                for theta, plan in zip(thetas, plans, strict=True):
+                    known[theta.tobytes()] = plan if np.all(np.isfinite(plan)) else None
+                self._kept += len(thetas)
+        return known
 
-#: Off-node plans an :class:`Atlas` keeps per process (0.67 kB each at T = 12: 170 MB at
-#: most; past it, the kept plans are dropped and solved again when asked, with the same bits).
-_MAX_KEPT = 250_000
+    def save(self, at_least: int = 1) -> int:
+        """Write to the store the off-node plans solved here and not yet saved, one shard per
+        environment with at least ``at_least`` of them, so that the next process on this
+        machine reads them instead of solving them again (nothing without a store). Returns
+        how many were written."""
+        if self.store is None:
+            return 0
+        written = 0
+        for env_key, memos in self._unsaved.items():
+            if len(memos) < max(1, at_least):
+                continue
+            known = self._between.get(env_key, {})
+            kept = [m for m in memos if m in known]
+            T = self.planner.config.n_waypoints
+            if kept:
+                thetas = np.array([np.frombuffer(m) for m in kept])
+                plans = np.array(
+                    [np.full((T, 7), np.nan) if known[m] is None else known[m] for m in kept]
+                )
+                self.store.save_extra(self._env_keys[env_key], thetas, plans)
+                written += len(kept)
+            memos.clear()
+        return written
+
+
+#: Off-node plans an :class:`Atlas` keeps per process (0.67 kB each at T = 12: 670 MB at
+#: most; past it, they are saved and dropped, and read again from the store when asked).
+_MAX_KEPT = 1_000_000
 
 
 @dataclass(frozen=True)

@@ -88,7 +88,8 @@ def run_one(
     load_plugins(settings.plugins)
     s = settings.study
     seq = np.random.SeedSequence([s.seed, LEARNERS[learner].stream, run])
-    return run_learner(
+    atlas = settings.atlas()
+    result = run_learner(
         learner,
         run,
         s,
@@ -100,8 +101,16 @@ def run_one(
         alphas=alphas,
         known=shared.prior,
         plan_book=plan_book,
-        atlas=settings.atlas(),
+        atlas=atlas,
     )
+    if atlas is not None:  # the plans it solved between the nodes, for the next process
+        atlas.save(at_least=SAVE_AT_LEAST)
+    return result
+
+
+#: Off-node plans of an environment a run leaves unsaved before they go to the store (a
+#: shard a file; fewer wait for the next run of the process).
+SAVE_AT_LEAST = 200
 
 
 def mean_estimate_chain(

@@ -75,6 +75,8 @@ def run_reference(args: argparse.Namespace) -> list[Path]:
                 resolution=args.resolution,
             )
             print(f"run {run}: done", file=sys.stderr, flush=True)
+            if settings.atlas() is not None:  # the plans solved between nodes, kept
+                settings.atlas().save()
     except (OSError, KeyError, ValueError) as exc:
         raise UsageError(str(exc)) from None
     path = write_records(folder / f"reference-{learner}.csv", records)

@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,6 +29,9 @@ from corrections_sim.learning.particles import belief_of as particles_belief
 from corrections_sim.learning.particles import correct as particles_correct
 from corrections_sim.learning.particles import draw as particles_draw
 from corrections_sim.people.corrections import OptimalCorrection
+from corrections_sim.planning.atlas import Atlas
+from corrections_sim.planning.features import waypoint_features
+from corrections_sim.planning.interpolation import CellInterpolant, check_tolerance, interpolant
 from corrections_sim.planning.planner import Plan, PlanningError
 from corrections_sim.scene.environments import Environment
 
@@ -35,18 +39,29 @@ from corrections_sim.scene.environments import Environment
 @dataclass(frozen=True)
 class ParticleCorrectionAware(CorrectionAwareKalman):
     """A particle learner under KF-C's model: particles over θ from the prior, each weighed
-    by every correction's likelihood N(Φ_h; hₜ(θ), N) (one plan per particle, warm from the
-    run's nearest planned θ), resampled when the effective sample size falls below
-    ``resample_below`` × the count, and then moved by ``moves`` random-walk Metropolis steps
-    that re-evaluate every past correction (:mod:`~corrections_sim.learning.particles`). Its
-    mean and covariance are the belief every consumer reads. θ is static (no process noise
-    M, as in the exact reference); its random draws come from a child of the run's generator
-    (``rng.spawn``), so the person's draws are the same as for every other learner.
+    by every correction's likelihood N(Φ_h; hₜ(θ), N), resampled when the effective sample
+    size falls below ``resample_below`` × the count, and then moved by ``moves`` random-walk
+    Metropolis steps that re-evaluate every past correction
+    (:mod:`~corrections_sim.learning.particles`). Its mean and covariance are the belief every
+    consumer reads. θ is static (no process noise M, as in the exact reference); its random
+    draws come from a child of the run's generator (``rng.spawn``), so the person's draws are
+    the same as for every other learner.
+
+    hₜ at a particle: one plan a particle from the run's plan book (on a study with a plan
+    atlas, the atlas's answer). With ``interpolation`` set, on a study with an atlas, read off
+    the atlas instead (:func:`waypoint_table`): multilinear within the cells where that is
+    within ``interpolation`` noise sds of the solved plans' at every probe (edge midpoints,
+    centre), cells cut down to ``max_level`` where it is not, a solve of its own where a cell
+    stays untrusted (docs/atlas.md says what that costs on fig. 4: more than it saves, for
+    now).
 
     Attributes:
         particles: how many (>= 2).
         moves: Metropolis steps per particle after a resample (>= 0).
         resample_below: resample once ESS < this × the count, in (0, 1].
+        interpolation: the interpolation's error bound, in sds of the noise N (> 0); None
+            (the default): every particle's plan solved (the atlas's answer).
+        max_level: the finest interpolation cell, the atlas's spacing / 2^max_level.
     """
 
     label = "Particle filter, KF-C's model (PF-C)"
@@ -55,11 +70,22 @@ class ParticleCorrectionAware(CorrectionAwareKalman):
     particles: int = 200
     moves: int = 2
     resample_below: float = 0.5
+    interpolation: float | None = None
+    max_level: int = 4
 
     def __post_init__(self) -> None:
         super().__post_init__()
         require_count("particles", self.particles, 2)
         require_count("moves", self.moves, 0)
+        require_count("max_level", self.max_level, 0)
+        if self.interpolation is not None:
+            try:
+                check_tolerance(self.interpolation)
+            except ValueError:
+                raise ParameterError(
+                    "interpolation",
+                    f"an error bound must be a number > 0 (or absent), got {self.interpolation!r}",
+                ) from None
         threshold = self.resample_below
         ok = isinstance(threshold, int | float) and not isinstance(threshold, bool)
         if not (ok and 0.0 < threshold <= 1.0):
@@ -84,6 +110,29 @@ class ParticleCorrectionAware(CorrectionAwareKalman):
                 continue
         return h
 
+    def likelihood_means(
+        self, ctx: LearnerContext, env: Environment, robot: np.ndarray
+    ) -> Callable[[np.ndarray], np.ndarray]:
+        """hₜ at particles (n, k) -> (n, k), NaN where no plan exists, for a correction in
+        ``env`` to ``robot`` (T, 7): off the study's atlas where it has one (class docstring),
+        else a plan per particle from the run's book."""
+        atlas = ctx.book.atlas
+        if atlas is None or self.interpolation is None:
+            observe = self.observer_of(ctx, env, robot)
+            return lambda thetas: self.predict(observe, thetas)
+        observation, names = self._observation(), tuple(ctx.features)
+        sd = np.sqrt(np.diag(ctx.noise.observation))
+        table = waypoint_table(atlas, env, names, sd, self.interpolation, self.max_level)
+        T = atlas.planner.config.n_waypoints
+
+        def h(thetas: np.ndarray) -> np.ndarray:
+            values = table(thetas)
+            plans = values[:, : T * 7].reshape(-1, T, 7)
+            features = values[:, T * 7 :].reshape(-1, T, len(names))
+            return observation.at_waypoints(plans, features, robot, env, names)
+
+        return h
+
     def update(
         self, ctx: LearnerContext, belief: Belief, env: Environment, plan: Plan, phi_h: np.ndarray
     ) -> Step:
@@ -93,7 +142,7 @@ class ParticleCorrectionAware(CorrectionAwareKalman):
         cloud = belief.particles or particles_draw(prior, self.particles, rng)
         z = np.asarray(phi_h, float)
         noise = ctx.noise.observation
-        h = self.predict(self.observer_of(ctx, env, plan.trajectory), cloud.thetas)
+        h = self.likelihood_means(ctx, env, plan.trajectory)(cloud.thetas)
         # What it expected before the correction: the particles' predictive mean and spread.
         seen = np.all(np.isfinite(h), axis=1)
         if not seen.any():
@@ -103,13 +152,13 @@ class ParticleCorrectionAware(CorrectionAwareKalman):
         spread = (w[:, None] * (h[seen] - expected)).T @ (h[seen] - expected)
         entry = CorrectionEntry(env, plan.trajectory, z, noise)
         past = [*belief.history[1:], entry]
-        observers = [(self.observer_of(ctx, s.env, s.robot), s.phi_h, s.noise) for s in past]
+        means = [(self.likelihood_means(ctx, s.env, s.robot), s.phi_h, s.noise) for s in past]
 
         def log_total(thetas: np.ndarray) -> tuple[np.ndarray, int]:
             total = np.zeros(len(thetas))
-            for observe_i, zi, ni in observers:
-                total += particle_likelihood(zi, self.predict(observe_i, thetas), ni)
-            return total, len(thetas) * len(observers)
+            for h_i, zi, ni in means:
+                total += particle_likelihood(zi, h_i(thetas), ni)
+            return total, len(thetas) * len(means)
 
         inverse = np.linalg.inv(prior.cov)
 
@@ -145,6 +194,49 @@ class ParticleActive(ActiveMixin, ParticleCorrectionAware):
     style = ("#ff7f0e", ":")
 
 
+def waypoint_table(
+    atlas: Atlas,
+    env: Environment,
+    names: tuple[str, ...],
+    sd: np.ndarray,
+    tolerance: float,
+    max_level: int,
+) -> CellInterpolant:
+    """ξ*(θ, E)'s waypoints and their features, (T·7 + T·k) a θ, read off the atlas
+    (:class:`~corrections_sim.planning.interpolation.CellInterpolant`), a cell trusted where
+    both the sum over waypoints of the features' error and the largest waypoint's are within
+    ``tolerance`` × ``sd`` (the noise's) on every feature: a bound on the error of Φ(ξ*) and
+    of Φ(ξ_h) when ξ_h takes one waypoint of ξ* and the others from the robot (n waypoints:
+    n × the bound; :meth:`~corrections_sim.people.corrections.CorrectionModel.taken`). It
+    depends on the environment alone, not on the correction, so every correction, run and
+    learner of this process in E shares it (kept per process: keeping it changes no
+    number)."""
+    T, k = atlas.planner.config.n_waypoints, len(names)
+    params = env.params()
+
+    def values(plans: np.ndarray) -> np.ndarray:
+        n = len(plans)
+        features = np.full((n, T, k), np.nan)
+        finite = np.all(np.isfinite(plans), axis=(1, 2))
+        if finite.any():
+            flat = waypoint_features(plans[finite].reshape(-1, 7), params, names)
+            features[finite] = flat.reshape(-1, T, k)
+        return np.concatenate([plans.reshape(n, -1), features.reshape(n, -1)], axis=1)
+
+    def measure(differences: np.ndarray) -> np.ndarray:
+        features = differences[..., T * 7 :].reshape(*differences.shape[:-1], T, k)
+        worst = np.maximum(np.abs(features.sum(axis=-2)), np.abs(features).max(axis=-2))
+        return np.max(worst / sd, axis=-1)
+
+    key = ("waypoints", atlas.key(env), names, sd.tobytes(), tolerance, max_level)
+    return interpolant(
+        key,
+        lambda: CellInterpolant(
+            atlas, env, values, measure, tolerance=tolerance, max_level=max_level
+        ),
+    )
+
+
 def particle_reference(learner: Learner, name: str, count: int) -> ParticleCorrectionAware:
     """PF-C with ``count`` particles under ``learner``'s likelihood (KF's is KF-C's with the
     correction C = ξ*), as the reference of a learner at k > 2 where no grid is; ValueError
@@ -159,5 +251,10 @@ def particle_reference(learner: Learner, name: str, count: int) -> ParticleCorre
             f"learner {name}: a particle reference needs a KF or KF-C type learner, N fixed"
         )
     correction = likelihood.correction or OptimalCorrection()
-    moves = learner.moves if isinstance(learner, ParticleCorrectionAware) else 2
-    return ParticleCorrectionAware(model=correction, particles=count, moves=moves)
+    if not isinstance(learner, ParticleCorrectionAware):
+        return ParticleCorrectionAware(model=correction, particles=count)
+    # The learner's own moves and interpolation, ``count`` particles.
+    kept = ("moves", "resample_below", "interpolation", "max_level")
+    return ParticleCorrectionAware(
+        model=correction, particles=count, **{name: getattr(learner, name) for name in kept}
+    )
