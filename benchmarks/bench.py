@@ -385,7 +385,10 @@ def main(argv: Sequence[str] | None = None) -> None:
         "hand catches the moving handle on the physical page, against a binomial bar "
         "(--problems tries, default 62). 'atlas': the plan atlas of fig. 4's planner over "
         "its prior box (build time, size) and its plans' optimality against random restarts "
-        "(--problems off-grid problems, default 200; --envs, --grid).",
+        "(--problems off-grid problems, default 200; --envs, --grid). 'particles': PF-C's "
+        "likelihood read off fig. 4's atlas against solved plans (accuracy in --envs "
+        "environments, default 4) and its CPU a correction (--problems runs, default 4; "
+        "--particles, default 2000; --bound in noise sd, default 0.02).",
     )
     parser.add_argument(
         "what",
@@ -402,6 +405,7 @@ def main(argv: Sequence[str] | None = None) -> None:
             "questionnaire",
             "catch",
             "atlas",
+            "particles",
         ],
         help="which benchmark to run",
     )
@@ -409,6 +413,15 @@ def main(argv: Sequence[str] | None = None) -> None:
         "--envs", type=int, default=48, help="atlas: the first N paper environments (default 48)"
     )
     parser.add_argument("--grid", type=int, default=31, help="atlas: points a weight (default 31)")
+    parser.add_argument(
+        "--particles", type=int, default=2000, help="particles: PF-C's count (default 2000)"
+    )
+    parser.add_argument(
+        "--bound",
+        type=float,
+        default=0.02,
+        help="particles: the interpolation's error bound in noise sd (default 0.02)",
+    )
     parser.add_argument(
         "--learners",
         help="interact: the learners, one session each (default KF-CL,KF-C,BP); relevance: "
@@ -586,6 +599,16 @@ def main(argv: Sequence[str] | None = None) -> None:
             seed=0 if args.seed is None else args.seed,
         )
         print("\n".join(report_atlas(bench)), flush=True)
+        return
+    if args.what == "particles":
+        from benchmarks.bench_particles import run_bench as run_particles
+
+        runs = 4 if args.problems is None else args.problems
+        envs = 4 if args.envs == 48 else args.envs
+        if runs < 1 or args.particles < 2 or not args.bound > 0 or not 1 <= envs <= 48:
+            parser.error("particles: --problems >= 1, --particles >= 2, --bound > 0, --envs 1-48")
+        seed = 0 if args.seed is None else args.seed
+        print("\n".join(run_particles(args.particles, runs, args.bound, envs, seed)), flush=True)
         return
     if args.what == "catch":
         from benchmarks.bench_catch import report as report_catch
