@@ -417,6 +417,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         "--particles", type=int, default=2000, help="particles: PF-C's count (default 2000)"
     )
     parser.add_argument(
+        "--moves", type=int, default=2, help="particles: PF-C's Metropolis moves (default 2)"
+    )
+    parser.add_argument(
         "--bound",
         type=float,
         default=0.02,
@@ -607,8 +610,11 @@ def main(argv: Sequence[str] | None = None) -> None:
         envs = 4 if args.envs == 48 else args.envs
         if runs < 1 or args.particles < 2 or not args.bound > 0 or not 1 <= envs <= 48:
             parser.error("particles: --problems >= 1, --particles >= 2, --bound > 0, --envs 1-48")
+        if args.moves < 0:
+            parser.error("particles: --moves >= 0")
         seed = 0 if args.seed is None else args.seed
-        print("\n".join(run_particles(args.particles, runs, args.bound, envs, seed)), flush=True)
+        lines = run_particles(args.particles, runs, args.bound, envs, seed, args.moves)
+        print("\n".join(lines), flush=True)
         return
     if args.what == "catch":
         from benchmarks.bench_catch import report as report_catch

@@ -9,9 +9,10 @@ Two parts, each in this process:
   plans (the robot's trajectory: the atlas's plan at a random θ), in noise sds: median, 99th
   percentile, largest, the share within the bound; and what the cells cost (cells checked,
   plans they needed, θ solved one by one, CPU);
-* **runs**: PF-C with ``count`` particles and the bound, ``runs`` runs of fig. 4 one after
-  another: CPU seconds a correction (the run's robot plans and regret included, which every
-  learner pays), the cells checked and the particles solved one by one so far.
+* **runs**: PF-C with ``count`` particles, ``moves`` Metropolis moves and the bound, ``runs``
+  runs of fig. 4 one after another: CPU seconds a correction (the run's robot plans and
+  regret included, which every learner pays), the cells checked and the particles solved one
+  by one so far.
 
 The plans the cells need are kept on disk (``Atlas.save``), so a second invocation on the
 same machine measures the warm cost; the first line says how many were already there. It
@@ -33,13 +34,19 @@ from corrections_sim.study import runner
 
 
 def run_bench(
-    count: int = 2000, runs: int = 4, bound: float = 0.02, envs: int = 4, seed: int = 0
+    count: int = 2000,
+    runs: int = 4,
+    bound: float = 0.02,
+    envs: int = 4,
+    seed: int = 0,
+    moves: int = 2,
 ) -> list[str]:
     overrides = {
         "runs": runs,
         "learners": ["PF-C"],
         "learners.PF-C.particles": count,
         "learners.PF-C.interpolation": bound,
+        "learners.PF-C.moves": moves,
     }
     settings = load_settings("fig4", quick=False, overrides=overrides)
     shared = runner.prepare(settings)
@@ -54,7 +61,7 @@ def run_bench(
     lines = [
         f"fig. 4's atlas {atlas.grid.counts} over {atlas.grid.lows}..{atlas.grid.highs}; "
         f"{stored} plans between nodes already on disk; bound {bound} noise sd, "
-        f"{count} particles",
+        f"{count} particles, {moves} moves",
         f"{'environment':12} {'median':>7} {'p99':>7} {'max':>7} {'within':>7} {'cells':>6} "
         f"{'plans':>6} {'solved':>6} {'CPU s':>6}",
     ]
