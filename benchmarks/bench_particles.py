@@ -57,7 +57,8 @@ def run_bench(
     T = atlas.planner.config.n_waypoints
     observation = CorrectedPlanFeatures(WaypointCorrection())
     rng = np.random.default_rng(seed)
-    stored = sum(len(atlas.store.load_extra(atlas.key(e), T, study.k)[0]) for e in settings.envs())
+    shards = atlas.store.shards
+    stored = sum(len(shards.load(atlas.key(e), T, study.k)[0]) for e in settings.envs())
     lines = [
         f"fig. 4's atlas {atlas.grid.counts} over {atlas.grid.lows}..{atlas.grid.highs}; "
         f"{stored} plans between nodes already on disk; bound {bound} noise sd, "

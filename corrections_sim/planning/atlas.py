@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from corrections_sim.planning.between import BetweenNodes, PlanShards
 from corrections_sim.planning.planner import (
     Plan,
     Planner,
@@ -316,6 +317,8 @@ class AtlasStore:
         self.root = Path(root) if root is not None else cache_dir() / "atlas"
         #: (key, why) of every file found and not trusted.
         self.rejected: list[tuple[str, str]] = []
+        #: The plans between the atlases' nodes, beside them (their rejections said above).
+        self.shards = PlanShards(self.root, self.rejected)
 
     def load(self, key: str, grid: AtlasGrid, T: int) -> EnvironmentAtlas | None:
         meta_path, data_path = self.root / f"{key}.json", self.root / f"{key}.npy"
@@ -367,40 +370,6 @@ class AtlasStore:
         os.replace(tmp, self.root / f"{key}.json")
         return data_path
 
-    def load_extra(self, key: str, T: int, k: int) -> tuple[np.ndarray, np.ndarray]:
-        """Every off-node plan kept for the atlas ``key`` (:meth:`save_extra`): θ (n, k) and
-        trajectories (n, T, 7), NaN where no start converged; a shard whose content does not
-        match its checksum, or of another shape, is reported (:attr:`rejected`) and skipped."""
-        thetas, plans = [np.zeros((0, k))], [np.zeros((0, T, 7))]
-        for path in sorted(self.root.glob(f"{key}.extra-*.npz")):
-            try:
-                digest = path.name[len(key) + len(".extra-") : -len(".npz")]
-                if hashlib.sha256(path.read_bytes()).hexdigest()[:16] != digest:
-                    raise ValueError("its data does not match its checksum (truncated or changed)")
-                with np.load(path) as data:
-                    t, p = data["thetas"], data["plans"]
-                if t.shape[1:] != (k,) or p.shape != (len(t), T, 7):
-                    raise ValueError(f"shapes {t.shape}, {p.shape}")
-            except (OSError, ValueError, KeyError) as exc:
-                self.rejected.append((path.name, str(exc).splitlines()[0]))
-                continue
-            thetas.append(t)
-            plans.append(p)
-        return np.concatenate(thetas), np.concatenate(plans)
-
-    def save_extra(self, key: str, thetas: np.ndarray, plans: np.ndarray) -> Path:
-        """Off-node plans of the atlas ``key`` (θ (n, k), trajectories (n, T, 7)), as a shard of
-        their own named by its checksum (written atomically; shards only add up: every plan
-        is a function of (θ, E), so two processes that solved the same θ wrote the same)."""
-        self.root.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=self.root, suffix=".npz.tmp")
-        with os.fdopen(fd, "wb") as fh:
-            np.savez(fh, thetas=np.asarray(thetas, float), plans=np.asarray(plans, float))
-        digest = hashlib.sha256(Path(tmp).read_bytes()).hexdigest()[:16]
-        path = self.root / f"{key}.extra-{digest}.npz"
-        os.replace(tmp, path)
-        return path
-
 
 def _num(v: float) -> float | str:
     return float(v) if np.isfinite(v) else str(float(v))
@@ -445,11 +414,9 @@ class Atlas:
         self.store = store
         self.cold_stride = cold_stride
         self._atlases: dict[bytes, EnvironmentAtlas] = {}
-        # Per environment: the off-node plans known (θ bytes -> trajectory, None where no
-        # start converged), and those not yet in the store.
-        self._between: dict[bytes, dict[bytes, np.ndarray | None]] = {}
-        self._unsaved: dict[bytes, list[bytes]] = {}
-        self._kept = 0
+        self._between = BetweenNodes(
+            None if store is None else store.shards, planner.config.n_waypoints, grid.k
+        )
         self._env_keys: dict[bytes, str] = {}
         #: Problems answered outside the box (the planner's cold starts).
         self.outside = 0
@@ -514,8 +481,7 @@ class Atlas:
         if on.any():
             nodes = np.ravel_multi_index(tuple(index[on].astype(int).T), grid.counts)
             out[on] = built.trajectories[nodes]
-        known = self._known(env)
-        unsaved = self._unsaved.setdefault(env.key(), [])
+        known = self._between.known(env.key(), self.key(env))
         for i in np.flatnonzero(~on).tolist():
             memo = thetas[i].tobytes()
             if memo not in known:
@@ -523,60 +489,18 @@ class Atlas:
                     known[memo] = self.solve(thetas[i], env).trajectory
                 except PlanningError:
                     known[memo] = None
-                unsaved.append(memo)
-                self._kept += 1
+                self._between.added(env.key(), memo)
             plan = known[memo]
             if plan is not None:
                 out[i] = plan
         return out
 
-    def _known(self, env: Environment) -> dict[bytes, np.ndarray | None]:
-        """E's off-node plans known to this process, read from the store on first use (past
-        :data:`_MAX_KEPT` in all, unsaved ones saved and every environment's dropped, to be
-        read again when asked)."""
-        if self._kept >= _MAX_KEPT:
-            self.save()
-            self._between.clear()
-            self._kept = 0
-        known = self._between.get(env.key())
-        if known is None:
-            known = self._between[env.key()] = {}
-            if self.store is not None:
-                T = self.planner.config.n_waypoints
-                thetas, plans = self.store.load_extra(self.key(env), T, self.grid.k)
-                for theta, plan in zip(thetas, plans, strict=True):
-                    known[theta.tobytes()] = plan if np.all(np.isfinite(plan)) else None
-                self._kept += len(thetas)
-        return known
-
     def save(self, at_least: int = 1) -> int:
-        """Write to the store the off-node plans solved here and not yet saved, one shard per
+        """Write to the store the plans between nodes solved here and not yet saved, for every
         environment with at least ``at_least`` of them, so that the next process on this
         machine reads them instead of solving them again (nothing without a store). Returns
         how many were written."""
-        if self.store is None:
-            return 0
-        written = 0
-        for env_key, memos in self._unsaved.items():
-            if len(memos) < max(1, at_least):
-                continue
-            known = self._between.get(env_key, {})
-            kept = [m for m in memos if m in known]
-            T = self.planner.config.n_waypoints
-            if kept:
-                thetas = np.array([np.frombuffer(m) for m in kept])
-                plans = np.array(
-                    [np.full((T, 7), np.nan) if known[m] is None else known[m] for m in kept]
-                )
-                self.store.save_extra(self._env_keys[env_key], thetas, plans)
-                written += len(kept)
-            memos.clear()
-        return written
-
-
-#: Off-node plans an :class:`Atlas` keeps per process (0.67 kB each at T = 12: 670 MB at
-#: most; past it, they are saved and dropped, and read again from the store when asked).
-_MAX_KEPT = 1_000_000
+        return self._between.save(at_least)
 
 
 @dataclass(frozen=True)

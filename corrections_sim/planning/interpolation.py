@@ -195,8 +195,11 @@ def _into(out: np.ndarray | None, n: int, where: np.ndarray, values: np.ndarray)
     return out
 
 
-#: Interpolants kept per process (each holds its cells' corner values, a few kB to a MB).
-_MAX_INTERPOLANTS = 512
+#: Interpolants kept per process: PF-C's hold one an environment, each its nodes' values (8 MB
+#: for fig. 4's 2,000 particles from the prior: 9,000 nodes × (T·7 + T·k) floats), so 96 of
+#: them, more environments than a study has, stay under 800 MB; past that the least recently
+#: used goes, and its cells are checked again (from the plans on disk) when asked.
+_MAX_INTERPOLANTS = 96
 _KEPT: collections.OrderedDict[Hashable, CellInterpolant] = collections.OrderedDict()
 
 
