@@ -120,11 +120,12 @@ def test_the_store_reads_back_what_it_wrote_and_rebuilds_a_bad_file(planner, sma
 
 
 def test_plans_between_nodes_are_kept_for_the_next_process_and_a_bad_shard_is_skipped(
-    planner, small, tmp_path
+    planner, small, tmp_path, monkeypatch
 ):
     """Off-node plans an atlas solved, saved, are what a fresh atlas on the same store answers
-    without solving (bit-identical); a shard whose bytes changed is refused by its checksum,
-    said, and its plans solved again."""
+    without solving (bit-identical); kept by code that answers differently (another
+    :func:`answer_version`), they are not read; a shard whose bytes changed is refused by its
+    checksum, said, and its plans solved again."""
     env, grid, built = small
     thetas = np.array([[0.3, -0.7], [1.1, 0.4], [-1.7, 1.9]])
     first = A.Atlas(planner, grid, store=A.AtlasStore(tmp_path), cold_stride=2)
@@ -136,6 +137,14 @@ def test_plans_between_nodes_are_kept_for_the_next_process_and_a_bad_shard_is_sk
     second.hold(env, built)
     second.solve = lambda *args, **kwargs: pytest.fail("solved again")
     assert np.array_equal(second.plans(thetas, env), solved, equal_nan=True)
+    with monkeypatch.context() as patch:
+        patch.setattr(A, "answer_version", lambda: "another")
+        stale = A.Atlas(planner, grid, store=A.AtlasStore(tmp_path), cold_stride=2)
+        stale.hold(env, built)
+        calls = []
+        stale.solve = lambda theta, e: calls.append(theta) or first.solve(theta, e)
+        stale.plans(thetas, env)
+        assert len(calls) == 3  # every plan solved again, none read
     shard.write_bytes(shard.read_bytes()[:-10])
     third = A.Atlas(planner, grid, store=A.AtlasStore(tmp_path), cold_stride=2)
     third.hold(env, built)

@@ -135,10 +135,9 @@ def smoothed_kl(
     of Silverman's bandwidth (the sample's covariance × (4 / ((k + 2) n_eff))^(2/(k + 4)),
     n_eff the effective sample size), times each point's cell volume (``coefficients``, the
     refined cells' trapezoid weights; None: a uniform grid's) and normalized over the same
-    cells. Unsmoothed, a
-    finite sample leaves the reference's tails empty and the KL is the floor's, not the
-    sample's (200 particles binned on cells of 0.5: 1.0 nats, almost all of it from cells no
-    particle reached)."""
+    cells. Unsmoothed, a finite sample leaves the reference's tails empty and the KL is the
+    floor's, not the sample's (200 particles binned on cells of 0.5: 1.0 nats, almost all of
+    it from cells no particle reached)."""
     k = particles.thetas.shape[1]
     _, cov = particles.moments()
     factor = (4.0 / ((k + 2) * particles.effective_size())) ** (2.0 / (k + 4))

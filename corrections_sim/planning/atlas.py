@@ -52,6 +52,20 @@ from corrections_sim.scene.environments import Environment
 ALGORITHM = 1
 
 
+@functools.cache
+def answer_version() -> str:
+    """What an answer between the nodes depends on beyond the atlas's key: the code of this
+    module (:meth:`Atlas.solve`, the corners' ranking) and of the warm re-solve (Newton's,
+    Python and C), hashed; the plans kept on disk between nodes are named by it too, so a
+    change there leaves them unread rather than wrong."""
+    from corrections_sim.planning import newton
+
+    h = hashlib.sha256()
+    for path in (Path(__file__), Path(newton.__file__), Path(newton.__file__).with_suffix(".c")):
+        h.update(path.read_bytes())
+    return h.hexdigest()[:12]
+
+
 @dataclass(frozen=True)
 class AtlasGrid:
     """A box of θ with ``counts[i]`` evenly spaced values of weight i from ``lows[i]`` to
@@ -481,7 +495,7 @@ class Atlas:
         if on.any():
             nodes = np.ravel_multi_index(tuple(index[on].astype(int).T), grid.counts)
             out[on] = built.trajectories[nodes]
-        known = self._between.known(env.key(), self.key(env))
+        known = self._between.known(env.key(), f"{self.key(env)}-{answer_version()}")
         for i in np.flatnonzero(~on).tolist():
             memo = thetas[i].tobytes()
             if memo not in known:

@@ -5,7 +5,9 @@ Every such plan is :meth:`Atlas.solve <corrections_sim.planning.atlas.Atlas.solv
 a function of (θ, E) alone, so keeping it changes no number. :class:`BetweenNodes` keeps them
 per process (θ's bytes -> the trajectory, None where no start converged), and
 :class:`PlanShards` on disk, beside the atlas's own files: one shard
-``<atlas key>.extra-<checksum>.npz`` per save, written atomically; shards only add up (two
+``<atlas key>-<answer version>.extra-<checksum>.npz`` per save (the version hashes the code
+the answer comes from, :func:`~corrections_sim.planning.atlas.answer_version`), written
+atomically; shards only add up (two
 workers that solved the same θ wrote the same plan), and one whose bytes do not match its
 checksum is skipped and said, its plans solved again.
 """

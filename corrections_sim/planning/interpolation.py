@@ -10,7 +10,7 @@ children would add — within ``tolerance`` of the value of the plan solved ther
 interpolant's error is −Σᵢ hᵢ² ∂²v/∂θᵢ² / 8 at the centre, each term its own at an edge's
 midpoint (the centre alone misses a saddle, where they cancel), and the cross terms it
 represents exactly; so the probes' error stands for the cell's (measured on fig. 4's
-environments: module tests). A cell that fails is cut
+environments: docs/atlas.md). A cell that fails is cut
 into 2^k children half as wide (level ℓ + 1; their new corners solved), down to
 ``max_level``; a cell that still fails there — a basin boundary runs through it, the plan
 jumps — is not interpolated: every θ in it gets its own solve, counted (:attr:`solved`).
@@ -95,7 +95,7 @@ class CellInterpolant:
         self._corners: dict[tuple[int, ...], np.ndarray] = {}
         #: θ answered by a solve of their own (cells that stay untrusted at the finest level).
         self.solved = 0
-        #: Cells whose centre was checked.
+        #: Cells checked (their probes against solved plans).
         self.checked = 0
 
     def _node_values(self, coords: np.ndarray) -> np.ndarray:
@@ -141,6 +141,9 @@ class CellInterpolant:
     def __call__(self, thetas: np.ndarray) -> np.ndarray:
         """v(ξ*(θ, E)) at each of ``thetas`` (n, k) -> (n, m), NaN where no plan exists."""
         thetas = np.atleast_2d(np.asarray(thetas, float))
+        if not len(thetas):
+            T = self.atlas.planner.config.n_waypoints
+            return np.asarray(self.values(np.zeros((0, T, 7))), float)
         out: np.ndarray | None = None
         pos = (thetas - self._lows) / self._step
         inside = np.all((thetas >= self._lows) & (thetas <= self._highs), axis=1)
@@ -177,13 +180,6 @@ class CellInterpolant:
             self.solved += int(exact.size)
             plans = self.atlas.plans(thetas[exact], self.env)
             out = _into(out, len(thetas), exact, np.asarray(self.values(plans), float))
-        if out is None:  # no θ at all
-            out = np.asarray(
-                self.values(
-                    np.zeros((0, *self.atlas.environment(self.env).trajectories.shape[1:]))
-                ),
-                float,
-            )
         return out
 
 
