@@ -45,13 +45,15 @@ print("released", flush=True)
 """
 
 # The lock holder forks a child (as a process pool does) that outlives it.
+# The forked child says its pid once it runs: by then the at-fork hook has closed the
+# descriptors it inherited (the hook runs before fork() returns in the child). Waiting for the
+# parent's word instead raced the hook on a loaded machine (a CI run failed so).
 HOLD_LOCK_AND_FORK = """
 with store.lock():
-    pid = os.fork()
-    if pid == 0:
+    if os.fork() == 0:
+        print(os.getpid(), flush=True)
         signal.pause()
         os._exit(0)
-    print(pid, flush=True)
     sys.stdin.read()
 """
 
@@ -351,6 +353,9 @@ def test_forked_child_of_a_killed_holder_does_not_keep_the_lock(tmp_path):
     with child(HOLD_LOCK_AND_FORK, tmp_path, json.dumps(SETTINGS)) as proc:
         grandchild = int(proc.stdout.readline())
         try:
+            with pytest.raises(StoreLocked):  # the parent holds it
+                with store.lock():
+                    pass
             sigkill(proc)
             os.kill(grandchild, 0)  # still alive, with the holder's descriptors
             with store.lock():
