@@ -347,3 +347,41 @@ def test_an_environment_sets_a_plug_in_features_parameter():
             study_file.parse_study(values)
     finally:
         ENV_PARAMETERS.unregister("test_person_x")
+
+
+def test_the_learners_legend_covers_no_panel(tmp_path, monkeypatch):
+    """Thirteen learners (fig. 4's) named inside a panel covered the curves they name: the
+    legend sits under the panels, and every learner is in it once."""
+    from corrections_sim.figures import style
+    from corrections_sim.learning.base import LEARNERS
+
+    names = [n for n in LEARNERS if n != "BP"][:13]
+    rng = np.random.default_rng(0)
+    curves = {
+        n: {key: rng.random((3, 5)) + 0.1 for key in ("estimate_error", "regret", "regret_paper")}
+        | {"nees": rng.random((3, 5)) + 0.1}
+        for n in names
+    }
+    drawn = {}
+
+    def keep(fig, paths, dpi):
+        fig.tight_layout()
+        drawn["fig"] = fig
+
+    monkeypatch.setattr(style, "save_and_close", keep)
+    learning_study.plot_learning_curves(
+        curves, "title", [tmp_path / "x.png"], bands={n: (0.5, 3.0) for n in names[:4]}
+    )
+    fig = drawn["fig"]
+    renderer = fig.canvas.get_renderer()
+    panels = [ax for ax in fig.axes if ax.get_visible() and ax.axison]
+    legends = [ax.get_legend() for ax in fig.axes if ax.get_legend() is not None]
+    learners = next(leg for leg in legends if len(leg.get_texts()) == len(names))
+    box = learners.get_window_extent(renderer)
+    assert len(panels) == 4
+    for ax in panels:
+        assert not box.overlaps(ax.get_tightbbox(renderer)), ax.get_title()
+    assert sorted(t.get_text().rsplit(", N = ")[0] for t in learners.get_texts()) == sorted(
+        style.learner_label(n) for n in names
+    )
+    style.plt.close(fig)

@@ -256,7 +256,15 @@ def plot_learning_curves(
     from corrections_sim.metrics import mean_sem
 
     bands = bands or {}
-    fig, axes = plt.subplots(1, 4, figsize=(17, 4.4))
+    # The learners' legend gets a row of its own under the panels: inside a panel, thirteen
+    # learners covered the curves they name.
+    ncol = min(len(curves), 5)
+    legend_rows = -(-len(curves) // ncol) if curves else 0
+    fig = plt.figure(figsize=(17, 4.4 + 0.22 * legend_rows))
+    grid = fig.add_gridspec(2, 4, height_ratios=(4.4, max(0.22 * legend_rows, 0.01)))
+    axes = [fig.add_subplot(grid[0, j]) for j in range(4)]
+    box = fig.add_subplot(grid[1, :])
+    box.set_axis_off()
     panels = (
         ("estimate_error", "Estimate error ‖θ̂ − θ*‖₁", "error (L1, weight units)"),
         (
@@ -312,7 +320,14 @@ def plot_learning_curves(
         ax.set_xlabel("iteration (corrections)")
         ax.xaxis.get_major_locator().set_params(integer=True)
         ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=7, loc="best")
+    if curves:
+        box.legend(
+            *axes[0].get_legend_handles_labels(),
+            loc="center",
+            ncol=ncol,
+            fontsize=8,
+            frameon=False,
+        )
     fig.suptitle(title + "; bands: ± SEM over runs", fontsize=11)
     save_and_close(fig, paths, dpi=150)
 
