@@ -4,6 +4,7 @@ environment, warm starts from a cell, and the cache that never trusts a bad file
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -117,6 +118,18 @@ def test_the_store_reads_back_what_it_wrote_and_rebuilds_a_bad_file(planner, sma
         A.atlas_key(planner.config, paper_environments()[8], grid, cold_stride=2),
         A.atlas_key(planner.config, env, grid, cold_stride=3),
     }) == 4  # fmt: skip
+
+
+def test_changed_newton_code_gives_another_atlas_key(planner, small, monkeypatch):
+    """The build's warm solves take Newton's steps, so its code is part of an atlas's key (a
+    changed newton.c must not read an atlas built before); with the solver's warm starts, not."""
+    env, grid, _ = small
+    solver_warm = replace(planner.config, warm="solver")
+    before = A.atlas_key(planner.config, env, grid), A.atlas_key(solver_warm, env, grid)
+    monkeypatch.setattr(A.newton, "library_key", lambda build: "changed newton.c")
+    after = A.atlas_key(planner.config, env, grid), A.atlas_key(solver_warm, env, grid)
+    assert after[0] != before[0]
+    assert after[1] == before[1]
 
 
 def test_plans_between_nodes_are_kept_for_the_next_process_and_a_bad_shard_is_skipped(

@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from corrections_sim.planning import newton
 from corrections_sim.planning.between import BetweenNodes, PlanShards
 from corrections_sim.planning.planner import (
     Plan,
@@ -58,8 +59,6 @@ def answer_version() -> str:
     module (:meth:`Atlas.solve`, the corners' ranking) and of the warm re-solve (Newton's,
     Python and C), hashed; the plans kept on disk between nodes are named by it too, so a
     change there leaves them unread rather than wrong."""
-    from corrections_sim.planning import newton
-
     h = hashlib.sha256()
     for path in (Path(__file__), Path(newton.__file__), Path(newton.__file__).with_suffix(".c")):
         h.update(path.read_bytes())
@@ -304,7 +303,8 @@ def atlas_key(config: PlannerConfig, env: Environment | None, grid: AtlasGrid, *
     """What an atlas depends on: the planner's build key (its sources, the NLP's settings and
     CasADi's version), the solver options that can change an answer, the environment (None:
     the key of everything but the environment, an atlas's identity), the grid, the build's
-    options and :data:`ALGORITHM`."""
+    options, :data:`ALGORITHM` and, when warm starts take Newton's steps, the Newton code's
+    key (its C and Python sources)."""
     # The clearance certificate skips only checks whose answer it proves (the run key ignores
     # it too): an atlas does not depend on it.
     config = replace(config, certificate=True)
@@ -317,6 +317,8 @@ def atlas_key(config: PlannerConfig, env: Environment | None, grid: AtlasGrid, *
     h.update(json.dumps(asdict(grid), sort_keys=True).encode())
     h.update(json.dumps(options, sort_keys=True).encode())
     h.update(str(ALGORITHM).encode())
+    if config.warm == "newton":  # the build's warm solves take Newton's steps
+        h.update(newton.library_key(build_key(replace(config, solver="ipopt"))).encode())
     return h.hexdigest()[:24]
 
 
