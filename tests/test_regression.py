@@ -49,12 +49,13 @@ class QuickFigure:
     figure: str
 
     @pytest.fixture(scope="class")
-    def quick_run(self):
-        settings = learning_study.load_settings(self.figure, quick=True)
+    @classmethod
+    def quick_run(cls):
+        settings = learning_study.load_settings(cls.figure, quick=True)
         # One worker thread: the same code path as the process pool, without process start-up.
         with ThreadPoolExecutor(max_workers=1) as executor:
             result = runner.run(settings, executor)
-        with open(REFERENCE / self.figure / "curves.csv", newline="") as fh:
+        with open(REFERENCE / cls.figure / "curves.csv", newline="") as fh:
             reference = list(csv.DictReader(fh))
         return settings, result, reference
 
