@@ -361,6 +361,14 @@ def catalogue() -> argparse.ArgumentParser:
         action="store_true",
         help="only list the files that differ from what the code writes; exit status 1 if any",
     )
+    c = p.add_argument_group("the machine's cache (cache)")
+    c.add_argument(
+        "--prune",
+        type=positive_float("--prune"),
+        metavar="DAYS",
+        help="remove what no run has used for DAYS days (compiled libraries, atlases, plans "
+        "between their nodes, reference grids, what dead writers left); it is rebuilt if needed",
+    )
     x = p.add_argument_group("where the runs execute")
     x.add_argument(
         "--workers",

@@ -38,6 +38,7 @@ import numpy as np
 
 from corrections_sim.planning import newton
 from corrections_sim.planning.between import BetweenNodes, PlanShards
+from corrections_sim.planning.cache import mark_used
 from corrections_sim.planning.planner import (
     Plan,
     Planner,
@@ -350,6 +351,7 @@ class AtlasStore:
             trajectories = np.load(data_path, mmap_mode="r")
             if trajectories.shape != (grid.size, T, 7):
                 raise ValueError(f"shape {trajectories.shape}, expected {(grid.size, T, 7)}")
+            mark_used(meta_path, data_path)
             return EnvironmentAtlas(
                 grid,
                 trajectories,

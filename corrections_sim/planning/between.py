@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from corrections_sim.planning.cache import mark_used
+
 #: Plans between nodes kept per process (0.67 kB each at T = 12: 670 MB at most; past it,
 #: the unsaved ones are saved, all are dropped, and they are read again from disk when asked).
 MAX_KEPT = 1_000_000
@@ -51,6 +53,7 @@ class PlanShards:
             except (OSError, ValueError, KeyError) as exc:
                 self.rejected.append((path.name, str(exc).splitlines()[0]))
                 continue
+            mark_used(path)
             thetas.append(t)
             plans.append(p)
         return np.concatenate(thetas), np.concatenate(plans)

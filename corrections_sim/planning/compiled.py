@@ -19,6 +19,8 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from corrections_sim.planning.cache import mark_used
+
 
 class Compiled:
     """A CasADi function compiled to C and called through ctypes (one set of buffers per
@@ -75,6 +77,7 @@ def build_once(path: Path, build: Callable[[Path], None]) -> None:
     writes atomically, so a reader that takes no lock never sees half a file; the lock spares
     two processes (two test workers on a fresh machine) the same minutes of gcc."""
     if path.is_file():
+        mark_used(path)
         return
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path.with_name(path.name + ".lock"), "a") as lock:

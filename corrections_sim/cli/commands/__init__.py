@@ -13,6 +13,7 @@ from corrections_sim.cli.command import Command
 from corrections_sim.cli.commands import (
     all_figures,
     analyze,
+    cache,
     figure,
     interact,
     models,
@@ -50,6 +51,7 @@ TOOLS = (
     report,
     quotes,
     models,
+    cache,
 )
 
 

@@ -1,0 +1,133 @@
+"""The machine's cache: every reader marks what it reads as used, ``cache`` lists it by kind,
+and ``cache --prune DAYS`` removes only what no run used for that long (never a file it
+does not know)."""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from corrections_sim.cli import main as cli
+from corrections_sim.planning import cache
+from corrections_sim.planning.atlas import AtlasGrid, AtlasStore, EnvironmentAtlas
+from corrections_sim.planning.between import PlanShards
+from corrections_sim.planning.compiled import build_once
+
+DAY = 86_400.0
+LONG_AGO = time.time() - 100 * DAY
+
+
+def _file(path: Path, size: int, mtime: float = LONG_AGO) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(b"x" * size)
+    os.utime(path, (mtime, mtime))
+    return path
+
+
+@pytest.fixture
+def filled(tmp_path: Path) -> Path:
+    """A cache of every kind, all last used 100 days ago but one atlas used now."""
+    root = tmp_path / "cache"
+    _file(root / "trajopt-abc.so", 100)
+    _file(root / "trajopt-abc.so.lock", 0)
+    _file(root / "newton-def.so", 50)
+    _file(root / "atlas" / "0123.npy", 1000)
+    _file(root / "atlas" / "0123.json", 10)
+    _file(root / "atlas" / "4567.npy", 2000, time.time())
+    _file(root / "atlas" / "4567.json", 20, time.time())
+    _file(root / "atlas" / "0123-v1.extra-aaaa.npz", 300)
+    _file(root / "atlas" / "tmpq1w2.npz.tmp", 7)
+    _file(root / "reference" / "89ab.npy", 400)
+    _file(root / "reference" / "89ab.npy.lock", 0)
+    _file(root / "reference" / "89ab.123.tmp.npy", 5)
+    _file(root / "tmpbuild" / "generated.c", 30)
+    _file(root / "tmpbuild" / "trajopt-abc.so", 60)
+    _file(root / "notes.txt", 3)
+    return root
+
+
+def test_entries_group_the_files_by_kind(filled):
+    found = {(e.kind, e.name): e for e in cache.entries(filled)}
+    assert set(found) == {
+        ("compiled", "trajopt-abc.so"),
+        ("compiled", "newton-def.so"),
+        ("atlas", "0123"),
+        ("atlas", "4567"),
+        ("between", "0123-v1.extra-aaaa.npz"),
+        ("reference", "89ab.npy"),
+        ("unfinished", "atlas/tmpq1w2.npz.tmp"),
+        ("unfinished", "reference/89ab.123.tmp.npy"),
+        ("unfinished", "tmpbuild/"),
+        ("other", "notes.txt"),
+    }
+    assert found["atlas", "0123"].size == 1010
+    assert found["compiled", "trajopt-abc.so"].paths == (
+        filled / "trajopt-abc.so",
+        filled / "trajopt-abc.so.lock",
+    )
+    assert found["unfinished", "tmpbuild/"].paths == (filled / "tmpbuild",)
+    assert found["unfinished", "tmpbuild/"].size == 90
+    assert found["atlas", "4567"].last_used > time.time() - 60
+    assert cache.entries(filled / "absent") == []
+
+
+def test_prune_removes_only_what_went_unused_and_never_an_unknown_file(filled):
+    removed = cache.prune(cache.entries(filled), 30 * DAY, time.time())
+    assert {e.kind for e in removed} == set(cache.PRUNABLE)
+    left = sorted(p.relative_to(filled).as_posix() for p in filled.rglob("*") if p.is_file())
+    assert left == ["atlas/4567.json", "atlas/4567.npy", "notes.txt"]
+    assert not (filled / "tmpbuild").exists()
+    # Nothing is older than 200 days: nothing more goes.
+    assert cache.prune(cache.entries(filled), 200 * DAY, time.time()) == []
+    with pytest.raises(ValueError, match="unused_for"):
+        cache.prune([], 0, time.time())
+
+
+def test_readers_mark_what_they_read_as_used(tmp_path):
+    grid = AtlasGrid((-1.0, -1.0), (1.0, 1.0), (3, 3))
+    atlas = EnvironmentAtlas(
+        grid,
+        np.zeros((9, 3, 7)),
+        np.zeros((9, 2)),
+        np.zeros(9),
+        np.zeros(9),
+        solves=9,
+    )
+    store = AtlasStore(tmp_path)
+    store.save("key", atlas)
+    shard = store.shards.save("key", np.zeros((1, 2)), np.zeros((1, 3, 7)))
+    library = _file(tmp_path / "trajopt-x.so", 10)
+    for path in (tmp_path / "key.npy", tmp_path / "key.json", shard):
+        os.utime(path, (LONG_AGO, LONG_AGO))
+    assert store.load("key", grid, 3) is not None
+    assert len(PlanShards(tmp_path).load("key", 3, 2)[0]) == 1
+    build_once(library, lambda path: pytest.fail("built again"))
+    recent = time.time() - 60
+    for path in (tmp_path / "key.npy", tmp_path / "key.json", shard, library):
+        assert path.stat().st_mtime > recent, path.name
+    assert cache.prune(cache.entries(tmp_path), DAY, time.time()) == []
+
+
+def test_the_command_lists_and_prunes(filled, monkeypatch, capsys):
+    monkeypatch.setenv("CORRECTIONS_SIM_CACHE", str(filled))
+    assert cli.main(["cache"]) == 0
+    out = capsys.readouterr().out
+    assert f"cache: {filled}" in out
+    assert "atlas" in out and "unfinished" in out and "total" in out
+    assert cli.main(["cache", "--prune", "30"]) == 0
+    out = capsys.readouterr().out
+    assert "removed 8 entries not used for 30 days" in out
+    assert (filled / "atlas" / "4567.npy").exists() and (filled / "notes.txt").exists()
+
+
+@pytest.mark.parametrize("days", ["0", "-1", "nan", "soon"])
+def test_a_bad_prune_is_one_line_naming_it(days, capsys):
+    with pytest.raises(SystemExit) as info:
+        cli.main(["cache", "--prune", days])
+    assert info.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--prune" in err[0]
