@@ -14,9 +14,10 @@ Two parts, each in this process:
   regret included, which every learner pays), the cells checked and the particles solved one
   by one so far.
 
-The plans the cells need are kept on disk (``Atlas.save``), so a second invocation on the
-same machine measures the warm cost; the first line says how many were already there. It
-never asserts.
+The plans the cells need and the cells checked are kept on disk (``Atlas.save``,
+``interpolation.save_kept``), so a second invocation on the same machine measures the warm
+cost; the first line says how many plans were already there, the column "read" how many
+cells. It never asserts.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from corrections_sim.learning.learners.particles import waypoint_table
 from corrections_sim.learning.observation import CorrectedPlanFeatures
 from corrections_sim.people.corrections import WaypointCorrection
 from corrections_sim.planning import interpolation
+from corrections_sim.planning.atlas import answer_version
 from corrections_sim.study import runner
 
 
@@ -58,16 +60,20 @@ def run_bench(
     observation = CorrectedPlanFeatures(WaypointCorrection())
     rng = np.random.default_rng(seed)
     shards = atlas.store.shards
-    stored = sum(len(shards.load(atlas.key(e), T, study.k)[0]) for e in settings.envs())
+    version = answer_version()
+    stored = sum(
+        len(shards.load(f"{atlas.key(e)}-{version}", T, study.k)[0]) for e in settings.envs()
+    )
     lines = [
         f"fig. 4's atlas {atlas.grid.counts} over {atlas.grid.lows}..{atlas.grid.highs}; "
         f"{stored} plans between nodes already on disk; bound {bound} noise sd, "
         f"{count} particles, {moves} moves",
-        f"{'environment':12} {'median':>7} {'p99':>7} {'max':>7} {'within':>7} {'cells':>6} "
-        f"{'plans':>6} {'solved':>6} {'CPU s':>6}",
+        f"{'environment':12} {'median':>7} {'p99':>7} {'max':>7} {'within':>7} {'read':>6} "
+        f"{'cells':>6} {'plans':>6} {'solved':>6} {'CPU s':>6}",
     ]
     for env in settings.envs()[:envs]:
         table = waypoint_table(atlas, env, names, sd, bound, 4)
+        read = len(table._status)  # cells checked by earlier processes, read from disk
         thetas = rng.multivariate_normal(study.theta0, study.cov0, size=count)
         robot = atlas.solve(rng.multivariate_normal(study.theta0, study.cov0), env).trajectory
         start = time.process_time()
@@ -81,10 +87,11 @@ def run_bench(
         error = np.max(np.abs(got[picks] - exact) / sd, axis=1)
         lines.append(
             f"{env.name:12} {np.median(error):7.4f} {np.quantile(error, 0.99):7.4f} "
-            f"{error.max():7.3f} {np.mean(error <= bound):7.1%} {table.checked:6d} "
+            f"{error.max():7.3f} {np.mean(error <= bound):7.1%} {read:6d} {table.checked:6d} "
             f"{len(table._nodes):6d} {table.solved:6d} {cpu:6.1f}"
         )
     atlas.save()
+    interpolation.save_kept()
     lines.append(f"PF-C, {runs} runs of fig. 4 ({study.iterations} corrections each):")
     for run in range(runs):
         start = time.process_time()

@@ -40,6 +40,7 @@ def filled(tmp_path: Path) -> Path:
     _file(root / "atlas" / "4567.npy", 2000, time.time())
     _file(root / "atlas" / "4567.json", 20, time.time())
     _file(root / "atlas" / "0123-v1.extra-aaaa.npz", 300)
+    _file(root / "atlas" / "0123-c1.cells-bbbb.npz", 200)
     _file(root / "atlas" / "tmpq1w2.npz.tmp", 7)
     _file(root / "reference" / "89ab.npy", 400)
     _file(root / "reference" / "89ab.npy.lock", 0)
@@ -58,6 +59,7 @@ def test_entries_group_the_files_by_kind(filled):
         ("atlas", "0123"),
         ("atlas", "4567"),
         ("between", "0123-v1.extra-aaaa.npz"),
+        ("cells", "0123-c1.cells-bbbb.npz"),
         ("reference", "89ab.npy"),
         ("unfinished", "atlas/tmpq1w2.npz.tmp"),
         ("unfinished", "reference/89ab.123.tmp.npy"),
@@ -120,7 +122,7 @@ def test_the_command_lists_and_prunes(filled, monkeypatch, capsys):
     assert "atlas" in out and "unfinished" in out and "total" in out
     assert cli.main(["cache", "--prune", "30"]) == 0
     out = capsys.readouterr().out
-    assert "removed 8 entries not used for 30 days" in out
+    assert "removed 9 entries not used for 30 days" in out
     assert (filled / "atlas" / "4567.npy").exists() and (filled / "notes.txt").exists()
 
 

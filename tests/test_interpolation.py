@@ -22,7 +22,8 @@ from corrections_sim.people.corrections import (
     worst_waypoints,
 )
 from corrections_sim.planning import atlas as A
-from corrections_sim.planning.interpolation import CellInterpolant, check_tolerance
+from corrections_sim.planning import interpolation
+from corrections_sim.planning.interpolation import CellInterpolant, CellStore, check_tolerance
 from corrections_sim.scene.environments import paper_environments
 
 NAMES = ("laptop", "table")
@@ -88,6 +89,73 @@ def test_a_value_does_not_depend_on_what_was_asked_before(small):
     a = first(thetas)
     b = second(thetas[::-1])[::-1]
     assert np.array_equal(a, b, equal_nan=True)
+
+
+def _feature_values(env):
+    def values(plans):
+        return PlanFeatures().at_plans(plans, None, env, NAMES)
+
+    def measure(d):
+        return np.max(np.abs(d) / SD, axis=-1)
+
+    return values, measure
+
+
+def test_checked_cells_are_kept_for_the_next_process_and_a_bad_shard_is_checked_again(
+    small, tmp_path
+):
+    """The cells one interpolant checked, saved, are what a fresh one on the same store reads:
+    the same bits at every θ with no cell checked again and no plan asked but those of the θ
+    solved one by one; a shard whose bytes changed is said, skipped and its cells checked
+    again, to the same bits."""
+    atlas, env = small
+    values, measure = _feature_values(env)
+    thetas = np.random.default_rng(8).uniform(-1.9, 1.9, (60, 2))
+    first = CellInterpolant(
+        atlas, env, values, measure, max_level=2, store=CellStore(tmp_path, "test")
+    )
+    a = first(thetas)
+    assert first.checked > 0 and first.save() == first.checked
+    assert first.save() == 0  # nothing new since
+
+    asked = []
+
+    def counted(plans):
+        asked.append(len(plans))
+        return values(plans)
+
+    second = CellInterpolant(
+        atlas, env, counted, measure, max_level=2, store=CellStore(tmp_path, "test")
+    )
+    assert np.array_equal(second(thetas), a, equal_nan=True)
+    assert second.checked == 0 and sum(asked) == second.solved
+
+    shard = next(tmp_path.glob("test.cells-*.npz"))
+    shard.write_bytes(shard.read_bytes()[:-50])
+    rejected = []
+    third = CellInterpolant(
+        atlas, env, values, measure, max_level=2, store=CellStore(tmp_path, "test", rejected)
+    )
+    assert np.array_equal(third(thetas), a, equal_nan=True)
+    assert third.checked == first.checked
+    assert rejected and "checksum" in rejected[0][1]
+
+
+def test_cells_are_named_by_what_they_depend_on(small, monkeypatch):
+    """Another tolerance, another function or changed code answering between nodes: another
+    name, so no process reads cells checked for something else."""
+    atlas, env = small
+    name = interpolation.cell_name(atlas, env, "v", 0.02, 4)
+    assert name == interpolation.cell_name(atlas, env, "v", 0.02, 4)
+    assert name.startswith(atlas.key(env))
+    assert len({
+        name,
+        interpolation.cell_name(atlas, env, "v", 0.05, 4),
+        interpolation.cell_name(atlas, env, "v", 0.02, 3),
+        interpolation.cell_name(atlas, env, "w", 0.02, 4),
+    }) == 4  # fmt: skip
+    monkeypatch.setattr(interpolation, "answer_version", lambda: "changed")
+    assert interpolation.cell_name(atlas, env, "v", 0.02, 4) != name
 
 
 def test_outside_the_box_it_is_the_atlases_own_answer(small):

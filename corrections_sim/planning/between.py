@@ -17,6 +17,7 @@ from __future__ import annotations
 import hashlib
 import os
 import tempfile
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +27,44 @@ from corrections_sim.planning.cache import mark_used
 #: Plans between nodes kept per process (0.67 kB each at T = 12: 670 MB at most; past it,
 #: the unsaved ones are saved, all are dropped, and they are read again from disk when asked).
 MAX_KEPT = 1_000_000
+
+
+def write_shard(root: Path, prefix: str, arrays: dict[str, np.ndarray]) -> Path:
+    """``arrays`` as ``<prefix>-<sha256[:16]>.npz`` in ``root``, named by its checksum,
+    written to a temporary name and renamed."""
+    root.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=root, suffix=".npz.tmp")
+    with os.fdopen(fd, "wb") as fh:
+        np.savez(fh, **arrays)
+    digest = hashlib.sha256(Path(tmp).read_bytes()).hexdigest()[:16]
+    path = root / f"{prefix}-{digest}.npz"
+    os.replace(tmp, path)
+    return path
+
+
+def read_shards(
+    root: Path,
+    prefix: str,
+    rejected: list[tuple[str, str]],
+    check: Callable[[dict[str, np.ndarray]], None],
+) -> Iterator[dict[str, np.ndarray]]:
+    """The arrays of every shard ``<prefix>-*.npz`` in ``root`` (:func:`write_shard`), each
+    marked as used; one whose bytes do not match its name's checksum, that lacks an array
+    or that ``check`` refuses (ValueError) is appended to ``rejected`` as (name, why) and
+    skipped."""
+    for path in sorted(root.glob(f"{prefix}-*.npz")):
+        try:
+            digest = path.name[len(prefix) + 1 : -len(".npz")]
+            if hashlib.sha256(path.read_bytes()).hexdigest()[:16] != digest:
+                raise ValueError("its data does not match its checksum (truncated or changed)")
+            with np.load(path) as data:
+                arrays = {name: data[name] for name in data.files}
+            check(arrays)
+        except (OSError, ValueError, KeyError) as exc:
+            rejected.append((path.name, str(exc).splitlines()[0]))
+            continue
+        mark_used(path)
+        yield arrays
 
 
 class PlanShards:
@@ -40,35 +79,23 @@ class PlanShards:
         """Every plan kept for the atlas ``key``: θ (n, k) and trajectories (n, T, 7), NaN
         where no start converged; a shard whose content does not match its checksum, or of
         another shape, is reported (:attr:`rejected`) and skipped."""
+
+        def check(arrays: dict[str, np.ndarray]) -> None:
+            t, p = arrays["thetas"], arrays["plans"]
+            if t.shape[1:] != (k,) or p.shape != (len(t), T, 7):
+                raise ValueError(f"shapes {t.shape}, {p.shape}")
+
         thetas, plans = [np.zeros((0, k))], [np.zeros((0, T, 7))]
-        for path in sorted(self.root.glob(f"{key}.extra-*.npz")):
-            try:
-                digest = path.name[len(key) + len(".extra-") : -len(".npz")]
-                if hashlib.sha256(path.read_bytes()).hexdigest()[:16] != digest:
-                    raise ValueError("its data does not match its checksum (truncated or changed)")
-                with np.load(path) as data:
-                    t, p = data["thetas"], data["plans"]
-                if t.shape[1:] != (k,) or p.shape != (len(t), T, 7):
-                    raise ValueError(f"shapes {t.shape}, {p.shape}")
-            except (OSError, ValueError, KeyError) as exc:
-                self.rejected.append((path.name, str(exc).splitlines()[0]))
-                continue
-            mark_used(path)
-            thetas.append(t)
-            plans.append(p)
+        for arrays in read_shards(self.root, f"{key}.extra", self.rejected, check):
+            thetas.append(arrays["thetas"])
+            plans.append(arrays["plans"])
         return np.concatenate(thetas), np.concatenate(plans)
 
     def save(self, key: str, thetas: np.ndarray, plans: np.ndarray) -> Path:
         """Plans of the atlas ``key`` (θ (n, k), trajectories (n, T, 7)) as a shard of their
-        own, named by its checksum, written to a temporary name and renamed."""
-        self.root.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=self.root, suffix=".npz.tmp")
-        with os.fdopen(fd, "wb") as fh:
-            np.savez(fh, thetas=np.asarray(thetas, float), plans=np.asarray(plans, float))
-        digest = hashlib.sha256(Path(tmp).read_bytes()).hexdigest()[:16]
-        path = self.root / f"{key}.extra-{digest}.npz"
-        os.replace(tmp, path)
-        return path
+        own (:func:`write_shard`)."""
+        arrays = {"thetas": np.asarray(thetas, float), "plans": np.asarray(plans, float)}
+        return write_shard(self.root, f"{key}.extra", arrays)
 
 
 class BetweenNodes:

@@ -10,6 +10,7 @@ last use is the newest modification time of its files. Kinds:
   ``<name>-<key>.so`` with its build lock;
 - ``atlas``: a plan atlas, ``atlas/<key>.npy`` and ``.json``;
 - ``between``: a shard of plans solved between an atlas's nodes, ``atlas/*.extra-*.npz``;
+- ``cells``: a shard of interpolation cells checked on an atlas, ``atlas/*.cells-*.npz``;
 - ``reference``: a reference grid of plans, ``reference/<key>.npy`` with its build lock;
 - ``unfinished``: what a writer that died left (temporary files and build folders);
 - ``other``: anything else, listed and never removed.
@@ -25,7 +26,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
-KINDS = ("compiled", "atlas", "between", "reference", "unfinished", "other")
+KINDS = ("compiled", "atlas", "between", "cells", "reference", "unfinished", "other")
 #: The kinds :func:`prune` may remove.
 PRUNABLE = KINDS[:-1]
 
@@ -64,6 +65,8 @@ def _kind_and_name(relative: Path) -> tuple[str, str]:
     if top == "atlas" and len(relative.parts) == 2:
         if ".extra-" in name and name.endswith(".npz"):
             return "between", name
+        if ".cells-" in name and name.endswith(".npz"):
+            return "cells", name
         if name.endswith((".npy", ".json")):
             return "atlas", name.rsplit(".", 1)[0]
     if top == "reference" and len(relative.parts) == 2 and stem.endswith(".npy"):

@@ -19,17 +19,27 @@ Outside the atlas's box, the atlas's own answer (the planner's cold starts).
 Which cells are trusted is a property of the cells (their corners and centre are plans at
 fixed θ, each a function of (θ, E) alone), never of the order they were asked about, so the
 value at θ depends on (θ, E, v) alone, and keeping cells between calls changes no number.
+So they are kept on disk too (:class:`CellStore`): each cell checked, with its status, and a
+trusted cell's corner values, as shards ``<name>.cells-<checksum>.npz`` beside the atlas, the
+name a hash of everything a status depends on (:func:`cell_name`); a process reads them when
+it first makes the interpolant, and checks only cells no process of the machine checked.
 """
 
 from __future__ import annotations
 
 import collections
+import hashlib
+import inspect
 import itertools
+import sys
 from collections.abc import Callable, Hashable
+from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
-from corrections_sim.planning.atlas import Atlas
+from corrections_sim.planning.atlas import Atlas, answer_version
+from corrections_sim.planning.between import read_shards, write_shard
 from corrections_sim.scene.environments import Environment
 
 Values = Callable[[np.ndarray], np.ndarray]
@@ -49,6 +59,28 @@ def check_tolerance(tolerance) -> float:
     return float(tolerance)
 
 
+@dataclass(frozen=True)
+class CellStore:
+    """Where an interpolant's checked cells live on disk: the folder (the atlas store's), the
+    name (:func:`cell_name`), and the list a file found and not trusted is said in, as
+    (file name, why)."""
+
+    root: Path
+    name: str
+    rejected: list[tuple[str, str]] = field(default_factory=list)
+
+
+def cell_name(atlas: Atlas, env: Environment, *what: object) -> str:
+    """The name of E's checked cells of a function v that ``what`` identifies (its code, its
+    scale, the tolerance and finest level): a hash of those, E's atlas key, the code of the
+    answers between nodes (:func:`~corrections_sim.planning.atlas.answer_version`) and this
+    module's, so changed code leaves the old cells unread."""
+    h = hashlib.sha256(f"{atlas.key(env)}|{answer_version()}".encode())
+    h.update(inspect.getsource(sys.modules[__name__]).encode())
+    h.update(repr(what).encode())
+    return f"{atlas.key(env)}-{h.hexdigest()[:16]}"
+
+
 class CellInterpolant:
     """v(ξ*(θ, E)) at any θ (module docstring).
 
@@ -59,6 +91,8 @@ class CellInterpolant:
         measure: the size of a difference of values, in the tolerance's units.
         tolerance: the largest error at a trusted cell's probes.
         max_level: the finest cells, the atlas's spacing / 2^max_level.
+        store: where checked cells are kept on disk (None: in this process only); the
+            store's name must identify everything above but the atlas and E.
     """
 
     def __init__(
@@ -70,6 +104,7 @@ class CellInterpolant:
         *,
         tolerance: float = 0.02,
         max_level: int = 4,
+        store: CellStore | None = None,
     ) -> None:
         self.tolerance = check_tolerance(tolerance)
         if isinstance(max_level, bool) or not isinstance(max_level, int) or max_level < 0:
@@ -95,8 +130,68 @@ class CellInterpolant:
         self._corners: dict[tuple[int, ...], np.ndarray] = {}
         #: θ answered by a solve of their own (cells that stay untrusted at the finest level).
         self.solved = 0
-        #: Cells checked (their probes against solved plans).
+        #: Cells checked (their probes against solved plans) in this process.
         self.checked = 0
+        self.store = store
+        self._unsaved: list[tuple[int, ...]] = []
+        if store is not None:
+            self._load(store)
+
+    def _corner_coords(self, key: tuple[int, ...]) -> np.ndarray:
+        """A cell's corners (2^k, k) in fine coordinates; ``key`` = (level, *lower corner)."""
+        width = self._fine // 2 ** key[0]
+        return (np.array(key[1:], np.int64) + self._bits) * width
+
+    def _load(self, store: CellStore) -> None:
+        """The cells checked and saved by any process (their trusted ones' corner values)."""
+        k = len(self._lows)
+
+        def check(a: dict[str, np.ndarray]) -> None:
+            cells, status, nodes, values = a["cells"], a["status"], a["nodes"], a["values"]
+            if cells.ndim != 2 or cells.shape[1] != k + 1 or status.shape != (len(cells),):
+                raise ValueError(f"cells of shape {cells.shape}, statuses {status.shape}")
+            if nodes.shape[1:] != (k,) or values.ndim != 2 or len(values) != len(nodes):
+                raise ValueError(f"nodes of shape {nodes.shape}, values {values.shape}")
+            if not np.isin(status, (_TRUSTED, _CUT, _SOLVE)).all():
+                raise ValueError("a cell status that is none of trusted, cut, solve")
+
+        for a in read_shards(store.root, f"{store.name}.cells", store.rejected, check):
+            for key, value in zip(map(tuple, a["nodes"].tolist()), a["values"], strict=True):
+                self._nodes.setdefault(key, value)
+            for key, status in zip(
+                map(tuple, a["cells"].tolist()), a["status"].tolist(), strict=True
+            ):
+                self._status.setdefault(key, int(status))
+        for key, status in list(self._status.items()):
+            if status == _TRUSTED:
+                corners = [tuple(c) for c in self._corner_coords(key).tolist()]
+                if all(c in self._nodes for c in corners):
+                    self._corners[key] = np.array([self._nodes[c] for c in corners])
+                else:  # a shard's cell without its corners: checked again
+                    del self._status[key]
+
+    def save(self, at_least: int = 1) -> int:
+        """Write the cells checked since the last save as a shard, if at least ``at_least``
+        (nothing without a store); how many were written."""
+        if self.store is None or len(self._unsaved) < max(1, at_least):
+            return 0
+        keys, self._unsaved = self._unsaved, []
+        trusted = [key for key in keys if self._status[key] == _TRUSTED]
+        k, m = len(self._lows), (len(next(iter(self._corners.values()))[0]) if trusted else 0)
+        nodes = np.zeros((0, k), np.int64)
+        values = np.zeros((0, m))
+        if trusted:
+            coords = np.concatenate([self._corner_coords(key) for key in trusted])
+            nodes, first = np.unique(coords, axis=0, return_index=True)
+            values = np.concatenate([self._corners[key] for key in trusted])[first]
+        arrays = {
+            "cells": np.array(keys, np.int64).reshape(-1, k + 1),
+            "status": np.array([self._status[key] for key in keys], np.int8),
+            "nodes": nodes,
+            "values": values,
+        }
+        write_shard(self.store.root, f"{self.store.name}.cells", arrays)
+        return len(keys)
 
     def _node_values(self, coords: np.ndarray) -> np.ndarray:
         """The values at nodes given by fine coordinates (n, k) -> (n, m), solving (once)
@@ -130,6 +225,7 @@ class CellInterpolant:
             good = np.all(np.isfinite(corner_values), axis=(1, 2)) & np.isfinite(error)
             good &= error <= self.tolerance
             self.checked += n
+            self._unsaved.extend(keys[i] for i in new)
             for i, ok, values in zip(new, good.tolist(), corner_values, strict=True):
                 if ok:
                     self._status[keys[i]] = _TRUSTED
@@ -207,7 +303,13 @@ def interpolant(key: Hashable, make: Callable[[], CellInterpolant]) -> CellInter
     if found is None:
         found = _KEPT[key] = make()
         while len(_KEPT) > _MAX_INTERPOLANTS:
-            _KEPT.popitem(last=False)
+            _KEPT.popitem(last=False)[1].save()
     else:
         _KEPT.move_to_end(key)
     return found
+
+
+def save_kept(at_least: int = 1) -> int:
+    """Save the cells of every interpolant kept in this process that checked at least
+    ``at_least`` since its last save (:meth:`CellInterpolant.save`); how many were written."""
+    return sum(found.save(at_least) for found in _KEPT.values())

@@ -26,7 +26,7 @@ import numpy as np
 from corrections_sim import components
 from corrections_sim.learning import learning_rate_schedule
 from corrections_sim.learning.base import LEARNERS, make_learner
-from corrections_sim.planning import atlas
+from corrections_sim.planning import atlas, interpolation
 from corrections_sim.planning.planner import shared_planner
 from corrections_sim.planning.plans import PlanBook, PlanEntries, Target, evaluate
 from corrections_sim.study.loop import RunResult, run_learner
@@ -105,6 +105,7 @@ def run_one(
     )
     if atlas is not None:  # the plans it solved between the nodes, for the next process
         atlas.save(at_least=SAVE_AT_LEAST)
+        interpolation.save_kept(at_least=SAVE_AT_LEAST)  # and the cells it checked
     return result
 
 

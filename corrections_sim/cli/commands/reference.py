@@ -23,6 +23,7 @@ def run_reference(args: argparse.Namespace) -> list[Path]:
     from corrections_sim.figures.output import write_records
     from corrections_sim.figures.reference import recorded_runs, reference_run, summary_at
     from corrections_sim.learning import exact_posterior as ref
+    from corrections_sim.planning import interpolation
     from corrections_sim.planning.planner import Planner
     from corrections_sim.study import schema
 
@@ -77,6 +78,7 @@ def run_reference(args: argparse.Namespace) -> list[Path]:
             print(f"run {run}: done", file=sys.stderr, flush=True)
             if settings.atlas() is not None:  # the plans solved between nodes, kept
                 settings.atlas().save()
+                interpolation.save_kept()  # and the particles' checked cells
     except (OSError, KeyError, ValueError) as exc:
         raise UsageError(str(exc)) from None
     path = write_records(folder / f"reference-{learner}.csv", records)

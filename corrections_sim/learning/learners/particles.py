@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -31,7 +32,13 @@ from corrections_sim.learning.particles import draw as particles_draw
 from corrections_sim.people.corrections import OptimalCorrection
 from corrections_sim.planning.atlas import Atlas
 from corrections_sim.planning.features import waypoint_features
-from corrections_sim.planning.interpolation import CellInterpolant, check_tolerance, interpolant
+from corrections_sim.planning.interpolation import (
+    CellInterpolant,
+    CellStore,
+    cell_name,
+    check_tolerance,
+    interpolant,
+)
 from corrections_sim.planning.planner import Plan, PlanningError
 from corrections_sim.scene.environments import Environment
 
@@ -229,12 +236,18 @@ def waypoint_table(
         return np.max(worst / sd, axis=-1)
 
     key = ("waypoints", atlas.key(env), names, sd.tobytes(), tolerance, max_level)
-    return interpolant(
-        key,
-        lambda: CellInterpolant(
-            atlas, env, values, measure, tolerance=tolerance, max_level=max_level
-        ),
-    )
+
+    def make() -> CellInterpolant:
+        store = None
+        if atlas.store is not None:  # the cells any process of the machine checked
+            what = (inspect.getsource(waypoint_table), *key[2:])
+            name = cell_name(atlas, env, *what)
+            store = CellStore(atlas.store.root, name, atlas.store.rejected)
+        return CellInterpolant(
+            atlas, env, values, measure, tolerance=tolerance, max_level=max_level, store=store
+        )
+
+    return interpolant(key, make)
 
 
 def particle_reference(learner: Learner, name: str, count: int) -> ParticleCorrectionAware:
