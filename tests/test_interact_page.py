@@ -7,6 +7,7 @@ browser shows (the page after Done, a hand's grab of the moving handle) is in
 from __future__ import annotations
 
 import asyncio
+import sqlite3
 from types import SimpleNamespace
 
 import numpy as np
@@ -227,3 +228,21 @@ def test_a_motion_with_no_push_puts_the_handle_back_on_the_cup(served):
             "skip_button": True,
             "done_button": True,
         }
+
+
+def test_a_click_while_the_server_stops_ends_quietly_and_logs_nothing(served, capsys):
+    """A click the page is still answering when its command closes the log (Ctrl-C while a
+    person clicks) ends without a traceback: nothing it did could be kept. A closed database
+    elsewhere, the log still open, is still an error."""
+    session, page, url = served()
+    with drive.SocketTab(url):
+        _ready(page)
+        session.log.close()
+        _click(page, "skip_button")  # would read and write the closed log
+        assert "Traceback" not in capsys.readouterr().err
+    other = sqlite3.connect(":memory:")
+    other.close()
+    log = StudyLog(session.log.path)
+    with pytest.raises(sqlite3.ProgrammingError), log.unless_closed():
+        other.execute("SELECT 1")
+    log.close()

@@ -6,6 +6,7 @@ participant gave, shown back before they are written, kept over a reload."""
 from __future__ import annotations
 
 import socket
+from types import SimpleNamespace
 
 import msgspec
 import numpy as np
@@ -226,3 +227,19 @@ def test_an_experimenters_link_of_an_earlier_server_says_so(study, monkeypatch):
         "experimenter link the server printed when it started."
     ]
     assert study.refused == 1
+
+
+def test_a_click_while_the_server_stops_ends_quietly(study):
+    """Continue pressed as the command closes the study log (Ctrl-C): the click ends without
+    an error, as nothing it did could be kept."""
+    link = study.enroll("P1")
+    with _tab(link) as tab:
+        view = _view(study, "P1")
+        tab.send(drive.wait_for(lambda: view.controls.get("code"), "the code box"), "p1")
+        drive.wait_for(lambda: view.controls["code"].value == "p1", "the code typed")
+        tab.send(view.controls["start"], True)
+        button = drive.wait_for(lambda: view.controls.get("continue"), "the welcome")
+        study.run.log.close()
+        (handler,) = button._impl.update_cb
+        handler(SimpleNamespace(client=view.client, target=button))  # would write the log
+        assert study.run.log.closed

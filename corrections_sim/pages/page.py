@@ -378,7 +378,7 @@ class Page:
                 return
             self.owner = client
         try:
-            with self._lock:
+            with self._lock, self.session.log.unless_closed():  # the server may be stopping
                 self.handle = None  # the handles of a closed tab are not this one's
                 self._build(client)
         except Exception:
@@ -631,7 +631,7 @@ class Page:
                 self._say(f"**Busy** {self._busy or 'working'}: that click was not taken.")
                 return
             try:
-                with self._lock:
+                with self._lock, self.session.log.unless_closed():  # the server may be stopping
                     if button.disabled or self.session.ended or self.client is None:
                         return  # pressed before the page showed it disabled
                     self._busy = doing

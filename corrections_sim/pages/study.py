@@ -410,18 +410,19 @@ class ParticipantView:
             if not self._busy.acquire(blocking=False):
                 return
             try:
-                try:
-                    action()
-                    self.message = ""
-                except (StudyError, ValueError) as exc:
-                    self.message = str(exc).splitlines()[0]
-                    if redraw_refused:
+                with self.study.run.log.unless_closed():  # the server may be stopping
+                    try:
+                        action()
+                        self.message = ""
+                    except (StudyError, ValueError) as exc:
+                        self.message = str(exc).splitlines()[0]
+                        if redraw_refused:
+                            self.render()
+                        elif self.error is not None and self.client is not None:
+                            self.error.content = f"**Not taken**: {self.message}"
+                        return
+                    if redraw:
                         self.render()
-                    elif self.error is not None and self.client is not None:
-                        self.error.content = f"**Not taken**: {self.message}"
-                    return
-                if redraw:
-                    self.render()
             finally:
                 self._busy.release()
 

@@ -43,11 +43,12 @@ so replays see the very numbers the session used).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import re
 import sqlite3
 import threading
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -230,6 +231,7 @@ class StudyLog:
         except sqlite3.DatabaseError as exc:
             raise LogError(f"{self.path}: not a study log ({exc})") from None
         self._lock = threading.Lock()
+        self._closed = False
 
     def close(self) -> None:
         """Close the file once no other thread is inside a query (a page's callback thread may
@@ -237,6 +239,23 @@ class StudyLog:
         sqlite3.ProgrammingError, never touches a closed handle mid-statement."""
         with self._lock:
             self._db.close()
+            self._closed = True
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    @contextlib.contextmanager
+    def unless_closed(self) -> Iterator[None]:
+        """A block that may run on while the log is closed under it (a page's callback still
+        answering a click, or a tab connecting, as its server stops): a query there ends the
+        block quietly, for nothing it did could be kept. Any other error, or one while the log
+        is open, is raised."""
+        try:
+            yield
+        except sqlite3.ProgrammingError:
+            if not self._closed:
+                raise
 
     def __enter__(self) -> StudyLog:
         return self
