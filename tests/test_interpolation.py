@@ -250,3 +250,25 @@ def test_particles_through_the_atlas_learn_and_give_the_same_numbers_on_two_work
     rows = [r for r in csv.DictReader(curves[0].decode().splitlines()) if r["learner"] == "PF-C"]
     first = [r for r in rows if r["run"] == "0"]
     assert float(first[-1]["cov_00"]) < 0.5 * float(first[0]["cov_00"])
+
+
+def test_an_interpolant_dropped_from_the_process_keeps_its_cells(small, tmp_path, monkeypatch):
+    """Past the per-process limit the least recently used interpolant goes, its cells saved
+    first, so a process with many environments checks nothing twice on the machine."""
+    atlas, env = small
+    values, measure = _feature_values(env)
+    monkeypatch.setattr(interpolation, "_KEPT", type(interpolation._KEPT)())
+    monkeypatch.setattr(interpolation, "_MAX_INTERPOLANTS", 1)
+
+    def make(name):
+        store = CellStore(tmp_path, name)
+        return lambda: CellInterpolant(atlas, env, values, measure, max_level=1, store=store)
+
+    first = interpolation.interpolant("first", make("first"))
+    first(np.array([[0.1, 0.2], [1.1, -0.7]]))
+    assert first.checked > 0 and not list(tmp_path.glob("first.cells-*.npz"))
+    interpolation.interpolant("second", make("second"))
+    assert list(interpolation._KEPT) == ["second"]
+    assert len(list(tmp_path.glob("first.cells-*.npz"))) == 1
+    again = interpolation.interpolant("first", make("first"))
+    assert again is not first and len(again._status) == first.checked
