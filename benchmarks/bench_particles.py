@@ -31,7 +31,6 @@ from corrections_sim.learning.learners.particles import waypoint_table
 from corrections_sim.learning.observation import CorrectedPlanFeatures
 from corrections_sim.people.corrections import WaypointCorrection
 from corrections_sim.planning import interpolation
-from corrections_sim.planning.atlas import answer_version
 from corrections_sim.study import runner
 
 
@@ -60,10 +59,7 @@ def run_bench(
     observation = CorrectedPlanFeatures(WaypointCorrection())
     rng = np.random.default_rng(seed)
     shards = atlas.store.shards
-    version = answer_version()
-    stored = sum(
-        len(shards.load(f"{atlas.key(e)}-{version}", T, study.k)[0]) for e in settings.envs()
-    )
+    stored = sum(len(shards.load(atlas.between_key(e), T, study.k)[0]) for e in settings.envs())
     lines = [
         f"fig. 4's atlas {atlas.grid.counts} over {atlas.grid.lows}..{atlas.grid.highs}; "
         f"{stored} plans between nodes already on disk; bound {bound} noise sd, "

@@ -56,10 +56,9 @@ ALGORITHM = 1
 
 @functools.cache
 def answer_version() -> str:
-    """What an answer between the nodes depends on beyond the atlas's key: the code of this
-    module (:meth:`Atlas.solve`, the corners' ranking) and of the warm re-solve (Newton's,
-    Python and C), hashed; the plans kept on disk between nodes are named by it too, so a
-    change there leaves them unread rather than wrong."""
+    """What an answer between the nodes depends on beyond the atlas's key, hashed: the code of
+    this module (:meth:`Atlas.solve`, the corners' ranking) and of Newton's warm re-solve;
+    plans kept between nodes are named by it, so changed code leaves them unread."""
     h = hashlib.sha256()
     for path in (Path(__file__), Path(newton.__file__), Path(newton.__file__).with_suffix(".c")):
         h.update(path.read_bytes())
@@ -446,6 +445,10 @@ class Atlas:
             self._env_keys[env.key()] = found
         return found
 
+    def between_key(self, env: Environment) -> str:
+        """The name of E's answers between nodes on disk: its key and :func:`answer_version`."""
+        return f"{self.key(env)}-{answer_version()}"
+
     def hold(self, env: Environment, built: EnvironmentAtlas) -> None:
         """Keep E's atlas built elsewhere (e.g. by a benchmark's pool) for this process."""
         if built.grid != self.grid:
@@ -499,7 +502,7 @@ class Atlas:
         if on.any():
             nodes = np.ravel_multi_index(tuple(index[on].astype(int).T), grid.counts)
             out[on] = built.trajectories[nodes]
-        known = self._between.known(env.key(), f"{self.key(env)}-{answer_version()}")
+        known = self._between.known(env.key(), self.between_key(env))
         for i in np.flatnonzero(~on).tolist():
             memo = thetas[i].tobytes()
             if memo not in known:
@@ -514,10 +517,8 @@ class Atlas:
         return out
 
     def save(self, at_least: int = 1) -> int:
-        """Write to the store the plans between nodes solved here and not yet saved, for every
-        environment with at least ``at_least`` of them, so that the next process on this
-        machine reads them instead of solving them again (nothing without a store). Returns
-        how many were written."""
+        """Store the plans between nodes solved here and not yet saved, of every environment
+        with at least ``at_least``, for the next process of the machine; how many."""
         return self._between.save(at_least)
 
 

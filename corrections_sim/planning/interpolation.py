@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from corrections_sim.planning.atlas import Atlas, answer_version
+from corrections_sim.planning.atlas import Atlas
 from corrections_sim.planning.between import read_shards, write_shard
 from corrections_sim.scene.environments import Environment
 
@@ -75,7 +75,7 @@ def cell_name(atlas: Atlas, env: Environment, *what: object) -> str:
     scale, the tolerance and finest level): a hash of those, E's atlas key, the code of the
     answers between nodes (:func:`~corrections_sim.planning.atlas.answer_version`) and this
     module's, so changed code leaves the old cells unread."""
-    h = hashlib.sha256(f"{atlas.key(env)}|{answer_version()}".encode())
+    h = hashlib.sha256(atlas.between_key(env).encode())
     h.update(inspect.getsource(sys.modules[__name__]).encode())
     h.update(repr(what).encode())
     return f"{atlas.key(env)}-{h.hexdigest()[:16]}"
