@@ -183,10 +183,10 @@ def test_a_command_help_lists_its_own_options_only(capsys):
 def test_an_interrupted_session_speaks_of_the_session():
     """An interrupt's message gives the command that resumes the very session."""
     args = cli.parser().parse_args(["interact", "--db", "x.sqlite"])
-    assert "no session" in cli._nothing_kept(args)
+    assert "before a session was started" in cli._nothing_kept(args)
     args.interact_session = 4
     assert "--resume 4 --db x.sqlite" in cli._nothing_kept(args)
-    assert "figs. 4-6" in cli._nothing_kept(cli.parser().parse_args(["fig4"]))
+    assert "fig4 stopped before any run" in cli._nothing_kept(cli.parser().parse_args(["fig4"]))
 
 
 @pytest.mark.parametrize(
@@ -295,7 +295,21 @@ def test_what_an_interrupt_leaves_is_said_without_importing_anything():
     ).stdout.splitlines()
     assert out[0] == "[]", out[0]
     assert "--resume 3 --db x.sqlite" in out[1] and "replay wrote nothing" in out[1]
-    assert out[1].count("no finished runs to keep") == 2
+    assert "fig4 stopped before any run had finished" in out[1]
+    assert "before a command had started" in out[1]
+
+
+def test_every_interrupt_message_names_its_command():
+    """What an interrupt leaves is said in the command's own words, naming it: serve-study
+    said a figure run's "no finished runs to keep (figs. 4-6 resume, figs. 1-3 start over)"."""
+    import argparse
+
+    from corrections_sim.cli.commands import commands
+
+    for name, command in commands().items():
+        said = command.nothing_kept(argparse.Namespace(figure=name, db=None, out=None))
+        assert name in said, (name, said)
+        assert "figs. 4-6" not in said, (name, said)
 
 
 def test_the_command_line_module_imports_nothing_heavy():

@@ -424,3 +424,29 @@ def test_closing_the_log_waits_for_a_query_in_another_thread(tmp_path):
     closer.join(5)
     with pytest.raises(sqlite3.ProgrammingError):
         log.has_study()
+
+
+def test_the_session_learner_is_tuned_from_the_command_line(tmp_path):
+    """``interact --learner KF-CRX --set learners.KF-CRX.expand_traces=5`` reaches the
+    teaching learner though fig. 4's study names it not (it failed: "KF-CRX is not one of the
+    study's learners"); a file that gives a list and a table of learners is told how to write
+    it; an unknown --learner is named as the option."""
+    from corrections_sim.cli import main as cli
+    from corrections_sim.cli.commands import interact
+    from corrections_sim.cli.errors import UsageError
+
+    argv = ["interact", "--learner", "KF-CRX", "--set", "learners.KF-CRX.expand_traces=5"]
+    plan = interact._session_plan(cli._parse(argv))
+    assert plan["learner"] == "KF-CRX"
+    assert plan["settings"].study.learners["KF-CRX"].expand_traces == 5
+    assert "KF-C" in plan["settings"].study.learners  # the file's learners are kept
+    both = tmp_path / "teach.toml"
+    head = "theta_star = [1.0, -1.0]\n"
+    both.write_text(head + 'learners = ["KF"]\n[learners.KF-CRX]\nexpand_traces = 5\n')
+    with pytest.raises(UsageError, match=r"cannot both be given: name every learner as a table"):
+        interact._session_plan(cli._parse(["interact", str(both), "--learner", "KF-CRX"]))
+    both.write_text(head + "[learners.KF]\n[learners.KF-CRX]\nexpand_traces = 4\n")
+    plan = interact._session_plan(cli._parse(["interact", str(both), "--learner", "KF-CRX"]))
+    assert plan["settings"].study.learners["KF-CRX"].expand_traces == 4
+    with pytest.raises(UsageError, match=r"^--learner KF-Q: unknown learner"):
+        interact._session_plan(cli._parse(["interact", "--learner", "KF-Q"]))

@@ -240,16 +240,18 @@ def _serve(protocol: Path, db: Path, port: int, *enroll: str):
     command += ["--db", str(db), "--port", str(port)]
     if enroll:
         command += ["--enroll", ",".join(enroll)]
-    server = subprocess.Popen(command, stderr=subprocess.PIPE, text=True, cwd=Path.cwd())
+    server = subprocess.Popen(
+        command, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, cwd=Path.cwd()
+    )
     links = {}
-    while True:
-        line = server.stderr.readline()
+    while True:  # the links come on the standard output, a line each
+        line = server.stdout.readline()
         assert line, "the server ended before serving"
-        if line.startswith("participant "):
-            code, link = line.split(": ", 1)
-            links[code.split()[1]] = link.strip()
-        if "experimenter's page" in line:
-            links["experimenter"] = re.search(r"(http://\S+)", line).group(1)
+        who, link = line.split(": ", 1)
+        if who.startswith("participant "):
+            links[who.split()[1]] = link.strip()
+        if who == "experimenter":
+            links["experimenter"] = link.strip()
             return server, links
 
 

@@ -162,3 +162,80 @@ def test_study_status_prints_where_everyone_is(capsys):
     lines = capsys.readouterr().out.strip().splitlines()
     assert len(lines) == 12
     assert all(re.fullmatch(r"sim\d{5} simulated: step 10/10 end", line) for line in lines)
+
+
+SMALL_STUDY = (
+    'environments = ["s0-t0-l1", "s1-t1-l0"]\ntheta_star = [1.0, -1.0]\nlearners = ["KF-C"]\n'
+)
+SMALL_PROTOCOL = (
+    'description = "a small study"\nstudy = "small.toml"\nseed = 3\ncorrections = 1\n'
+    '[[conditions]]\nname = "C"\nlearner = "KF-C"\n'
+)
+
+
+def _small_protocol(folder: Path) -> Path:
+    (folder / "small.toml").write_text(SMALL_STUDY)
+    protocol = folder / "protocol.toml"
+    protocol.write_text(SMALL_PROTOCOL)
+    return protocol
+
+
+def test_serve_study_on_a_busy_port_is_one_line_and_makes_no_log(tmp_path, capsys):
+    """A busy port is refused before the log is touched: no file is left (it left an empty
+    73 KB study log, tables and no rows)."""
+    import socket
+
+    protocol = _small_protocol(tmp_path)
+    db = tmp_path / "x.sqlite"
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen(1)
+        port = busy.getsockname()[1]
+        argv = ["serve-study", str(protocol), "--db", str(db), "--port", str(port)]
+        assert cli.main([*argv, "--enroll", "P01"]) == 2
+    err = capsys.readouterr().err
+    assert f"--port {port}: in use" in err and err.count("\n") == 1, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["protocol.toml", "small.toml"]
+
+
+def test_serve_study_prints_the_links_on_stdout_and_its_interrupt_names_it(tmp_path):
+    """The links, a line each, on the standard output (a lab pipes them to a file); what the
+    server does on stderr; Ctrl-C says that the study's server stopped and where every step
+    is, not a figure's message."""
+    import signal
+    import socket
+    import subprocess
+    import sys
+
+    protocol = _small_protocol(tmp_path)
+    db = tmp_path / "study.sqlite"
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    argv = ["serve-study", str(protocol), "--db", str(db), "--port", str(port)]
+    server = subprocess.Popen(
+        [sys.executable, "-m", "corrections_sim.run", *argv, "--enroll", "P01,P02"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        lines = [server.stdout.readline() for _ in range(3)]
+        assert [line.split(": ")[0] for line in lines] == [
+            "participant P01",
+            "participant P02",
+            "experimenter",
+        ], lines
+        assert all(
+            re.fullmatch(r"[^:]+: http://127\.0\.0\.1:\d+/\?websocket=\S+\n", x) for x in lines
+        )
+        server.send_signal(signal.SIGINT)
+        out, err = server.communicate(timeout=60)
+    finally:
+        if server.poll() is None:
+            server.kill()
+    assert server.returncode == 130, err
+    assert "http://" not in err and out == "", (out, err)
+    last = err.strip().splitlines()[-1]
+    assert last.startswith("interrupted: serve-study stopped serving"), last
+    assert str(db) in last and "figs." not in last and "runs" not in last, last

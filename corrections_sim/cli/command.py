@@ -9,8 +9,14 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
-#: What an interrupted command leaves, unless the command says otherwise.
-NOTHING_KEPT = "no finished runs to keep (figs. 4-6 resume, figs. 1-3 start over)"
+
+def nothing_kept_by_default(args: argparse.Namespace | None) -> str:
+    """What an interrupted figure leaves when no run had finished (a figure's command, and
+    ``all``, say nothing else; a run that had finished is said by the interrupt itself)."""
+    name = getattr(args, "figure", None)
+    if name is None:
+        return "stopped before a command had started; nothing was written"
+    return f"{name} stopped before any run had finished; nothing was written (run it again)"
 
 
 @dataclass(frozen=True)
@@ -26,7 +32,8 @@ class Command:
         file: what its positional ``FILE`` is, as its usage line shows it.
         option_help: an option's help where this command reads it otherwise than the
             catalogue says.
-        nothing_kept: what an interrupted run of it leaves (default :data:`NOTHING_KEPT`).
+        nothing_kept: what an interrupted run of it leaves, naming the command (default
+            :func:`nothing_kept_by_default`).
     """
 
     name: str
@@ -35,7 +42,7 @@ class Command:
     options: tuple[str, ...]
     file: str = "FILE"
     option_help: Mapping[str, str] = field(default_factory=dict)
-    nothing_kept: Callable[[argparse.Namespace], str] = lambda args: NOTHING_KEPT
+    nothing_kept: Callable[[argparse.Namespace], str] = nothing_kept_by_default
 
 
 def wrote_nothing(args: argparse.Namespace) -> str:

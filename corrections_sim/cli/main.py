@@ -19,7 +19,7 @@ import copy
 import sys
 from collections.abc import Sequence
 
-from corrections_sim.cli.command import NOTHING_KEPT
+from corrections_sim.cli.command import nothing_kept_by_default
 from corrections_sim.cli.errors import UsageError
 from corrections_sim.cli.executors import Interrupted, interruption, interrupts
 
@@ -143,7 +143,7 @@ def _nothing_kept(args: argparse.Namespace | None) -> str:
     loaded = sys.modules.get("corrections_sim.cli.commands")
     tool = getattr(loaded, "tool", None)
     command = None if tool is None else tool(getattr(args, "figure", None))
-    return NOTHING_KEPT if command is None else command.nothing_kept(args)
+    return nothing_kept_by_default(args) if command is None else command.nothing_kept(args)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -170,8 +170,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             if cause is None:
                 raise
             kept = getattr(cause, "kept", None)
+            named = getattr(locals().get("args"), "figure", None)
             message = (
-                f"{kept}; run the command again to resume"
+                f"{named}: {kept}; run it again to resume"
                 if kept
                 else _nothing_kept(locals().get("args"))
             )

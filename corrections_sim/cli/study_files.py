@@ -24,11 +24,24 @@ def protocol_path(args: argparse.Namespace) -> Path:
     return path
 
 
-def open_study(args: argparse.Namespace, db: Path):
+def check_study(args: argparse.Namespace) -> tuple:
+    """The protocol file given and its conditions' study settings, checked, with nothing
+    written (:func:`corrections_sim.userstudy.cohort.load`)."""
+    from corrections_sim.userstudy.cohort import load
+
+    try:
+        return load(protocol_path(args))
+    except (ValueError, OSError) as exc:
+        raise UsageError(str(exc).splitlines()[0]) from None
+
+
+def open_study(args: argparse.Namespace, db: Path, loaded: tuple | None = None):
+    """The protocol given with its log ``db`` (made if new); ``loaded``: what
+    :func:`check_study` gave for it."""
     from corrections_sim.session.log import LogError
     from corrections_sim.userstudy.cohort import open_run
 
     try:
-        return open_run(protocol_path(args), db)
+        return open_run(protocol_path(args), db, loaded)
     except (LogError, ValueError, OSError) as exc:
         raise UsageError(str(exc).splitlines()[0]) from None

@@ -34,7 +34,14 @@ def read(path, *, quick: bool, keys=None) -> dict:
     try:
         values = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"invalid TOML: {exc}") from None
+        hint = ""
+        if "Cannot declare ('learners'" in str(exc):
+            hint = (
+                "; a list `learners = [...]` and a table `[learners.NAME]` cannot both be "
+                "given: name every learner as a table (`[learners.KF]`, an empty one takes "
+                "the defaults)"
+            )
+        raise ValueError(f"invalid TOML: {exc}{hint}") from None
     overrides = values.pop("quick", {})
     if not isinstance(overrides, dict):
         raise ValueError("quick: expected a table of keys to override with --quick")

@@ -423,7 +423,8 @@ def apply_overrides(values: Mapping[str, Any], overrides: Mapping[str, Any]) -> 
     ``set`` (a list of "PATH=VALUE"). Flat (legacy) keys are translated first, so an option
     always wins over the file. ``--learners`` keeps the file's parameters of the learners it
     names (given as a table ``{name: {param: value}}``, its parameters are added to the
-    file's); ``--user`` replaces the user."""
+    file's); ``--user`` replaces the user; ``session_learner`` (a session's learner) is added
+    to the learners with its defaults if the file does not name it."""
     values = dict(values)
     given = {k: v for k, v in overrides.items() if v is not None and k != "set"}
     plugins = values.pop("plugins", None)
@@ -443,6 +444,14 @@ def apply_overrides(values: Mapping[str, Any], overrides: Mapping[str, Any]) -> 
         values["learners"] = {n: {**old.get(n, {}), **p} for n, p in params.items()}
     if "user" in given:
         values["user"] = given.pop("user")
+    if "session_learner" in given:
+        # A session's learner (interact --learner) is one of its study's, with its defaults
+        # where the file names it not, so --set learners.NAME.… reaches it.
+        name = given.pop("session_learner")
+        named = values.get("learners", [])
+        table = dict(named) if isinstance(named, Mapping) else {n: {} for n in named}
+        if isinstance(name, str) and name not in table:
+            values["learners"] = {**table, name: {}}
     for key, value in given.items():
         set_path(values, OPTION_PATHS.get(key, key), value)
     for item in overrides.get("set") or ():

@@ -83,11 +83,15 @@ def load(protocol_path) -> tuple[Protocol, dict[str, FigureSettings]]:
     return protocol, settings
 
 
-def open_run(protocol_path, db) -> StudyRun:
-    """The protocol at ``protocol_path`` with the study log ``db`` (made if new)."""
-    protocol_path = Path(protocol_path)
-    protocol = load_protocol(protocol_path)
-    settings = settings_for(protocol, protocol_path.resolve().parent)
+def open_run(protocol_path, db, loaded: tuple | None = None) -> StudyRun:
+    """The protocol at ``protocol_path`` with the study log ``db`` (made if new);
+    ``loaded``: what :func:`load` gave for it, where the caller checked it first."""
+    if loaded is None:
+        protocol_path = Path(protocol_path)
+        protocol = load_protocol(protocol_path)
+        settings = settings_for(protocol, protocol_path.resolve().parent)
+    else:
+        protocol, settings = loaded
     log = StudyLog(db)
     try:
         return StudyRun(protocol, log, settings)

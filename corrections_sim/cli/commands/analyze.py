@@ -37,4 +37,7 @@ COMMAND = Command(
         "study_file": "the study log (SQLite) a protocol's study wrote",
         "out": "where the tables, plots and report go (default: LOG's folder/analysis)",
     },
+    nothing_kept=lambda args: (
+        "analyze stopped before it finished (it only reads the log); run it again"
+    ),
 )

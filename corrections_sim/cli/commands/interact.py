@@ -24,6 +24,8 @@ def _interact_settings(args: argparse.Namespace):
 
     overrides = {n: getattr(args, n) for n in ("set", "seed", "theta0", "cov0", "user")}
     overrides = {n: v for n, v in overrides.items() if v is not None}
+    # The session's learner is one of the study's, so --set learners.NAME.… reaches it.
+    overrides["session_learner"] = args.learner or DEFAULT_LEARNER
     if args.headless and args.theta_star is not None:
         overrides["theta_star"] = args.theta_star
     source = Path(args.study_file) if args.study_file else EXPERIMENTS_DIR / "fig4.toml"
@@ -31,6 +33,9 @@ def _interact_settings(args: argparse.Namespace):
     try:
         return schema.load_study(source, name=name, quick=False, overrides=overrides)
     except ValueError as exc:
+        unknown = f"learners.{overrides['session_learner']}: unknown learner"
+        if str(exc).startswith(unknown):  # (a study's plug-ins may register it: asked there)
+            raise UsageError(f"--learner {str(exc)[len('learners.') :]}") from None
         raise UsageError(f"{source}: {exc}") from None
 
 
@@ -49,6 +54,8 @@ def db_of(args: argparse.Namespace) -> Path:
     )
 
 
+#: Who learns in a session without --learner.
+DEFAULT_LEARNER = "KF-CL"
 #: What ``interact --resume`` takes besides; the session's own settings are the rest.
 RESUME_OPTIONS = ("resume", "db", "host", "port", "speed")
 #: After "Done", the server keeps the page (the deployment) up until its tab closes, at most
@@ -177,7 +184,7 @@ def _session_plan(args: argparse.Namespace) -> dict:
                 "robot's features; simulate a person with their own in a study "
                 "(run study FILE)"
             )
-    learner = args.learner or "KF-CL"
+    learner = args.learner or DEFAULT_LEARNER
     physical = args.mode == "physical"
     plan = {
         "settings": settings,
@@ -267,9 +274,10 @@ def nothing_kept(args: argparse.Namespace) -> str:
     """What an interrupted session leaves: every confirmed correction, and how to resume."""
     session = getattr(args, "interact_session", None)
     if session is None:
-        return "no session was started"
+        return "interact stopped before a session was started"
     return (
-        f"every confirmed correction is in the session's log; continue it with "
+        f"interact stopped session {session}; every confirmed correction is in its log; "
+        "continue it with "
         f"--resume {session} --db {db_of(args)}"
     )
 

@@ -52,4 +52,8 @@ COMMAND = Command(
         "db": "the pilot's log (default OUT/study.sqlite)",
         "out": "the pilot's folder (default results/pilot)",
     },
+    nothing_kept=lambda args: (
+        "pilot stopped; the participants simulated so far are kept in its log "
+        "(run it again to go on from them)"
+    ),
 )

@@ -120,4 +120,8 @@ COMMAND = Command(
         "OUT/.pool, resumable)",
         "workers": "worker processes simulating the pool (default 2)",
     },
+    nothing_kept=lambda args: (
+        "power stopped; the pool's participants simulated so far are kept in OUT/.pool "
+        "(run it again to go on from them)"
+    ),
 )

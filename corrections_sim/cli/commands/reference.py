@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from corrections_sim.cli.command import Command
+from corrections_sim.cli.command import Command, wrote_nothing
 from corrections_sim.cli.errors import UsageError
 
 
@@ -191,4 +191,5 @@ COMMAND = Command(
         "runs": "how many runs (the first N; default 2)",
         "seed": "the particle reference's seed (default 0; run r uses seed + r)",
     },
+    nothing_kept=wrote_nothing,
 )

@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from corrections_sim.cli.command import Command
+from corrections_sim.cli.command import Command, wrote_nothing
 from corrections_sim.cli.errors import UsageError
 
 
@@ -32,4 +32,5 @@ COMMAND = Command(
     options=("study_file",),
     file="DIR",
     option_help={"study_file": "a folder holding reference-<learner>.json files"},
+    nothing_kept=wrote_nothing,
 )

@@ -40,4 +40,5 @@ COMMAND = Command(
     options=("study_file",),
     file="DIR",
     option_help={"study_file": "a finished learning figure's folder (its summary.json)"},
+    nothing_kept=lambda args: "report stopped; it only reads (run it again)",
 )

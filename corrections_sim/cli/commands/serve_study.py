@@ -13,7 +13,7 @@ from pathlib import Path
 
 from corrections_sim.cli.command import Command
 from corrections_sim.cli.errors import UsageError
-from corrections_sim.cli.study_files import STUDY_DB, open_study
+from corrections_sim.cli.study_files import STUDY_DB, check_study, open_study
 
 #: Seconds the study server checks for the end between (Ctrl-C stops it at once).
 POLL = 0.5
@@ -30,44 +30,49 @@ def _codes(text: str | None) -> list[str]:
 
 
 def run_serve_study(args: argparse.Namespace) -> list[Path]:
-    """Serve a protocol to several participants at once until Ctrl-C."""
+    """Serve a protocol to several participants at once until Ctrl-C: the links on the
+    standard output (one a line, for a lab to keep), what the server does on stderr."""
     from corrections_sim.pages.server import AddressError, open_server, stop
     from corrections_sim.pages.study import StudyServer
     from corrections_sim.session.log import StudyError
 
-    db = Path(args.db) if args.db else STUDY_DB
+    db = db_of(args)
     codes = _codes(args.enroll)
     host = args.host or "127.0.0.1"
-    run = open_study(args, db)
-    for code in codes:  # before the server: a used code writes nothing and serves nothing
-        if run.log.participant(code) is not None:
-            run.log.close()
-            raise UsageError(
-                f"--enroll {code}: already used in {db} (a returning participant resumes "
-                "through their link; give a new code, or a new link from the experimenter's page)"
-            )
+    loaded = check_study(args)
+    if db.is_file():  # a used code serves nothing and enrolls nobody
+        _check_unused(codes, db)
+    # The address before the log: a busy port or an unusable host makes no file.
     try:
         server = open_server(host, args.port or 8080)
     except AddressError as exc:
-        run.log.close()
         raise UsageError(str(exc)) from None
-    if host not in ("127.0.0.1", "localhost", "::1"):
-        print(
-            f"warning: serving on {host}: anyone who can reach it may open the page; each "
-            "participant gets only their own link's page, the experimenter's needs its secret",
-            file=sys.stderr,
-        )
     try:
+        run = open_study(args, db, loaded)
+    except BaseException:
+        stop(server)
+        raise
+    try:
+        if host not in ("127.0.0.1", "localhost", "::1"):
+            print(
+                f"warning: serving on {host}: anyone who can reach it may open the page; each "
+                "participant gets only their own link's page, the experimenter's needs its "
+                "secret",
+                file=sys.stderr,
+            )
         study = StudyServer(server, run, host=host, speed=args.speed or 1.0)
+        args.serving = True  # for an interrupt's message
         for code in codes:
             try:
                 link = study.enroll(code)
             except StudyError as exc:
                 raise UsageError(str(exc)) from None
-            print(f"participant {code}: {link}", file=sys.stderr, flush=True)
+            print(f"participant {code}: {link}", flush=True)
+        print(f"experimenter: {study.experimenter_link()}", flush=True)
         print(
-            f"study {run.protocol.description or ''} ({db}): experimenter's page "
-            f"{study.experimenter_link()} ; Ctrl-C stops the server (every step is logged)",
+            f"study {run.protocol.description or ''} ({db}): serving; the links are on the "
+            "standard output (the experimenter's enrolls more); Ctrl-C stops the server "
+            "(every step is logged)",
             file=sys.stderr,
             flush=True,
         )
@@ -76,6 +81,39 @@ def run_serve_study(args: argparse.Namespace) -> list[Path]:
     finally:
         stop(server)
         run.log.close()
+
+
+def _check_unused(codes: list[str], db: Path) -> None:
+    from corrections_sim.session.log import LogError, StudyLog
+
+    try:
+        with StudyLog(db) as log:
+            used = [code for code in codes if log.participant(code) is not None]
+    except LogError as exc:
+        raise UsageError(str(exc).splitlines()[0]) from None
+    if used:
+        raise UsageError(
+            f"--enroll {used[0]}: already used in {db} (a returning participant resumes "
+            "through their link; give a new code, or a new link from the experimenter's page)"
+        )
+
+
+def db_of(args: argparse.Namespace) -> Path:
+    return Path(args.db) if args.db else STUDY_DB
+
+
+def nothing_kept(args: argparse.Namespace) -> str:
+    """What a stopped study server leaves: every step taken, in its log."""
+    if not getattr(args, "serving", False):
+        return (
+            f"serve-study stopped while starting; a participant it enrolled is in {db_of(args)}"
+            " with the link it printed"
+        )
+    return (
+        f"serve-study stopped serving; every step participants took is in {db_of(args)} "
+        "(serve it again to go on: their links still work, a returning participant waits "
+        "for the experimenter's Let continue)"
+    )
 
 
 COMMAND = Command(
@@ -88,4 +126,5 @@ COMMAND = Command(
         "study_file": "the protocol (TOML; experiments/protocol.toml)",
         "db": "the study log (default results/study/study.sqlite; a log belongs to one protocol)",
     },
+    nothing_kept=nothing_kept,
 )

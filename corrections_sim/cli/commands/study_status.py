@@ -45,4 +45,5 @@ COMMAND = Command(
     help="who is where in a study log",
     options=("db",),
     option_help={"db": "the study log (default results/study/study.sqlite)"},
+    nothing_kept=lambda args: "study-status stopped; it only reads the log",
 )
