@@ -436,3 +436,115 @@ def test_every_tlx_value_set_as_fast_as_the_page_takes_it_reaches_the_log(browse
     finally:
         server.stop()
         study.run.log.close()
+
+
+#: Markup, a script and an image whose error runs one, in a participant's words.
+PAYLOAD = (
+    "<b>was</b> nicer & *faster* | _x_ <script>window.__typed = 1</script>"
+    '<img src=x onerror="window.__typed = 2"> [more](javascript:void(0)) \\o/'
+)
+TEXT_PROTOCOL = """study = "small.toml"
+seed = 3
+corrections = 1
+welcome = "Hello there."
+[[conditions]]
+name = "C"
+learner = "KF-C"
+[[questionnaires.condition]]
+id = "why"
+kind = "text"
+text = "What did the robot do?"
+[[questionnaires.end]]
+id = "comments"
+kind = "text"
+text = "Anything else?"
+"""
+
+
+def _shown_as_typed(tab) -> None:
+    """The payload on the page as its characters, nothing of it made into an element, no
+    script of it run."""
+    drive.wait_for(lambda: PAYLOAD in drive.status(tab), "the words as typed")
+    made = tab.evaluate(
+        """() => ({typed: window.__typed ?? null,
+                   bold: Array.from(document.querySelectorAll('b, strong'))
+                       .some(e => e.textContent === 'was'),
+                   img: document.querySelectorAll('img[src="x"]').length,
+                   script: Array.from(document.scripts).some(s => s.text.includes('__typed')),
+                   link: document.querySelectorAll('a[href^="javascript"]').length})"""
+    )
+    assert made == {"typed": None, "bold": False, "img": 0, "script": False, "link": 0}, made
+
+
+def test_a_participants_words_are_shown_as_typed_everywhere(browser, tmp_path):
+    """Free text with markup, a <script> and an <img onerror> in every free-text field: the
+    page's echo and its confirmation show it as typed and run nothing; the log keeps it raw;
+    the report shows it as typed; a code typed on the experimenter's page is told back as
+    typed (the confirmation rendered "<b>was</b> nicer & *faster*" bold and emphasised)."""
+    from markdown_it import MarkdownIt
+
+    from corrections_sim.userstudy.report import analyze
+
+    (tmp_path / "small.toml").write_text(STUDY)
+    protocol = tmp_path / "protocol.toml"
+    protocol.write_text(TEXT_PROTOCOL)
+    db = tmp_path / "study.sqlite"
+    run = open_run(protocol, db)
+    server = open_server("127.0.0.1", _free_port())
+    study = StudyServer(server, run, host="127.0.0.1")
+    tab = browser.new_page(viewport=drive.VIEWPORT)
+    boss = browser.new_page(viewport=drive.VIEWPORT)
+    try:
+        tab.goto(study.enroll("P1"))
+        _enter(tab, "P1")
+        tab.get_by_text("Hello there.").wait_for(timeout=60_000)
+        drive.click(tab, "Continue")
+        tab.get_by_role("button", name="Submit correction").wait_for(timeout=120_000)
+        tab.get_by_text("Need to stop?").click()
+        drive.click(tab, "Stop this trial early")
+        drive.click(tab, "Yes, stop this trial")  # on to the questionnaire
+        for question in ("What did the robot do?", "Anything else?"):
+            tab.get_by_text(question).wait_for(timeout=60_000)
+            drive.fill_text(tab, 0, PAYLOAD)
+            _shown_as_typed(tab)  # the line under the box: what the server received
+            drive.click(tab, "Submit answers")
+            tab.get_by_text("Please check your answers").wait_for(timeout=30_000)
+            _shown_as_typed(tab)  # the confirmation's table
+            drive.click(tab, "Yes, submit these answers")
+        tab.get_by_text("Step 5 of 5").wait_for(timeout=60_000)
+        boss.goto(study.experimenter_link())
+        boss.get_by_text("P1").first.wait_for(timeout=60_000)
+        drive.fill_text(boss, 1, PAYLOAD)  # the "Code" box
+        drive.wait_for(lambda: study_code_typed(study), "the code typed")
+        drive.click(boss, "Let continue")
+        boss.get_by_text("not enrolled").wait_for(timeout=30_000)
+        _shown_as_typed(boss)
+    finally:
+        tab.close()
+        boss.close()
+        server.stop()
+        run.log.close()
+    with StudyLog(db) as log:
+        assert [a["value"] for a in log.answers("P1")] == [PAYLOAD, PAYLOAD]  # raw
+    analyze(db, tmp_path / "analysis", regret=False)
+    html = (
+        MarkdownIt("commonmark")
+        .enable("table")
+        .render((tmp_path / "analysis" / "report.md").read_text())
+    )
+    assert (
+        html.count(
+            PAYLOAD.replace("&", "&amp;")
+            .replace("<", "&lt;")
+            .replace(">", "&gt;")
+            .replace('"', "&quot;")
+        )
+        == 2
+    ), html
+    assert "<b>" not in html and "<img src=x" not in html and "<script" not in html, html
+    assert "javascript:" not in html.replace("(javascript:void(0))", ""), html
+
+
+def study_code_typed(study) -> bool:
+    views = [v for v in study.views.values() if hasattr(v, "who")]
+    return bool(views) and views[0].who.value == PAYLOAD

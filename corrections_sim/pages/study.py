@@ -60,6 +60,7 @@ from corrections_sim.pages.server import configure, make_page
 from corrections_sim.session.log import StudyError
 from corrections_sim.userstudy.participant import Participant, StudyRun, check_answers
 from corrections_sim.userstudy.protocol import TLX_ANCHORS, TLX_TEXT, TLX_TITLES, Question, Step
+from corrections_sim.userstudy.typed import as_typed
 
 #: The placeholder of a Likert choice not yet made.
 UNANSWERED = "(choose)"
@@ -113,7 +114,7 @@ def shown_value(question: Question, item: str, value) -> str:
     if question.kind == "tlx":
         low, high = TLX_ANCHORS[item.split(".", 1)[1]]
         return f"{value} (0: {low.lower()}, 100: {high.lower()})"
-    return f"“{value}”"
+    return f"“{as_typed(value)}”"
 
 
 class StudyServer:
@@ -419,7 +420,7 @@ class ParticipantView:
                         if redraw_refused:
                             self.render()
                         elif self.error is not None and self.client is not None:
-                            self.error.content = f"**Not taken**: {self.message}"
+                            self.error.content = f"**Not taken**: {as_typed(self.message)}"
                         return
                     if redraw:
                         self.render()
@@ -511,7 +512,9 @@ class ParticipantView:
         for q in step.questions:
             for item in q.items():
                 readers[item] = self._question(q, item, draft, confirming)
-        self.error = gui.add_markdown(f"**Not taken**: {self.message}" if self.message else "")
+        self.error = gui.add_markdown(
+            f"**Not taken**: {as_typed(self.message)}" if self.message else ""
+        )
         if confirming:
             rows = "\n".join(
                 f"| {self._label(q, item)} | {shown_value(q, item, self.pending.get(item))} |"
@@ -725,15 +728,15 @@ class ExperimenterView:
     def _code(self) -> str:
         code = self.who.value.strip()
         if self.study.run.log.participant(code) is None:
-            raise StudyError(f"participant {code!r}: not enrolled")
+            raise StudyError(f"participant “{code}”: not enrolled")
         return code
 
     def _do(self, action: Callable[[], object]) -> None:
         try:
             self.said.content = ""
             action()
-        except (StudyError, ValueError) as exc:
-            self.said.content = f"**Not done**: {str(exc).splitlines()[0]}"
+        except (StudyError, ValueError) as exc:  # (it may quote what was typed: as typed)
+            self.said.content = f"**Not done**: {as_typed(str(exc).splitlines()[0])}"
         self.refresh()
 
     def _enroll(self) -> None:

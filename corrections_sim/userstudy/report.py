@@ -32,7 +32,6 @@ from __future__ import annotations
 import csv
 import json
 import math
-import re
 from pathlib import Path
 
 import numpy as np
@@ -43,6 +42,7 @@ from corrections_sim.userstudy import statistics
 from corrections_sim.userstudy.participant import experienced
 from corrections_sim.userstudy.plots import plot
 from corrections_sim.userstudy.protocol import OUTCOMES, TLX_SCALES, Protocol, parse_protocol
+from corrections_sim.userstudy.typed import as_typed
 
 
 def protocol_of(log: StudyLog) -> Protocol:
@@ -363,17 +363,11 @@ def strict_json(value):
 
 
 #: Characters Markdown (and the HTML it may hold) gives a meaning to.
-_MARKDOWN = re.compile(r"([\\`*_{}\[\]()#+\-.!|~>])")
-
-
 def escape_text(text: str, limit: int = 500) -> str:
-    """Free text as plain words in Markdown: HTML's &, < and > as entities, Markdown's
-    marks escaped, every run of white space (a newline too) one space, at most ``limit``
-    characters (the rest marked cut)."""
+    """Free text as plain words in Markdown (:func:`~corrections_sim.userstudy.typed.as_typed`),
+    every run of white space one space, at most ``limit`` characters (the rest marked cut)."""
     flat = " ".join(str(text).split())
-    cut = flat[:limit] + (" [cut]" if len(flat) > limit else "")
-    cut = cut.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
-    return _MARKDOWN.sub(r"\\\1", cut)
+    return as_typed(flat[:limit]) + (" [cut]" if len(flat) > limit else "")
 
 
 def _write_csv(path: Path, rows: list[dict]) -> None:
