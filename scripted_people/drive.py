@@ -336,10 +336,20 @@ def fast_numbers(tab, values: Sequence[float], then_click: str | None = None) ->
     return float(tab.evaluate(script, [list(values), then_click]))
 
 
+#: The line under a slider (a TLX scale): "Received: 70 (0: very low, …)" or unanswered.
+_SLIDER_ECHO = re.compile(r"Received: (\d+) \(0: |Not answered yet: move the slider")
+
+
 def echoes(tab) -> list[str | None]:
     """What the server has received of each item of the questionnaire on the page, in order
     (None: nothing yet)."""
     return [m.group(1) for m in _ECHO.finditer(status(tab))]
+
+
+def slider_echoes(tab) -> list[str | None]:
+    """What the server has received of each slider of the questionnaire (its TLX scales), in
+    the order of the number boxes, whatever items come before or between them."""
+    return [m.group(1) for m in _SLIDER_ECHO.finditer(status(tab))]
 
 
 def _set_until(tab, index: int, value: float, away: float, seen: Callable[[float], bool]):
@@ -358,7 +368,7 @@ def _plain(value: float) -> str:
 
 
 def _echo_at(tab, index: int) -> str | None:
-    got = echoes(tab)
+    got = slider_echoes(tab)
     return got[index] if index < len(got) else None
 
 
@@ -366,8 +376,9 @@ def answer_sliders(tab, values: Sequence[float], *, rounds: int = 6) -> dict:
     """A participant who sets a questionnaire's sliders (its first number boxes) to
     ``values`` as fast as the page takes input and presses Submit in the same moment, then
     reads what the page says it received and mends it until the page's confirmation shows
-    exactly ``values``, and confirms. Returns {window_ms, lost (values the first submit did
-    not carry), rounds}."""
+    exactly ``values``, and confirms; the questionnaire's other items (a Likert item before
+    the TLX, as in experiments/protocol.toml) must be answered already. Returns {window_ms,
+    lost (values the first submit did not carry), rounds}."""
     old = _button(tab, "Submit answers")
     window = fast_numbers(tab, values, "Submit answers")
     lost = None
@@ -378,7 +389,7 @@ def answer_sliders(tab, values: Sequence[float], *, rounds: int = 6) -> dict:
             "the page's answer to Submit",
         )
         if "Please check your answers" in status(tab):
-            shown = confirmed_values(tab)
+            shown = confirmed_sliders(tab)
             if lost is None:
                 lost = sum(a != _plain(v) for a, v in zip(shown, values, strict=False))
             if shown[: len(values)] == [_plain(v) for v in values]:
@@ -388,7 +399,7 @@ def answer_sliders(tab, values: Sequence[float], *, rounds: int = 6) -> dict:
             old.click()
             _redrawn(tab, old)
             wait_for(lambda: "Submit answers" in status(tab), "the questionnaire again")
-        got = echoes(tab)
+        got = slider_echoes(tab)
         if lost is None:
             lost = sum(a != _plain(v) for a, v in zip(got, values, strict=False))
         for i, v in enumerate(values):
@@ -414,6 +425,18 @@ def confirmed_values(tab) -> list[str]:
     """The values of the page's confirmation table, in order (its first word each)."""
     rows = tab.locator("table").last.locator("tbody tr").all()
     return [row.locator("td").nth(1).inner_text().split()[0].rstrip(":") for row in rows]
+
+
+def confirmed_sliders(tab) -> list[str]:
+    """The values of the confirmation table's slider rows (the TLX scales), in order."""
+    from corrections_sim.userstudy.protocol import TLX_TITLES
+
+    rows = tab.locator("table").last.locator("tbody tr").all()
+    return [
+        row.locator("td").nth(1).inner_text().split()[0].rstrip(":")
+        for row in rows
+        if row.locator("td").nth(0).inner_text().strip() in TLX_TITLES.values()
+    ]
 
 
 def state_preference(tab, values: Sequence[float]) -> None:

@@ -548,3 +548,113 @@ def test_a_participants_words_are_shown_as_typed_everywhere(browser, tmp_path):
 def study_code_typed(study) -> bool:
     views = [v for v in study.views.values() if hasattr(v, "who")]
     return bool(views) and views[0].who.value == PAYLOAD
+
+
+LIKERT_TLX_PROTOCOL = """study = "small.toml"
+seed = 3
+corrections = 1
+welcome = "Hello there."
+[[conditions]]
+name = "C"
+learner = "KF-C"
+[[questionnaires.condition]]
+id = "understood"
+text = "The robot understood me."
+points = 5
+[[questionnaires.condition]]
+kind = "tlx"
+"""
+
+
+@pytest.fixture
+def questionnaire(browser, tmp_path):
+    """A participant's tab at a questionnaire of a Likert item and the TLX (in
+    experiments/protocol.toml's order), reached by stopping the trial early."""
+    (tmp_path / "small.toml").write_text(STUDY)
+    protocol = tmp_path / "protocol.toml"
+    protocol.write_text(LIKERT_TLX_PROTOCOL)
+    run = open_run(protocol, tmp_path / "study.sqlite")
+    server = open_server("127.0.0.1", _free_port())
+    study = StudyServer(server, run, host="127.0.0.1")
+    tab = browser.new_page(viewport=drive.VIEWPORT)
+    try:
+        tab.goto(study.enroll("P1"))
+        _enter(tab, "P1")
+        tab.get_by_text("Hello there.").wait_for(timeout=60_000)
+        drive.click(tab, "Continue")
+        tab.get_by_role("button", name="Submit correction").wait_for(timeout=120_000)
+        tab.get_by_text("Need to stop?").click()
+        drive.click(tab, "Stop this trial early")
+        drive.click(tab, "Yes, stop this trial")
+        tab.get_by_text("The robot understood me.").wait_for(timeout=60_000)
+        yield tab, study
+    finally:
+        tab.close()
+        server.stop()
+        run.log.close()
+
+
+def _boxes(tab) -> list[str]:
+    return [box.input_value() for box in drive.number_boxes(tab).all()]
+
+
+def test_a_keyboard_user_answers_50_on_a_tlx_scale(questionnaire):
+    """A person who wants 50 and uses the keyboard: the box showed 50 at rest, and Enter in
+    it sent nothing (no answer; only a slider move was one). Now an untouched box is empty,
+    the line says how to answer, and 50 typed and entered is received."""
+    tab, _ = questionnaire
+    box = drive.number_boxes(tab).nth(0)
+    box.click()
+    if box.input_value() != "50":
+        box.press_sequentially("50")
+    box.press("Enter")
+    drive.wait_for(lambda: drive.echoes(tab)[1] == "50", "the 50 reaching the server", 20)
+    assert "type a number into its box and press Enter" in drive.status(tab)  # the others
+
+
+def test_a_box_never_shows_a_value_the_server_does_not_hold_after_submit(questionnaire):
+    """Two TLX values typed in the moment a Likert answer is chosen: the second is lost in
+    viser's throttle (its client sends the first message of a 50 ms window and the last).
+    Submit redraws the questionnaire from what the server holds: each box shows what was
+    received, or nothing beside "Not answered yet" (it showed 50, a value nobody gave)."""
+    tab, _ = questionnaire
+    drive._shown(tab, "input.mantine-Select-input", 0).click()
+    tab.get_by_role("option", name="4").first.wait_for()
+    tab.evaluate(
+        """() => {
+        const setter = Object.getOwnPropertyDescriptor(HTMLInputElement.prototype, 'value').set;
+        const boxes = document.querySelectorAll('input.mantine-NumberInput-input');
+        for (const [i, v] of [[1, '30'], [0, '80']]) {
+            setter.call(boxes[i], v);
+            boxes[i].dispatchEvent(new Event('input', {bubbles: true}));
+        }
+        Array.from(document.querySelectorAll('[role=option]'))
+            .find(o => o.textContent.startsWith('4')).click();
+    }"""
+    )
+    drive.wait_for(lambda: drive.echoes(tab)[:3] == ["4", None, "30"], "what arrived")
+    assert _boxes(tab)[:2] == ["80", "30"]  # the 80 was lost on the way
+    old = drive._button(tab, "Submit answers")
+    old.click()
+    drive._redrawn(tab, old)
+    tab.get_by_text("Not taken").wait_for(timeout=30_000)
+    shown, received = _boxes(tab), drive.echoes(tab)[1:]
+    assert len(shown) == len(received) == 6
+    for box, got in zip(shown, received, strict=True):
+        assert box == (got or ""), (shown, received)
+
+
+def test_the_scripted_participant_answers_a_tlx_after_a_likert_item(questionnaire):
+    """``drive.answer_sliders`` in experiments/protocol.toml's order (Likert items before
+    the TLX): it took the page's answer i for slider i, waited for the Likert item's echo to
+    become a slider's value, and timed out ("the step away reaching the server")."""
+    tab, study = questionnaire
+    drive.choose(tab, 0, "4")
+    drive.wait_for(lambda: drive.echoes(tab)[0] == "4", "the Likert answer")
+    values = [70, 10, 40, 30, 60, 75]
+    outcome = drive.answer_sliders(tab, values)
+    assert outcome["rounds"] >= 1
+    tab.get_by_text("you are done").wait_for(timeout=60_000)
+    got = {a["item"]: a["value"] for a in study.run.log.answers("P1")}
+    scales = ("mental", "physical", "temporal", "performance", "effort", "frustration")
+    assert got == {"understood": 4, **{f"tlx.{s}": v for s, v in zip(scales, values, strict=True)}}

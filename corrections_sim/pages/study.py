@@ -64,8 +64,10 @@ from corrections_sim.userstudy.typed import as_typed
 
 #: The placeholder of a Likert choice not yet made.
 UNANSWERED = "(choose)"
-#: Where an untouched TLX slider rests (no answer until it is moved).
+#: Where an untouched TLX slider's thumb is set before it is cleared (no answer until the
+#: participant sets it), and its value then: NaN, an empty box.
 TLX_REST = 50
+UNANSWERED_TLX = float("nan")
 #: Seconds between refreshes of the experimenter's view.
 REFRESH = 1.0
 #: The experimenter's actions that end or delete something, each with what it does (asked
@@ -552,13 +554,18 @@ class ParticipantView:
             gui.add_markdown(f"**{TLX_TITLES[scale]}.** {TLX_TEXT[scale]}")
             control = gui.add_slider(
                 TLX_TITLES[scale],
-                min=0,
-                max=100,
-                step=5,
-                initial_value=TLX_REST if value is None else int(value),
+                min=0.0,
+                max=100.0,
+                step=5.0,
+                initial_value=float(TLX_REST if value is None else value),
                 marks=((0, low), (100, high)),
                 disabled=confirming,
             )
+            if value is None:
+                # Unanswered, the box beside it is empty (no 50 to take for an answer) and
+                # any value the page sends differs from the server's: viser 1.1.1 drops a
+                # value equal to the one it holds, so 50 typed over a resting 50 was lost.
+                control.value = UNANSWERED_TLX
         elif q.kind == "likert":
             gui.add_markdown(f"**{q.text}**")
             options = likert_options(q)
@@ -610,7 +617,11 @@ class ParticipantView:
         if value is None or value == "":
             if q.kind == "text":
                 return "_Nothing written yet._"
-            how = "choose one" if q.kind == "likert" else "move the slider (even to 50)"
+            how = (
+                "choose one"
+                if q.kind == "likert"
+                else "move the slider, or type a number into its box and press Enter"
+            )
             return f"_Not answered yet: {how}._"
         return f"Received: **{shown_value(q, item, value)}**"
 
