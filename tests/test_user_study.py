@@ -700,3 +700,68 @@ def test_a_log_made_before_answers_kept_their_questions_still_opens_and_analyses
     run = open_run(short, db)  # served again: the same design, its prose corrected
     assert run.participant("sim00001").where().step.kind == "end"
     run.log.close()
+
+
+def test_the_condition_plot_shows_the_spread_on_the_outcomes_scale(tmp_path, monkeypatch):
+    """Two participants' final errors 0.999 and 1.024 (descriptive only): conditions.png
+    drew the means from the panel's bottom to its top with nothing of the spread. Now the
+    axis starts at the scale's zero and each condition shows its participants' range."""
+    import matplotlib.figure
+
+    from corrections_sim.userstudy.plots import plot
+
+    trials = [
+        {"participant": p, "condition": c, "final_error": e}
+        for p, c, e in (
+            ("P1", "C", 0.98),
+            ("P2", "C", 1.018),
+            ("P1", "CL", 1.02),
+            ("P2", "CL", 1.028),
+        )
+    ]
+    summary = [
+        {
+            "condition": "C",
+            "n": 2,
+            "mean": 0.999,
+            "sd": 0.027,
+            "lo": np.nan,
+            "hi": np.nan,
+            "min": 0.98,
+            "max": 1.018,
+        },
+        {
+            "condition": "CL",
+            "n": 2,
+            "mean": 1.024,
+            "sd": 0.006,
+            "lo": np.nan,
+            "hi": np.nan,
+            "min": 1.02,
+            "max": 1.028,
+        },
+    ]
+    result = {
+        "conditions": ["C", "CL"],
+        "outcomes": {"final_error": {"summary": summary, "bounds": [0.0, None]}},
+        "descriptive_only": True,
+        "simulated": False,
+    }
+    tables = {"trials": trials, "answers": [], "comparisons": []}
+    drawn = {}
+
+    def keep(fig, path, **kw):
+        ax = fig.axes[0]
+        spans = [
+            seg[:, 1].tolist()
+            for coll in ax.collections
+            for seg in getattr(coll, "get_segments", list)()
+        ]
+        drawn[Path(path).stem] = (ax.get_ylim(), spans)
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", keep)
+    plot(tables, result, tmp_path, [])
+    (bottom, top), spans = drawn["conditions"]
+    assert bottom <= 0.0 < 1.028 < top < 1.2, (bottom, top)
+    assert sorted(spans) == [[0.98, 1.018], [1.02, 1.028]], spans
+    assert drawn["participants"][0][0] <= 0.0

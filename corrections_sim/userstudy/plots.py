@@ -44,36 +44,20 @@ def plot(tables: dict, result: dict, out: Path, answer_rows: list[dict]) -> list
                 for values in per.values():
                     y = [np.mean(values[c]) if c in values else np.nan for c in conditions]
                     ax.plot(x, y, "-o", color="0.45", alpha=0.55, lw=1, ms=3)
-            summary = result["outcomes"][name]["summary"]
-            means = np.array([row["mean"] for row in summary])
-            if descriptive:  # no interval to draw: the mean alone
-                ax.plot(x, means, "s", color="C3", ms=7, zorder=3, label="mean")
-            else:
-                lo = np.array([row["lo"] for row in summary])
-                hi = np.array([row["hi"] for row in summary])
-                ax.errorbar(
-                    x,
-                    means,
-                    yerr=[means - lo, hi - means],
-                    fmt="s",
-                    color="C3",
-                    capsize=5,
-                    lw=2,
-                    ms=7,
-                    zorder=3,
-                    label="mean, 95% CI",
-                )
-            low, high = result["outcomes"][name]["bounds"]
-            if low is not None and high is not None:
-                pad = 0.05 * (high - low)
-                ax.set_ylim(low - pad, high + pad)
+            entry = result["outcomes"][name]
+            spread = kind == "conditions"  # (the participants' figure draws each of them)
+            draw_summary(ax, x, entry["summary"], entry["bounds"], descriptive, spread=spread)
             ax.set_xticks(x, conditions)
             ax.set_xlim(-0.5, len(conditions) - 0.5)
             ax.set_title(name.replace("_", " "))
             ax.grid(alpha=0.3)
         for ax in list(axes.flat)[len(names) :]:
             ax.axis("off")
-        what = "each participant (grey) and " if kind == "participants" else ""
+        what = (
+            "each participant (grey) and "
+            if kind == "participants"
+            else "the range of the participants' means (grey), "
+        )
         shown = "the mean with its 95% CI"
         if descriptive:
             shown = "the mean (descriptive only: too few participants)"
@@ -121,6 +105,54 @@ def plot(tables: dict, result: dict, out: Path, answer_rows: list[dict]) -> list
         plt.close(fig)
         paths.append(path)
     return paths
+
+
+def draw_summary(
+    ax, x: np.ndarray, summary: list[dict], bounds, descriptive: bool, *, spread: bool = True
+) -> None:
+    """One outcome's panel: per condition the range of the participants' means (a grey bar,
+    with ``spread``), the mean, and its 95% CI unless ``descriptive``; the y-axis
+    spans the outcome's scale where it has one, and zero where it has none (the errors 0.999
+    and 1.024 of two participants were drawn from the bottom of the panel to its top)."""
+    means = np.array([row["mean"] for row in summary], float)
+    lowest = np.array([row.get("min", np.nan) for row in summary], float)
+    highest = np.array([row.get("max", np.nan) for row in summary], float)
+    if spread:
+        ax.vlines(
+            x - 0.12,
+            lowest,
+            highest,
+            color="0.55",
+            lw=6,
+            alpha=0.6,
+            label="range of the participants' means",
+        )
+    seen = [means, lowest, highest]
+    if descriptive:  # no interval to draw: the mean alone
+        ax.plot(x, means, "s", color="C3", ms=7, zorder=3, label="mean")
+    else:
+        lo = np.array([row["lo"] for row in summary], float)
+        hi = np.array([row["hi"] for row in summary], float)
+        seen += [lo, hi]
+        ax.errorbar(
+            x,
+            means,
+            yerr=[means - lo, hi - means],
+            fmt="s",
+            color="C3",
+            capsize=5,
+            lw=2,
+            ms=7,
+            zorder=3,
+            label="mean, 95% CI",
+        )
+    values = np.concatenate(seen)
+    values = values[np.isfinite(values)]
+    low, high = bounds
+    bottom = low if low is not None else min(0.0, *values) if values.size else 0.0
+    top = high if high is not None else max(values.max(), bottom + 1e-9) if values.size else 1.0
+    pad = 0.05 * (top - bottom)
+    ax.set_ylim(bottom - pad, top + pad)
 
 
 def plot_comparison(ax, rows: list[dict], points: int) -> None:
