@@ -453,3 +453,44 @@ def _env(index: int):
     from corrections_sim.study import schema
 
     return schema.load_study(EXPERIMENTS_DIR / "fig4.toml", name="fig4", quick=False).envs()[index]
+
+
+def test_a_resume_after_a_kill_in_the_training_says_the_traces_were_learnt_from(
+    playwright_browser, tmp_path
+):
+    """Killed after the person's last trace, before the feature was learnt: on --resume it is
+    learnt from the logged traces, and the page says so (it showed "Correction 2" with no
+    word of the four traces the person gave and saw the server die on)."""
+    from corrections_sim.people.teacher import Teacher
+    from corrections_sim.people.users import make_user
+    from corrections_sim.session.simulate import simulate
+
+    study = {
+        "environments": ["s0-t0-l1", "s0-t0-l2", "s1-t1-l0"],
+        "theta_star": [1.0, -1.0],
+        "learners": ["KF-CRX"],
+        "seed": 5,
+        "iterations": 3,
+    }
+    params = {"expand_traces": 4, "expand_after": 1, "expand_below": 0.99}
+    with StudyLog(tmp_path / "teach.sqlite") as log:
+        session = Session.start(parse_study(study, name="t"), log, learner="KF-CRX", params=params)
+        simulate(session, make_user("biased"), (1.0, -1.0), 1)
+        env = session.envs[session.last_env]
+        for trace in Teacher().traces("human", 4, env, np.random.default_rng(0)):
+            session.start_trace({"q": trace[0].tolist()})
+            session.add_trace(trace)  # killed after this one: training never ran
+        resumed = Session.resume(log, session.id)
+        assert len(log.events(session.id, "learnt")) == 1
+        server, _ = serve(resumed, port=_free_port())
+        try:
+            tab = drive.open_page(playwright_browser, f"http://127.0.0.1:{server.get_port()}")
+            try:
+                tab.get_by_text("Welcome back").wait_for(timeout=60_000)
+                text = drive.status(tab)
+                assert "Correction 2" in text and "your 4 traces" in text, text
+                assert "learnt what you mind from them" in text, text
+            finally:
+                tab.close()
+        finally:
+            server.stop()

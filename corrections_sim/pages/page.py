@@ -532,6 +532,13 @@ class Page:
             self.teaching = self.recording = False
         self._say("Planning the robot's path…")
         self._new_proposal()
+        given = self.session.learnt_before_stop
+        if given is not None:
+            self._say(
+                f"**Welcome back.** The robot's server stopped after you gave your "
+                f"{given} {plural(given, 'trace')}; none is lost: I have learnt what you mind "
+                "from them, and this plan takes it into account. Correct it as before."
+            )
 
     def _add_meshes(self, scene) -> None:
         """The scene's visual pieces, kept by geom for posing the arm."""

@@ -250,6 +250,9 @@ class Session:
         #: the one a crash cut short, found when the session resumed (the page says so)
         self.open_trace: dict | None = None
         self.lost_trace: dict | None = None
+        #: a feature learnt from traces the person gave before the server stopped, with no
+        #: correction since (found when the session resumed; the page says so)
+        self._learnt_before: dict | None = None
         #: the environment of the last correction (where traces are given)
         self.last_env: int | None = None
         # Sessions served side by side in one process (a study's participants) share one:
@@ -396,6 +399,15 @@ class Session:
         log.add_event(session_id, session.iteration, "machine", provenance.machine())
         return session
 
+    @property
+    def learnt_before_stop(self) -> int | None:
+        """How many traces the feature was learnt from when a resumed session's last step
+        was that learning (the server stopped after the person's last trace, in the training
+        or just after it): the page tells the person, until their next correction. Else
+        None."""
+        note = self._learnt_before
+        return None if note is None or note["iteration"] != self.iteration else note["traces"]
+
     def _replay_teaching(self, events: list[dict]) -> None:
         """The traces given after a correction, and the feature learnt from them (retrained:
         the same traces, the same seed give the logged weights, checked). Traces all logged
@@ -430,10 +442,12 @@ class Session:
                         f"{detail['feature']} (other code or settings?)"
                     )
                 self._grown(belief)
+                self._learnt_before = {"traces": len(self.traces), "iteration": self.iteration}
                 self.wanted, self.traces = 0, []
                 learnt = True
         if not learnt and self.wanted and len(self.traces) >= self.wanted:
             self._grow(self.traces)  # logged now: the kill came before it was
+            self._learnt_before = {"traces": len(self.traces), "iteration": self.iteration}
             self.wanted, self.traces = 0, []
 
     def _replay(self, rows: list[dict], skips: list[dict], teach: list[dict] = ()) -> None:
