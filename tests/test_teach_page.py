@@ -15,7 +15,15 @@ import numpy as np
 import pytest
 from test_interact_page import served  # noqa: F401 (a fixture, used by name)
 
-from corrections_sim.pages.page import MAP_GREY, MAP_SHAPE, reward_colours
+from corrections_sim.pages.page import (
+    MAP_GRID,
+    MAP_SHAPE,
+    MAP_UNSURE,
+    off_laptop,
+    want_colours,
+    want_probability,
+)
+from corrections_sim.people.teacher import Teacher
 from corrections_sim.people.users import make_user
 from corrections_sim.scene import geometry as g
 from corrections_sim.scene.robot import cup_pose
@@ -43,7 +51,7 @@ def teaching(served, tmp_path):  # noqa: F811 (the imported fixture, by name)
     session one correction in, asking for four traces; its log and server closed after the
     test (``served``'s)."""
 
-    def make(session=None):
+    def make(session=None):  # (the folder: make.folder)
         if session is None:
             log = StudyLog(tmp_path / "teach.sqlite")
             session = Session.start(
@@ -52,6 +60,7 @@ def teaching(served, tmp_path):  # noqa: F811 (the imported fixture, by name)
             simulate(session, make_user("biased"), (1.0, -1.0), 1)
         return served(session=session)
 
+    make.folder = tmp_path
     return make
 
 
@@ -188,13 +197,21 @@ def test_i_cannot_show_it_asks_before_setting_traces_aside_and_says_how_many(tea
         assert not page.set_aside.visible and session.wanted == 0
 
 
-def test_the_heat_map_is_grey_where_the_robot_cannot_tell_and_signed_elsewhere():
-    values = np.array([0.5, -0.5, 0.05, -0.05])
-    colours, grey = reward_colours(values, np.full(4, 0.1))
-    assert grey == 2 and (colours[2:] == MAP_GREY).all()
-    assert colours[0, 2] > colours[0, 0] and colours[1, 0] > colours[1, 2]  # blue +, red −
-    _, none = reward_colours(values, None)
-    assert none == 0
+def test_the_heat_map_is_how_sure_the_robot_is_that_it_wants_the_cup_there():
+    """The probability under N(θ̂, P) that a place's reward is above the table's mean: blue
+    (sure it would), red (sure it would not), nothing where it cannot tell; a constant offset
+    and a feature the same everywhere change nothing (their uncertainty is no difference
+    between places)."""
+    phi = np.array([[0.0, 1.0, 2.0, 3.0], [5.0, 5.0, 5.0, 5.0]])  # the second: uniform
+    p = want_probability([1.0, 7.0], np.diag([0.01, 100.0]), phi)
+    np.testing.assert_allclose(p, [0.0, 0.0, 1.0, 1.0], atol=1e-6)
+    colours, drawn = want_colours([1.0, 7.0], np.diag([0.01, 100.0]), phi)
+    assert drawn.all() and colours[3, 2] > colours[3, 0] and colours[0, 0] > colours[0, 2]
+    vague = want_probability([0.1, 0.0], np.eye(2), phi)  # sd ≫ the differences
+    assert np.all(np.abs(vague - 0.5) < 0.1)
+    assert not want_colours([0.1, 0.0], np.eye(2), phi)[1].any()
+    assert np.abs(want_probability([0.1, 0.0], np.eye(2), phi)[0] - 0.5) <= MAP_UNSURE
+    assert want_colours([1.0, 0.0], None, phi)[1].tolist() == [True, True, True, True]
 
 
 def test_the_heat_map_stays_on_the_current_table_and_comes_back(teaching):
@@ -202,10 +219,8 @@ def test_the_heat_map_stays_on_the_current_table_and_comes_back(teaching):
     with drive.SocketTab(url):
         _ready(page)
         caption = page.map_caption.content
-        assert "What I want now" in caption and ("Grey" in caption or "All grey" in caption)
-        env = page._map_env()
-        np.testing.assert_allclose(page.map_cloud.points[:, :2].mean(axis=0), env.table, atol=2e-3)
-        assert np.all(page.map_cloud.points[:, 2] == pytest.approx(g.TABLE_TOP_Z + 0.004, abs=2e-3))
+        assert "What I want now" in caption and "cannot tell yet" in caption
+        _on_the_table(page.map_points, page._map_env())
         page.map_height.value = 0.1
         page._redraw_map()
         assert "0.10 m above the table" in page.map_caption.content
@@ -215,8 +230,7 @@ def test_the_heat_map_stays_on_the_current_table_and_comes_back(teaching):
         drive.wait_for(lambda: page.proposal is not None, "the plan", 120)
         # The same meaning after learning, on the plan's table, the caption not overwritten.
         assert "What I want now" in page.map_caption.content
-        env = page.proposal.env
-        np.testing.assert_allclose(page.map_cloud.points[:, :2].mean(axis=0), env.table, atol=2e-3)
+        _on_the_table(page.map_points, page.proposal.env)
         page.map_mode.value = MAP_SHAPE
         page._redraw_map()
         assert "What you showed me" in page.map_caption.content
@@ -229,6 +243,40 @@ def test_the_heat_map_stays_on_the_current_table_and_comes_back(teaching):
     with drive.SocketTab(url):
         drive.wait_for(lambda: page.owner is not None and page.proposal is not None, "reload")
         drive.wait_for(lambda: "What I want now" in page.map_caption.content, "the map again")
+
+
+def _on_the_table(points, env) -> None:
+    """The heat map's drawn tiles lie on ``env``'s table top and none over its laptop."""
+    assert len(points) > 0
+    hx, hy = g.TABLE_HALF_SIZE
+    assert np.all(np.abs(points[:, :2] - env.table) <= [hx + 1e-9, hy + 1e-9])
+    assert np.all(points[:, 2] == pytest.approx(g.TABLE_TOP_Z + 0.004, abs=2e-3))
+    assert off_laptop(points, env).all()
+
+
+def test_after_learning_the_heat_map_shows_what_the_robot_is_sure_of(teaching):
+    """Learnt from four traces, then two corrections: the map was all grey ("All grey: I
+    cannot tell yet"), covering the table and the laptop's keyboard, through four corrections
+    after learning (a reward against zero under the new weight's sd ≈ 1). It now draws where
+    the robot is sure it wants the cup, or not, and leaves the laptop and the rest of the
+    table in sight."""
+    log = StudyLog(teaching.folder / "learnt.sqlite")
+    session = Session.start(parse_study(STUDY, name="teach"), log, learner="KF-CRX", params=PARAMS)
+    simulate(session, make_user("biased"), (1.0, -1.0), 1)
+    env = session.envs[session.last_env]
+    for trace in Teacher().traces("human", PARAMS["expand_traces"], env, np.random.default_rng(0)):
+        session.start_trace({"q": trace[0].tolist()})
+        session.add_trace(trace)
+    session.learn_feature()
+    simulate(session, make_user("biased"), (1.0, -1.0), 2)
+    _, page, url = teaching(session)
+    with drive.SocketTab(url):
+        drive.wait_for(lambda: page.proposal is not None and page.map_points is not None, "map")
+        with page._lock:
+            points, caption = page.map_points, page.map_caption.content
+        _on_the_table(points, page.proposal.env)
+        assert len(points) >= 0.5 * MAP_GRID[0] * MAP_GRID[1], len(points)
+        assert "the surer I am" in caption and "nothing is drawn (" in caption, caption
 
 
 def test_a_resume_after_a_kill_mid_trace_says_so_and_puts_the_cup_where_it_began(teaching):

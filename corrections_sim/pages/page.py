@@ -35,10 +35,16 @@ confirms it, and the page says how many. A trace cut short by a crash is named o
 the cup where it began.
 
 The heat map on the current environment's table shows what the robot wants now, the same way
-before and after learning: its reward θ̂·φ with the cup at each point (blue where it is higher,
-red where it is lower than zero), grey where the robot cannot tell it from zero (within two
-standard deviations, from its covariance). Once a feature is learnt, the map can show the
-feature's own shape instead (purple: strongest). A slider sets the height of the cup it is
+before and after learning: with the cup at each point of the table, how sure it is that it
+would rather have the cup there than elsewhere on this table, the probability under its
+belief N(θ̂, P) that θ·(φ(x) − φ̄) > 0 (φ̄: the mean over the table's points): blue where
+it is sure it would, red where it is sure it would not, the deeper the surer; nothing is drawn
+where it cannot tell (40–60%) nor over the laptop, so the table and its objects show. A
+reward against zero (θ̂·φ within two of its sd, grey) was grey everywhere for corrections
+after a feature was learnt: the new weight's sd (≈ 1) swamps every place's whole reward, not
+the differences between places. A learner without a covariance is shown by the sign and size
+of θ̂·(φ(x) − φ̄). Once a feature is learnt, the map can show the feature's own shape instead
+(purple: strongest). A slider sets the height of the cup it is
 computed at. The estimates themselves (θ̂, σ, β̂, the deployment's γ) are in a folder for the
 researcher, closed at the start; the person's panel speaks in words.
 """
@@ -76,11 +82,15 @@ MESH_MATERIAL = "toon5"
 #: cup's path; FERL's traces had about as many).
 MAP_GRID = (28, 18)
 MAP_HEIGHT = 0.25
+#: The heat map's tiles, a fraction of the grid's spacing: the table shows between them.
+MAP_TILE = 0.8
 TRACE_STATES = 20
-#: The heat map's grey: a reward within this many standard deviations of zero (the robot
-#: cannot tell it from no preference), and the grey.
-MAP_SIGNIFICANCE = 2.0
-MAP_GREY = (200, 200, 200)
+#: The heat map leaves out a point where the robot's probability of wanting the cup there
+#: more than elsewhere on the table is within this much of 0.5 (it cannot tell).
+MAP_UNSURE = 0.1
+#: Points of the heat map left out around the laptop's keyboard and screen (m, beyond their
+#: footprint): a square point drawn next to it would cover its edge.
+LAPTOP_MARGIN = 0.03
 #: What the heat map can show (the second once a feature is learnt).
 MAP_REWARD = "What the robot wants now"
 MAP_SHAPE = "What you showed it"
@@ -117,25 +127,81 @@ def map_features(env, names, rotation: np.ndarray, height: float = MAP_HEIGHT):
     return cups, phi
 
 
-def reward_colours(values: np.ndarray, sd: np.ndarray | None) -> tuple[np.ndarray, int]:
-    """(RGB (n, 3) uint8, how many points are grey): the reward ``values`` on a diverging
-    scale symmetric about zero (blue above, red below), grey where |value| is within
-    :data:`MAP_SIGNIFICANCE` of its standard deviation ``sd`` (n,) (None: none is grey)."""
+def want_probability(theta, cov, phi: np.ndarray) -> np.ndarray:
+    """(n,) for the features ``phi`` (k, n) at n places: the probability under N(θ̂, P) that
+    the reward is above its mean over the places, Φ(θ̂·d / √(dᵀPd)) with d = φ − φ̄; without
+    a covariance (``cov`` None), 1 above the mean, 0 below, 0.5 at it."""
+    d = np.asarray(phi, float) - np.asarray(phi, float).mean(axis=1, keepdims=True)
+    mean = np.asarray(theta, float) @ d
+    if cov is None:
+        return 0.5 + 0.5 * np.sign(mean)
+    from scipy.special import ndtr
+
+    sd = np.sqrt(np.maximum(np.einsum("in,ij,jn->n", d, np.asarray(cov, float), d), 0.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = np.where(sd > 0, mean / sd, np.sign(mean) * np.inf)
+    return ndtr(z)
+
+
+def want_colours(theta, cov, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(RGB (n, 3) uint8, drawn (n,) bool) of the heat map: blue where the robot is sure it
+    would rather have the cup there than elsewhere, red where it would rather not, the deeper
+    the surer (:func:`want_probability`; without a covariance, by the size of θ̂·d);
+    ``drawn`` false where it cannot tell (within :data:`MAP_UNSURE` of 0.5)."""
     import matplotlib
 
-    values = np.asarray(values, float)
-    unsure = np.zeros(values.shape, bool) if sd is None else np.abs(values) <= MAP_SIGNIFICANCE * sd
-    told = np.abs(values[~unsure])
-    span = float(told.max()) if told.size and told.max() > 0 else 1.0
-    rgba = matplotlib.colormaps["RdBu"](0.5 + 0.5 * np.clip(values / span, -1.0, 1.0))
-    rgb = (255 * rgba[:, :3]).astype(np.uint8)
-    rgb[unsure] = MAP_GREY
-    return rgb, int(unsure.sum())
+    if cov is None:
+        d = np.asarray(phi, float) - np.asarray(phi, float).mean(axis=1, keepdims=True)
+        mean = np.asarray(theta, float) @ d
+        span = float(np.abs(mean).max()) or 1.0
+        shade = 0.5 + 0.5 * mean / span
+        drawn = mean != 0.0
+    else:
+        shade = want_probability(theta, cov, phi)
+        drawn = np.abs(shade - 0.5) > MAP_UNSURE
+    rgba = matplotlib.colormaps["RdBu"](np.clip(shade, 0.0, 1.0))
+    return (255 * rgba[:, :3]).astype(np.uint8), drawn
+
+
+def map_tiles(centres: np.ndarray, colours: np.ndarray):
+    """A flat mesh of the heat map: a tile of :data:`MAP_TILE` of the grid's spacing around
+    each of ``centres`` (n, 3), coloured ``colours`` (n, 3) uint8, so the table shows between
+    them (squares that face the camera stood up from the table and hid what was on it)."""
+    import trimesh  # (viser's own dependency, with the page's extra)
+
+    hx, hy = g.TABLE_HALF_SIZE
+    half = 0.5 * MAP_TILE * np.array([2 * hx / (MAP_GRID[0] - 1), 2 * hy / (MAP_GRID[1] - 1)])
+    corners = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]]) * [*half, 0]
+    vertices = (np.asarray(centres, float)[:, None, :] + corners[None]).reshape(-1, 3)
+    first = 4 * np.arange(len(centres))[:, None]
+    faces = np.concatenate([first + [0, 1, 2], first + [0, 2, 3]])
+    # A GLB's vertex colours are linear: the sRGB colours of the map, converted, so the
+    # tiles show the colours of the scale (as given they came out washed pale).
+    linear = np.round(255 * (np.asarray(colours, float) / 255) ** 2.2).astype(np.uint8)
+    rgba = np.concatenate(
+        [np.repeat(linear, 4, axis=0), np.full((4 * len(centres), 1), 255, np.uint8)], axis=1
+    )
+    return trimesh.Trimesh(vertices, faces, vertex_colors=rgba, process=False)
+
+
+def off_laptop(points: np.ndarray, env) -> np.ndarray:
+    """(n,) bool: the (x, y) of ``points`` (n, 3) lie off the laptop's keyboard and screen
+    (their footprint on the table, :data:`LAPTOP_MARGIN` around it)."""
+    x, y, yaw = env.laptop
+    hx, hy, hz = g.LAPTOP_BASE_HALF_SIZE
+    # The screen leans back from the keyboard's +y edge: its top reaches this far behind it.
+    behind = 2 * g.LAPTOP_SCREEN_HALF_SIZE[2] * np.sin(g.LAPTOP_SCREEN_TILT)
+    rot = g.laptop_rotation(yaw)[:2, :2]
+    local = (np.asarray(points, float)[:, :2] - np.array([x, y])) @ rot
+    m = LAPTOP_MARGIN
+    inside = (np.abs(local[:, 0]) <= hx + m) & (local[:, 1] >= -hy - m)
+    inside &= local[:, 1] <= hy + behind + m
+    return ~inside
 
 
 def shape_colours(values: np.ndarray) -> np.ndarray:
     """RGB (n, 3) uint8 of a feature's own ``values``: white at its lowest, purple at its
-    highest (a shape, not a reward: another scale than :func:`reward_colours`)."""
+    highest (a shape, not a reward: another scale than :func:`want_colours`)."""
     import matplotlib
 
     values = np.asarray(values, float)
@@ -344,6 +410,9 @@ class Page:
         self.starts_refused = 0  # Start clicks refused (a script waits on it)
         self.teach_handle = None
         self.teach_env = None  # the environment the traces are given in
+        #: the heat map's drawn tiles (centres (n, 3), colours (n, 3)) once drawn
+        self.map_points: np.ndarray | None = None
+        self.map_colours: np.ndarray | None = None
         server.initial_camera.position = CAMERA_POSITION
         server.initial_camera.look_at = CAMERA_LOOK_AT
         server.initial_camera.up = (0.0, 0.0, 1.0)
@@ -1280,6 +1349,7 @@ class Page:
             if mode == MAP_SHAPE:
                 points, phi = map_features(env, s.belief.extra[-1:], rotation, height)
                 colours = shape_colours(phi[0])
+                drawn = np.ones(len(points), bool)
                 caption = (
                     "**What you showed me**: purple where it is strongest (where your traces "
                     "began), white where it is weakest. This is its shape, not yet what I do "
@@ -1287,27 +1357,31 @@ class Page:
                 )
             else:
                 points, phi = map_features(env, s.features, rotation, height)
-                values = s.belief.theta @ phi
-                sd = None
-                if s.has_covariance:
-                    sd = np.sqrt(np.maximum(np.einsum("in,ij,jn->n", phi, s.belief.cov, phi), 0))
-                colours, grey = reward_colours(values, sd)
-                unsure = (
-                    "Grey: where I cannot tell yet whether I want the cup there or not."
-                    if sd is not None
-                    else ""
-                )
-                if grey == values.size:
-                    unsure = "All grey: I cannot tell yet where I want the cup on this table."
+                cov = s.belief.cov if s.has_covariance else None
+                colours, drawn = want_colours(s.belief.theta, cov, phi)
                 caption = (
-                    "**What I want now**, with the cup at each point: blue where I would "
-                    "rather have it, red where I would rather not. " + unsure
+                    "**What I want now** on this table, with the cup at each point: blue where "
+                    "I would rather have it than elsewhere on the table, red where I would "
+                    "rather not."
                 )
-            flat = points.copy()
-            flat[:, 2] = g.TABLE_TOP_Z + 0.004  # drawn on the table top, out of the hand's way
-            self.map_cloud = scene.add_point_cloud(
-                "/teach/map", flat, colors=colours, point_size=0.034, point_shape="square"
-            )
+                unsure = 1.0 - drawn.mean()
+                if cov is not None and unsure == 1.0:
+                    caption += " I cannot tell yet where on this table: nothing is drawn."
+                elif cov is not None:
+                    caption += (
+                        " The deeper the colour, the surer I am; where nothing is drawn "
+                        f"({100 * unsure:.0f}% of the table) I cannot tell yet."
+                    )
+            drawn &= off_laptop(points, env)
+            # Drawn on the table top, out of the hand's way: what it shows is the cup's.
+            self.map_points = points[drawn] * [1, 1, 0] + [0, 0, g.TABLE_TOP_Z + 0.004]
+            self.map_colours = colours[drawn]
+            if drawn.any():
+                scene.add_mesh_trimesh("/teach/map", map_tiles(self.map_points, self.map_colours))
+            else:  # nothing to draw: an empty map, not a stale one
+                scene.add_point_cloud(
+                    "/teach/map", np.zeros((1, 3)), colors=(0, 0, 0), visible=False
+                )
             self.map_caption.content = (
                 caption + f" Computed with the cup {height:.2f} m above the table; it changes "
                 "with height (the slider)."
