@@ -461,18 +461,13 @@ def test_a_resume_after_a_kill_in_the_training_says_the_traces_were_learnt_from(
     """Killed after the person's last trace, before the feature was learnt: on --resume it is
     learnt from the logged traces, and the page says so (it showed "Correction 2" with no
     word of the four traces the person gave and saw the server die on)."""
+    from test_teach_page import PARAMS as params
+    from test_teach_page import STUDY as study
+
     from corrections_sim.people.teacher import Teacher
     from corrections_sim.people.users import make_user
     from corrections_sim.session.simulate import simulate
 
-    study = {
-        "environments": ["s0-t0-l1", "s0-t0-l2", "s1-t1-l0"],
-        "theta_star": [1.0, -1.0],
-        "learners": ["KF-CRX"],
-        "seed": 5,
-        "iterations": 3,
-    }
-    params = {"expand_traces": 4, "expand_after": 1, "expand_below": 0.99}
     with StudyLog(tmp_path / "teach.sqlite") as log:
         session = Session.start(parse_study(study, name="t"), log, learner="KF-CRX", params=params)
         simulate(session, make_user("biased"), (1.0, -1.0), 1)

@@ -443,14 +443,18 @@ PAYLOAD = (
     "<b>was</b> nicer & *faster* | _x_ <script>window.__typed = 1</script>"
     '<img src=x onerror="window.__typed = 2"> [more](javascript:void(0)) \\o/'
 )
-TEXT_PROTOCOL = """study = "small.toml"
+#: One robot, one correction: a questionnaire is a stopped trial away.
+ONE_ROBOT = """study = "small.toml"
 seed = 3
 corrections = 1
 welcome = "Hello there."
 [[conditions]]
 name = "C"
 learner = "KF-C"
-[[questionnaires.condition]]
+"""
+TEXT_PROTOCOL = (
+    ONE_ROBOT
+    + """[[questionnaires.condition]]
 id = "why"
 kind = "text"
 text = "What did the robot do?"
@@ -459,6 +463,41 @@ id = "comments"
 kind = "text"
 text = "Anything else?"
 """
+)
+
+
+@pytest.fixture
+def at_questions(browser, tmp_path):
+    """A function (protocol text, first question) -> (tab, study): a participant's tab at
+    the protocol's first questionnaire, reached by stopping the one trial early; its server
+    and log closed after the test."""
+    opened = []
+
+    def open_(text: str, first: str):
+        (tmp_path / "small.toml").write_text(STUDY)
+        protocol = tmp_path / "protocol.toml"
+        protocol.write_text(text)
+        run = open_run(protocol, tmp_path / "study.sqlite")
+        server = open_server("127.0.0.1", _free_port())
+        study = StudyServer(server, run, host="127.0.0.1")
+        tab = browser.new_page(viewport=drive.VIEWPORT)
+        opened.append((tab, server, run))
+        tab.goto(study.enroll("P1"))
+        _enter(tab, "P1")
+        tab.get_by_text("Hello there.").wait_for(timeout=60_000)
+        drive.click(tab, "Continue")
+        tab.get_by_role("button", name="Submit correction").wait_for(timeout=120_000)
+        tab.get_by_text("Need to stop?").click()
+        drive.click(tab, "Stop this trial early")
+        drive.click(tab, "Yes, stop this trial")  # on to the questionnaire
+        tab.get_by_text(first).wait_for(timeout=60_000)
+        return tab, study
+
+    yield open_
+    for tab, server, run in opened:
+        tab.close()
+        server.stop()
+        run.log.close()
 
 
 def _shown_as_typed(tab) -> None:
@@ -476,7 +515,7 @@ def _shown_as_typed(tab) -> None:
     assert made == {"typed": None, "bold": False, "img": 0, "script": False, "link": 0}, made
 
 
-def test_a_participants_words_are_shown_as_typed_everywhere(browser, tmp_path):
+def test_a_participants_words_are_shown_as_typed_everywhere(browser, at_questions, tmp_path):
     """Free text with markup, a <script> and an <img onerror> in every free-text field: the
     page's echo and its confirmation show it as typed and run nothing; the log keeps it raw;
     the report shows it as typed; a code typed on the experimenter's page is told back as
@@ -485,24 +524,10 @@ def test_a_participants_words_are_shown_as_typed_everywhere(browser, tmp_path):
 
     from corrections_sim.userstudy.report import analyze
 
-    (tmp_path / "small.toml").write_text(STUDY)
-    protocol = tmp_path / "protocol.toml"
-    protocol.write_text(TEXT_PROTOCOL)
-    db = tmp_path / "study.sqlite"
-    run = open_run(protocol, db)
-    server = open_server("127.0.0.1", _free_port())
-    study = StudyServer(server, run, host="127.0.0.1")
-    tab = browser.new_page(viewport=drive.VIEWPORT)
+    tab, study = at_questions(TEXT_PROTOCOL, "What did the robot do?")
+    db = study.run.log.path
     boss = browser.new_page(viewport=drive.VIEWPORT)
     try:
-        tab.goto(study.enroll("P1"))
-        _enter(tab, "P1")
-        tab.get_by_text("Hello there.").wait_for(timeout=60_000)
-        drive.click(tab, "Continue")
-        tab.get_by_role("button", name="Submit correction").wait_for(timeout=120_000)
-        tab.get_by_text("Need to stop?").click()
-        drive.click(tab, "Stop this trial early")
-        drive.click(tab, "Yes, stop this trial")  # on to the questionnaire
         for question in ("What did the robot do?", "Anything else?"):
             tab.get_by_text(question).wait_for(timeout=60_000)
             drive.fill_text(tab, 0, PAYLOAD)
@@ -520,10 +545,7 @@ def test_a_participants_words_are_shown_as_typed_everywhere(browser, tmp_path):
         boss.get_by_text("not enrolled").wait_for(timeout=30_000)
         _shown_as_typed(boss)
     finally:
-        tab.close()
         boss.close()
-        server.stop()
-        run.log.close()
     with StudyLog(db) as log:
         assert [a["value"] for a in log.answers("P1")] == [PAYLOAD, PAYLOAD]  # raw
     analyze(db, tmp_path / "analysis", regret=False)
@@ -550,48 +572,23 @@ def study_code_typed(study) -> bool:
     return bool(views) and views[0].who.value == PAYLOAD
 
 
-LIKERT_TLX_PROTOCOL = """study = "small.toml"
-seed = 3
-corrections = 1
-welcome = "Hello there."
-[[conditions]]
-name = "C"
-learner = "KF-C"
-[[questionnaires.condition]]
+LIKERT_TLX_PROTOCOL = (
+    ONE_ROBOT
+    + """[[questionnaires.condition]]
 id = "understood"
 text = "The robot understood me."
 points = 5
 [[questionnaires.condition]]
 kind = "tlx"
 """
+)
 
 
 @pytest.fixture
-def questionnaire(browser, tmp_path):
+def questionnaire(at_questions):
     """A participant's tab at a questionnaire of a Likert item and the TLX (in
-    experiments/protocol.toml's order), reached by stopping the trial early."""
-    (tmp_path / "small.toml").write_text(STUDY)
-    protocol = tmp_path / "protocol.toml"
-    protocol.write_text(LIKERT_TLX_PROTOCOL)
-    run = open_run(protocol, tmp_path / "study.sqlite")
-    server = open_server("127.0.0.1", _free_port())
-    study = StudyServer(server, run, host="127.0.0.1")
-    tab = browser.new_page(viewport=drive.VIEWPORT)
-    try:
-        tab.goto(study.enroll("P1"))
-        _enter(tab, "P1")
-        tab.get_by_text("Hello there.").wait_for(timeout=60_000)
-        drive.click(tab, "Continue")
-        tab.get_by_role("button", name="Submit correction").wait_for(timeout=120_000)
-        tab.get_by_text("Need to stop?").click()
-        drive.click(tab, "Stop this trial early")
-        drive.click(tab, "Yes, stop this trial")
-        tab.get_by_text("The robot understood me.").wait_for(timeout=60_000)
-        yield tab, study
-    finally:
-        tab.close()
-        server.stop()
-        run.log.close()
+    experiments/protocol.toml's order)."""
+    return at_questions(LIKERT_TLX_PROTOCOL, "The robot understood me.")
 
 
 def _boxes(tab) -> list[str]:
