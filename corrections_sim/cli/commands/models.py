@@ -38,7 +38,5 @@ COMMAND = Command(
     help="write the scene as MJCF into models/ (--check: only list the files that drifted)",
     options=("out", "check"),
     option_help={"out": "folder (default: the repository's models/)"},
-    nothing_kept=lambda args: (
-        "models stopped; a file it had not yet written is as it was (run it again)"
-    ),
+    nothing_kept=lambda args: "models stopped before it had written every file; run it again",
 )
