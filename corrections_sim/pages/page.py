@@ -514,8 +514,9 @@ class Page:
             title = "Your preference (before your first correction)"
             text = (
                 "How much do you want the cup near each thing? **−2**: far from it, **0**: "
-                "you do not mind, **+2**: near it. Move every slider to your answer (even to "
-                "leave one at 0), then press **State my preference**."
+                "you do not mind, **+2**: near it. Set every slider to your answer (move it, "
+                "or type a number into its box and press Enter; 0 too), then press **State "
+                "my preference**."
             )
         else:
             title = "Your preference (before the first correction)"
@@ -533,6 +534,11 @@ class Page:
                 )
                 for i, name in enumerate(features)
             ]
+            if self.blind and self.stated is None:
+                # No answer yet, an empty box (as a study's TLX): a keyboard user could not
+                # give the 0 a box showed (viser drops a value equal to the one it holds).
+                for slider in self.sliders:
+                    slider.value = float("nan")
             self.state_button = gui.add_button("State my preference", disabled=True)
             # What the server has received of the sliders (a participant's page).
             self.pref_echo = gui.add_markdown("", visible=self.blind)
@@ -867,8 +873,8 @@ class Page:
                 # in the same 50 ms as another): the sliders show the server's values again.
                 self._show_values(theta)
                 self._say(
-                    f"**Not yet**: move the slider of {', '.join(untouched)} to your answer "
-                    "(even to leave it at 0), then press State my preference again."
+                    f"**Not yet**: set the slider of {', '.join(untouched)} to your answer "
+                    "(0 too), then press State my preference again."
                 )
                 return
         try:
