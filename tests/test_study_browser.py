@@ -467,13 +467,12 @@ text = "Anything else?"
 
 
 @pytest.fixture
-def at_questions(browser, tmp_path):
-    """A function (protocol text, first question) -> (tab, study): a participant's tab at
-    the protocol's first questionnaire, reached by stopping the one trial early; its server
-    and log closed after the test."""
+def at_trial(browser, tmp_path):
+    """A function (protocol text) -> (tab, study): participant P1's tab at the protocol's
+    first trial page; its server and log closed after the test."""
     opened = []
 
-    def open_(text: str, first: str):
+    def open_(text: str):
         (tmp_path / "small.toml").write_text(STUDY)
         protocol = tmp_path / "protocol.toml"
         protocol.write_text(text)
@@ -487,10 +486,6 @@ def at_questions(browser, tmp_path):
         tab.get_by_text("Hello there.").wait_for(timeout=60_000)
         drive.click(tab, "Continue")
         tab.get_by_role("button", name="Submit correction").wait_for(timeout=120_000)
-        tab.get_by_text("Need to stop?").click()
-        drive.click(tab, "Stop this trial early")
-        drive.click(tab, "Yes, stop this trial")  # on to the questionnaire
-        tab.get_by_text(first).wait_for(timeout=60_000)
         return tab, study
 
     yield open_
@@ -498,6 +493,22 @@ def at_questions(browser, tmp_path):
         tab.close()
         server.stop()
         run.log.close()
+
+
+@pytest.fixture
+def at_questions(at_trial):
+    """A function (protocol text, first question) -> (tab, study): the tab at the protocol's
+    first questionnaire, reached by stopping the one trial early."""
+
+    def open_(text: str, first: str):
+        tab, study = at_trial(text)
+        tab.get_by_text("Need to stop?").click()
+        drive.click(tab, "Stop this trial early")
+        drive.click(tab, "Yes, stop this trial")  # on to the questionnaire
+        tab.get_by_text(first).wait_for(timeout=60_000)
+        return tab, study
+
+    return open_
 
 
 def _shown_as_typed(tab) -> None:
@@ -657,37 +668,22 @@ def test_the_scripted_participant_answers_a_tlx_after_a_likert_item(questionnair
     assert got == {"understood": 4, **{f"tlx.{s}": v for s, v in zip(scales, values, strict=True)}}
 
 
-def test_a_keyboard_user_states_a_preference_of_0(browser, tmp_path):
+def test_a_keyboard_user_states_a_preference_of_0(at_trial):
     """The stated preference's boxes showed 0 before anything was given, so a person who
     wants 0 for the laptop and pressed Enter in its box sent nothing ("laptop (not moved
     yet)"), as on the TLX. Now the boxes are empty until answered, and 0 typed is 0 received."""
-    (tmp_path / "small.toml").write_text(STUDY)
-    protocol = tmp_path / "protocol.toml"
-    protocol.write_text(ONE_ROBOT)
-    run = open_run(protocol, tmp_path / "study.sqlite")
-    server = open_server("127.0.0.1", _free_port())
-    study = StudyServer(server, run, host="127.0.0.1")
-    tab = browser.new_page(viewport=drive.VIEWPORT)
-    try:
-        tab.goto(study.enroll("P1"))
-        _enter(tab, "P1")
-        tab.get_by_text("Hello there.").wait_for(timeout=60_000)
-        drive.click(tab, "Continue")
-        tab.get_by_role("button", name="State my preference").wait_for(timeout=120_000)
-        for i, value in enumerate(("0", "-1")):
-            box = drive.number_boxes(tab).nth(i)
-            box.click()
-            if box.input_value() != value:
-                box.press_sequentially(value)
-            box.press("Enter")
-        drive.wait_for(
-            lambda: "We have: laptop +0.0, table -1.0" in drive.status(tab), "both received", 20
-        )
-        drive.click(tab, "State my preference")
-        drive.wait_for(lambda: "recorded as" in drive.status(tab), "the stated preference")
-        session = run.log.steps("P1")[-1]["session_id"]
-        assert list(run.log.session(session).stated_theta) == [0.0, -1.0]
-    finally:
-        tab.close()
-        server.stop()
-        run.log.close()
+    tab, study = at_trial(ONE_ROBOT)
+    tab.get_by_role("button", name="State my preference").wait_for(timeout=120_000)
+    for i, value in enumerate(("0", "-1")):
+        box = drive.number_boxes(tab).nth(i)
+        box.click()
+        if box.input_value() != value:
+            box.press_sequentially(value)
+        box.press("Enter")
+    drive.wait_for(
+        lambda: "We have: laptop +0.0, table -1.0" in drive.status(tab), "both received", 20
+    )
+    drive.click(tab, "State my preference")
+    drive.wait_for(lambda: "recorded as" in drive.status(tab), "the stated preference")
+    log = study.run.log
+    assert list(log.session(log.steps("P1")[-1]["session_id"]).stated_theta) == [0.0, -1.0]

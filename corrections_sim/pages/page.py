@@ -129,14 +129,11 @@ def map_features(env, names, rotation: np.ndarray, height: float = MAP_HEIGHT):
 
 def want_probability(theta, cov, phi: np.ndarray) -> np.ndarray:
     """(n,) for the features ``phi`` (k, n) at n places: the probability under N(θ̂, P) that
-    the reward is above its mean over the places, Φ(θ̂·d / √(dᵀPd)) with d = φ − φ̄; without
-    a covariance (``cov`` None), 1 above the mean, 0 below, 0.5 at it."""
-    d = np.asarray(phi, float) - np.asarray(phi, float).mean(axis=1, keepdims=True)
-    mean = np.asarray(theta, float) @ d
-    if cov is None:
-        return 0.5 + 0.5 * np.sign(mean)
+    the reward is above its mean over the places, Φ(θ̂·d / √(dᵀPd)) with d = φ − φ̄."""
     from scipy.special import ndtr
 
+    d = np.asarray(phi, float) - np.asarray(phi, float).mean(axis=1, keepdims=True)
+    mean = np.asarray(theta, float) @ d
     sd = np.sqrt(np.maximum(np.einsum("in,ij,jn->n", d, np.asarray(cov, float), d), 0.0))
     with np.errstate(divide="ignore", invalid="ignore"):
         z = np.where(sd > 0, mean / sd, np.sign(mean) * np.inf)
@@ -146,21 +143,28 @@ def want_probability(theta, cov, phi: np.ndarray) -> np.ndarray:
 def want_colours(theta, cov, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(RGB (n, 3) uint8, drawn (n,) bool) of the heat map: blue where the robot is sure it
     would rather have the cup there than elsewhere, red where it would rather not, the deeper
-    the surer (:func:`want_probability`; without a covariance, by the size of θ̂·d);
-    ``drawn`` false where it cannot tell (within :data:`MAP_UNSURE` of 0.5)."""
+    the surer (:func:`want_probability`; without a covariance, ``cov`` None, by the sign and
+    size of θ̂·(φ − φ̄)); ``drawn`` false where it cannot tell (within :data:`MAP_UNSURE` of
+    0.5)."""
     import matplotlib
 
     if cov is None:
-        d = np.asarray(phi, float) - np.asarray(phi, float).mean(axis=1, keepdims=True)
-        mean = np.asarray(theta, float) @ d
-        span = float(np.abs(mean).max()) or 1.0
-        shade = 0.5 + 0.5 * mean / span
+        mean = np.asarray(theta, float) @ (phi - np.mean(phi, axis=1, keepdims=True))
+        shade = 0.5 + 0.5 * mean / (float(np.abs(mean).max()) or 1.0)
         drawn = mean != 0.0
     else:
         shade = want_probability(theta, cov, phi)
         drawn = np.abs(shade - 0.5) > MAP_UNSURE
     rgba = matplotlib.colormaps["RdBu"](np.clip(shade, 0.0, 1.0))
     return (255 * rgba[:, :3]).astype(np.uint8), drawn
+
+
+def clear(slider) -> None:
+    """Show a (float) ``slider`` unanswered: an empty box beside it, and a value on the
+    server (NaN) that no value the page sends equals. viser 1.1.1 drops a value equal to the
+    one it holds, so a keyboard user could not give the value a resting box showed (Enter in
+    it sent nothing)."""
+    slider.value = float("nan")
 
 
 def map_tiles(centres: np.ndarray, colours: np.ndarray):
@@ -534,11 +538,9 @@ class Page:
                 )
                 for i, name in enumerate(features)
             ]
-            if self.blind and self.stated is None:
-                # No answer yet, an empty box (as a study's TLX): a keyboard user could not
-                # give the 0 a box showed (viser drops a value equal to the one it holds).
+            if self.blind and self.stated is None:  # a participant's: no answer yet
                 for slider in self.sliders:
-                    slider.value = float("nan")
+                    clear(slider)
             self.state_button = gui.add_button("State my preference", disabled=True)
             # What the server has received of the sliders (a participant's page).
             self.pref_echo = gui.add_markdown("", visible=self.blind)

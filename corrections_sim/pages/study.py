@@ -55,7 +55,7 @@ import secrets
 import threading
 from collections.abc import Callable
 
-from corrections_sim.pages.page import plural
+from corrections_sim.pages.page import clear, plural
 from corrections_sim.pages.server import configure, make_page
 from corrections_sim.session.log import StudyError
 from corrections_sim.userstudy.participant import Participant, StudyRun, check_answers
@@ -64,10 +64,6 @@ from corrections_sim.userstudy.typed import as_typed
 
 #: The placeholder of a Likert choice not yet made.
 UNANSWERED = "(choose)"
-#: Where an untouched TLX slider's thumb is set before it is cleared (no answer until the
-#: participant sets it), and its value then: NaN, an empty box.
-TLX_REST = 50
-UNANSWERED_TLX = float("nan")
 #: Seconds between refreshes of the experimenter's view.
 REFRESH = 1.0
 #: The experimenter's actions that end or delete something, each with what it does (asked
@@ -557,15 +553,12 @@ class ParticipantView:
                 min=0.0,
                 max=100.0,
                 step=5.0,
-                initial_value=float(TLX_REST if value is None else value),
+                initial_value=50.0 if value is None else float(value),
                 marks=((0, low), (100, high)),
                 disabled=confirming,
             )
-            if value is None:
-                # Unanswered, the box beside it is empty (no 50 to take for an answer) and
-                # any value the page sends differs from the server's: viser 1.1.1 drops a
-                # value equal to the one it holds, so 50 typed over a resting 50 was lost.
-                control.value = UNANSWERED_TLX
+            if value is None:  # no 50 at rest to take for an answer: an empty box
+                clear(control)
         elif q.kind == "likert":
             gui.add_markdown(f"**{q.text}**")
             options = likert_options(q)

@@ -362,7 +362,6 @@ def strict_json(value):
     return value
 
 
-#: Characters Markdown (and the HTML it may hold) gives a meaning to.
 def escape_text(text: str, limit: int = 500) -> str:
     """Free text as plain words in Markdown (:func:`~corrections_sim.userstudy.typed.as_typed`),
     every run of white space one space, at most ``limit`` characters (the rest marked cut)."""
