@@ -429,7 +429,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         "--learners",
         help="interact: the learners, one session each (default KF-CL,KF-C,BP); relevance: "
         "the learners costed (default KF-C,KF-CR,KF-CRP); confidence: (default "
-        "KF-CI,KF-CB,PF-C,AL-C,AL-PF)",
+        "KF-CI,PF-C,AL-C,AL-PF)",
     )
     parser.add_argument(
         "--corrections", type=int, default=10, help="interact: corrections per session"
@@ -647,7 +647,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     if args.what == "confidence":
         from benchmarks.bench_confidence import run_bench as run_confidence
 
-        names = (args.learners or "KF-CI,KF-CB,PF-C,AL-C,AL-PF").split(",")
+        names = (args.learners or "KF-CI,PF-C,AL-C,AL-PF").split(",")
         runs = 3 if args.problems is None else args.problems
         if runs < 1:
             parser.error("--problems: confidence takes the runs per learner, >= 1")

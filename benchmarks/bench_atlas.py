@@ -1,12 +1,12 @@
 """``python -m benchmarks.bench atlas``: what a plan atlas costs and what it buys.
 
-Builds fig. 4's planner's atlas (:mod:`corrections_sim.planning.atlas`) over the study's prior
+Builds fig. 4's planner's atlas (:mod:`corrections_sim.plans.atlas`) over the study's prior
 box (θ̂⁰ ± ``width`` sd, ``count`` points a weight) for the first ``envs`` paper environments on
 a process pool, then draws off-grid problems (θ ~ U[−range, range]^k, a random environment of
 those) and compares, against the best of ``restarts`` random restarts:
 
 * the figure's planner from its cold starts (what a fresh plan book answers),
-* the atlas's answer (:meth:`~corrections_sim.planning.atlas.Atlas.solve`: warm from the
+* the atlas's answer (:meth:`~corrections_sim.plans.atlas.Atlas.solve`: warm from the
   corner plan best at θ, what a study with ``atlas`` plans), and
 * the atlas's every corner: warm from each distinct corner plan, the best kept.
 
@@ -23,8 +23,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from benchmarks.restarts import random_restarts, relative_gap
-from corrections_sim.planning import atlas as A
 from corrections_sim.planning.planner import PlannerConfig, PlanningError, shared_planner
+from corrections_sim.plans import atlas as A
 from corrections_sim.scene.environments import paper_environments
 
 #: Fig. 4's planner (experiments/fig4.toml: four cold starts).

@@ -65,7 +65,7 @@ def local_optima(problems: int = 150, restarts: int = 10, seed: int = 0) -> list
     think optimal."""
     from benchmarks.restarts import random_restarts, relative_gap
     from corrections_sim.planning.planner import PlanningError, shared_planner
-    from corrections_sim.planning.plans import PlanBook
+    from corrections_sim.plans.book import PlanBook
 
     solved: list[tuple[np.ndarray, object, float]] = []
 

@@ -1,7 +1,7 @@
 """Learnt features (``bench learnt``): what training one costs, what planning with one costs
 against the hand-written feature it imitates, and what a newly learnt one costs the planner.
 
-- Training: CPU seconds of :func:`~corrections_sim.planning.learnt.learn` from 10 traces of
+- Training: CPU seconds of :func:`~corrections_sim.learnt.training.learn` from 10 traces of
   the default teacher (per seed), and the learnt feature's Spearman ρ.
 - Planning: the same problems (θ over laptop, table and the person's feature, a random paper
   environment) planned over (laptop, table, human) and over (laptop, table, the learnt
@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from corrections_sim.learnt import training as L
 from corrections_sim.people.teacher import Teacher
-from corrections_sim.planning import learnt as L
 from corrections_sim.planning.planner import (
     Planner,
     PlannerConfig,

@@ -1,5 +1,5 @@
 """``python -m benchmarks.bench particles``: what PF-C costs with its likelihood read off the
-plan atlas (``interpolation``, :mod:`corrections_sim.planning.interpolation`) against solved
+plan atlas (``interpolation``, :mod:`corrections_sim.plans.interpolation`) against solved
 plans, per correction, in fig. 4.
 
 Two parts, each in this process:
@@ -27,10 +27,10 @@ import time
 import numpy as np
 
 from corrections_sim.figures.learning_study import load_settings
-from corrections_sim.learning.learners.particles import waypoint_table
 from corrections_sim.learning.observation import CorrectedPlanFeatures
 from corrections_sim.people.corrections import WaypointCorrection
-from corrections_sim.planning import interpolation
+from corrections_sim.plans import interpolation
+from corrections_sim.plans.interpolation import waypoint_table
 from corrections_sim.study import runner
 
 

@@ -10,12 +10,13 @@ import time
 import numpy as np
 
 from corrections_sim.belief import Belief, KalmanNoise
-from corrections_sim.learning.base import LearnerContext, make_learner
-from corrections_sim.learning.kalman import SigmaPoints
+from corrections_sim.learning import correction
+from corrections_sim.learning.base import make_learner
+from corrections_sim.learning.kalman.filter import SigmaPoints
 from corrections_sim.people.users import Situation, make_user
 from corrections_sim.planning.features import feature_counts
 from corrections_sim.planning.planner import PlannerConfig, shared_planner
-from corrections_sim.planning.plans import PlanBook
+from corrections_sim.plans.book import PlanBook
 from corrections_sim.scene import dynamics
 from corrections_sim.scene.environments import paper_environments
 
@@ -65,21 +66,23 @@ def run_bench(tasks: int = 12, seed: int = 0) -> list[str]:
         mine = book.plan(belief.theta, env)
         star = planner.solve(THETA_STAR, env)
         situation = Situation(mine.trajectory, star.trajectory, env, FEATURES, THETA_STAR)
-        ctx = LearnerContext(
+        ctx = correction.context(
+            belief,
+            noise,
             book=book,
             envs=envs,
             features=FEATURES,
             n_waypoints=12,
             alphas=None,
             rng=rng,
-            noise=noise,
             sigma=SigmaPoints(),
             iteration=0,
         )
         after = []
 
         def replan(deformed, q_now, t_now):
-            step = learner.update(ctx, belief, env, mine, feature_counts(deformed, env, FEATURES))
+            phi = feature_counts(deformed, env, FEATURES)
+            step = correction.step(learner, ctx, belief, env, mine, phi)
             after.append(step.belief.theta)
             return book.plan(step.belief.theta, env).trajectory  # warm, as the study loop
 

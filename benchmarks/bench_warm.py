@@ -30,7 +30,6 @@ from pathlib import Path
 
 import numpy as np
 
-from corrections_sim.planning import plans
 from corrections_sim.planning.planner import (
     Planner,
     PlannerConfig,
@@ -39,6 +38,7 @@ from corrections_sim.planning.planner import (
     _load_solver,
     stage_nlp,
 )
+from corrections_sim.plans import book as plans
 from corrections_sim.scene.environments import paper_environments
 
 #: The learners whose runs the problems come from (fig. 4's filters and BP: every kind of
@@ -227,9 +227,9 @@ def run_breakdown(
     outside the planner (learners, users, records). The learners that need the atlas (EX-C,
     EX-CL) run only where the plans are the atlas's."""
     from corrections_sim.figures import learning_study
-    from corrections_sim.learning.learners import LEARNERS
+    from corrections_sim.learning.roster import LEARNERS
     from corrections_sim.planning import planner as planner_module
-    from corrections_sim.planning.atlas import prepare as prepare_atlas
+    from corrections_sim.plans.atlas import prepare as prepare_atlas
     from corrections_sim.study import runner
 
     lines = [

@@ -4,11 +4,11 @@ shared by ``bench planner`` (:mod:`benchmarks.bench`) and ``bench confidence``
 
 from __future__ import annotations
 
-from corrections_sim.planning.plans import (  # noqa: F401  (the benchmarks' names)
+from corrections_sim.plans.book import (  # noqa: F401  (the benchmarks' names)
     RESTART_BUMP_STD,
     RESTART_MODES,
 )
-from corrections_sim.planning.plans import random_starts as random_restarts  # noqa: F401
+from corrections_sim.plans.book import random_starts as random_restarts  # noqa: F401
 
 
 def relative_gap(best: float, value: float) -> float:

@@ -165,15 +165,16 @@ class GridPosterior:
             ``scatter``).
         scatter: with N learnt, Σᵢ rᵢ rᵢᵀ at each node (n, k, k), rᵢ = zᵢ − hᵢ(θ); else None.
         count: corrections taken in.
-        cells: the nodes as cells (:class:`~corrections_sim.cells.Cells`; their trapezoid
-            weights integrate the density), or None: every node weighs the same.
+        cells: the nodes as cells (:class:`~corrections_sim.learning.exact.cells.Cells`;
+            their trapezoid weights integrate the density), or None: every node weighs the
+            same.
     """
 
     thetas: np.ndarray
     log_density: np.ndarray
     scatter: np.ndarray | None = None
     count: int = 0
-    cells: Any = None  # a corrections_sim.cells.Cells (a sibling of this module)
+    cells: Any = None  # the exact family's Cells (learning.exact.cells; not imported here)
 
     def __post_init__(self) -> None:
         thetas = np.array(self.thetas, dtype=float, copy=True)

@@ -49,7 +49,7 @@ class NormalizedPerceptron(Learner):
 def main(iterations: int = 4, runs: int = 2) -> dict:
     """Runs NPP on four of the paper's environments; the mean estimate error per iteration."""
     from corrections_sim.planning.planner import Planner, PlannerConfig
-    from corrections_sim.planning.plans import Target
+    from corrections_sim.plans.book import Target
     from corrections_sim.scene.environments import paper_environments
     from corrections_sim.study.loop import run_learner
     from corrections_sim.study.settings import StudySettings

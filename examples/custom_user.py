@@ -51,7 +51,7 @@ def main(iterations: int = 4, skip: float = 0.5) -> dict:
     """KF learning from the lazy user on four of the paper's environments."""
     from corrections_sim.learning.base import make_learner
     from corrections_sim.planning.planner import Planner, PlannerConfig
-    from corrections_sim.planning.plans import Target
+    from corrections_sim.plans.book import Target
     from corrections_sim.scene.environments import paper_environments
     from corrections_sim.study.loop import run_learner
     from corrections_sim.study.settings import StudySettings

@@ -18,7 +18,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from corrections_sim.pages.page import (
+from corrections_sim.pages.drawing import (
     CAMERA_FOV,
     CAMERA_LOOK_AT,
     CAMERA_POSITION,

@@ -38,10 +38,10 @@ from pathlib import Path
 
 import numpy as np
 
-from corrections_sim.pages.page import HANDLE_SCALE, project
+from corrections_sim.pages.drawing import HANDLE_SCALE, project
 from corrections_sim.pages.server import serve
 from corrections_sim.people.physical import worst_cup_waypoint
-from corrections_sim.planning.plans import PlanBook
+from corrections_sim.plans.book import PlanBook
 from corrections_sim.scene.robot import cup_pose
 from corrections_sim.session.log import StudyLog
 from corrections_sim.session.session import Session, make_asks

@@ -39,19 +39,13 @@ from pathlib import Path
 
 import numpy as np
 
-from corrections_sim.pages.page import (
-    CAMERA_FOV,
-    CAMERA_LOOK_AT,
-    CAMERA_POSITION,
-    MAP_REWARD,
-    MAP_SHAPE,
-    cup_path,
-)
+from corrections_sim.pages.drawing import CAMERA_FOV, CAMERA_LOOK_AT, CAMERA_POSITION, cup_path
 from corrections_sim.pages.server import serve
+from corrections_sim.pages.teach import MAP_REWARD, MAP_SHAPE
 from corrections_sim.people.physical import worst_cup_waypoint
 from corrections_sim.planning.features import HUMAN_POSITION
 from corrections_sim.planning.planner import PlannerConfig, shared_planner
-from corrections_sim.planning.plans import PlanBook
+from corrections_sim.plans.book import PlanBook
 from corrections_sim.scene.robot import cup_pose
 from corrections_sim.session.log import StudyLog
 from corrections_sim.session.session import Session
@@ -352,7 +346,7 @@ def report(log: StudyLog, session_id: int) -> dict:
     """From the log alone: each trace's start against where the page showed the cup when
     Start was taken (m), the learnt feature's quality against `human` (Spearman's ρ, R²), and
     the plans' closest approach of the cup to the person (m) before and after the teaching."""
-    from corrections_sim.planning.learnt import quality, register_logged
+    from corrections_sim.learnt.training import quality, register_logged
     from corrections_sim.session.session import settings_from_log
 
     events = log.events(session_id)

@@ -9,7 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from corrections_sim.planning import atlas as A
+from corrections_sim.plans import atlas as A
 from corrections_sim.scene.environments import paper_environments
 
 

@@ -13,9 +13,9 @@ import pytest
 
 from corrections_sim.cli import main as cli
 from corrections_sim.planning import cache
-from corrections_sim.planning.atlas import AtlasGrid, AtlasStore, EnvironmentAtlas
-from corrections_sim.planning.between import PlanShards
 from corrections_sim.planning.compiled import build_once
+from corrections_sim.plans.atlas import AtlasGrid, AtlasStore, EnvironmentAtlas
+from corrections_sim.plans.between import PlanShards
 
 DAY = 86_400.0
 LONG_AGO = time.time() - 100 * DAY

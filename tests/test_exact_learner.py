@@ -11,12 +11,12 @@ import csv
 import numpy as np
 import pytest
 
-from corrections_sim.cells import Cells
 from corrections_sim.cli import main as cli
-from corrections_sim.learning import exact_posterior as ref
-from corrections_sim.planning import atlas as A
+from corrections_sim.learning.exact import bayes as ref
+from corrections_sim.learning.exact.cells import Cells
 from corrections_sim.planning.planner import PlannerConfig, shared_planner
-from corrections_sim.planning.plans import PlanBook, Target
+from corrections_sim.plans import atlas as A
+from corrections_sim.plans.book import PlanBook, Target
 from corrections_sim.scene.environments import paper_environments
 from corrections_sim.study import schema
 from corrections_sim.study.runner import run_key

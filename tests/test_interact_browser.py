@@ -414,9 +414,9 @@ def test_a_scripted_person_teaches_a_feature_through_the_page(playwright_browser
     traces are dragged with the mouse and logged, each starting where the page showed the cup,
     the feature is learnt and logged, the next plan is over it, and the session replays to the
     logged θ̂."""
-    from corrections_sim.planning.learnt import learn
+    from corrections_sim.learnt.training import learn
     from corrections_sim.session.replay import replay
-    from corrections_sim.session.session import teach_rng
+    from corrections_sim.session.teaching import teach_rng
     from scripted_people import teach
 
     db = tmp_path / "teach.sqlite"

@@ -13,17 +13,21 @@ import pytest
 from corrections_sim.belief import Particles
 from corrections_sim.cli import main as cli
 from corrections_sim.learning.base import make_learner
-from corrections_sim.learning.learners.particles import waypoint_table
 from corrections_sim.learning.observation import CorrectedPlanFeatures, PlanFeatures
-from corrections_sim.learning.particles import smoothed_kl
+from corrections_sim.learning.particles.cloud import smoothed_kl
 from corrections_sim.people.corrections import (
     OptimalCorrection,
     WaypointCorrection,
     worst_waypoints,
 )
-from corrections_sim.planning import atlas as A
-from corrections_sim.planning import interpolation
-from corrections_sim.planning.interpolation import CellInterpolant, CellStore, check_tolerance
+from corrections_sim.plans import atlas as A
+from corrections_sim.plans import interpolation
+from corrections_sim.plans.interpolation import (
+    CellInterpolant,
+    CellStore,
+    check_tolerance,
+    waypoint_table,
+)
 from corrections_sim.scene.environments import paper_environments
 
 NAMES = ("laptop", "table")

@@ -12,7 +12,7 @@ from test_cli_input import _main, _one_line
 
 from corrections_sim.figures import relevance_fit
 from corrections_sim.learning.base import make_learner
-from corrections_sim.learning.relevance import load_fit
+from corrections_sim.learning.relevance.judge import load_fit
 from corrections_sim.metrics import expected_calibration_error, roc_auc, roc_auc_interval
 from corrections_sim.pages.page import ask_text
 from corrections_sim.people.physical import worst_cup_waypoint

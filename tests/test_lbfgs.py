@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize as scipy_minimize
 
-from corrections_sim.planning import lbfgs
+from corrections_sim.learnt import lbfgs
 
 
 def _quadratic(n: int, rng: np.random.Generator):

@@ -503,8 +503,8 @@ def test_every_gaussian_learner_holds_the_observation_its_likelihood_names():
 def test_active_learning_over_a_learner_that_predicts_no_covariance_is_refused():
     from dataclasses import dataclass
 
-    from corrections_sim.learning.learners.active import ActiveMixin
-    from corrections_sim.learning.learners.perceptron import Perceptron
+    from corrections_sim.learning.kalman.active import ActiveMixin
+    from corrections_sim.learning.perceptron.learners import Perceptron
 
     with pytest.raises(TypeError, match="predicts its covariance"):
 

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from corrections_sim.learning.base import make_learner
+from corrections_sim.learnt import training as L
 from corrections_sim.people.teacher import Teacher
 from corrections_sim.planning import features as feats
-from corrections_sim.planning import learnt as L
 from corrections_sim.planning.planner import Planner, PlannerConfig, build_key, shared_planner
 from corrections_sim.scene.environments import paper_environments
 

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from corrections_sim.belief import Belief, KalmanNoise, NoisePosterior
-from corrections_sim.learning.kalman import SigmaPoints, ukf_update
-from corrections_sim.learning.learnt_noise import vb_ukf_update
+from corrections_sim.learning.kalman.filter import SigmaPoints, ukf_update
+from corrections_sim.learning.kalman.learnt_noise import vb_ukf_update
 from corrections_sim.study import schema
 
 
@@ -94,7 +94,7 @@ def test_bad_noise_settings_are_refused_by_their_key_path():
 def test_a_noise_learning_learner_records_its_estimate_and_others_leave_it_empty(tmp_path):
     from corrections_sim.figures.output import write_records
     from corrections_sim.planning.planner import Planner, PlannerConfig
-    from corrections_sim.planning.plans import Target
+    from corrections_sim.plans.book import Target
     from corrections_sim.scene.environments import paper_environments
     from corrections_sim.study.loop import run_learner
 

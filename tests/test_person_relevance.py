@@ -12,14 +12,14 @@ from scipy import integrate, stats
 from test_relevance import _context
 
 from corrections_sim.belief import Belief, PersonBelief
-from corrections_sim.learning import exact_posterior as ref
 from corrections_sim.learning.base import make_learner
-from corrections_sim.learning.kalman import SigmaPoints
-from corrections_sim.learning.relevance import judge
+from corrections_sim.learning.exact import bayes as ref
+from corrections_sim.learning.kalman.filter import SigmaPoints
+from corrections_sim.learning.relevance.judge import judge
 from corrections_sim.people.corrections import WaypointCorrection
 from corrections_sim.people.users import Situation, make_user
 from corrections_sim.planning.features import feature_counts
-from corrections_sim.planning.plans import PlanBook
+from corrections_sim.plans.book import PlanBook
 from corrections_sim.scene.environments import paper_environments
 
 FEATURES = ("laptop", "table")

@@ -404,7 +404,7 @@ print(json.dumps({{"order": [r["learner"] for r in result.records][::2],
 @pytest.fixture(scope="module")
 def small_study():
     from corrections_sim.planning.planner import Planner, PlannerConfig
-    from corrections_sim.planning.plans import Target
+    from corrections_sim.plans.book import Target
 
     planner = Planner(PlannerConfig(features=("laptop", "table"), n_starts=1))
     envs = paper_environments()[::16]  # 3 environments
@@ -427,7 +427,7 @@ def test_every_learner_runs_reproducibly_and_moves_toward_theta_star(name, small
     alphas = np.full(3, 0.2) if LEARNERS[name].needs_rates() else None
     atlas = None
     if s.atlas is not None:
-        from corrections_sim.planning.atlas import AtlasSpec
+        from corrections_sim.plans.atlas import AtlasSpec
 
         grid = s.atlas.grid(s.theta0, s.cov0)
         atlas = AtlasSpec(planner.config, grid, s.atlas.cold_stride).atlas()

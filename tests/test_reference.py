@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from corrections_sim.belief import Belief, KalmanNoise
-from corrections_sim.learning import exact_posterior as ref
-from corrections_sim.learning.kalman import ukf_update
+from corrections_sim.learning.exact import bayes as ref
+from corrections_sim.learning.kalman.filter import ukf_update
 
 PRIOR = Belief(theta=np.zeros(2), cov=np.eye(2))
 N = np.array([[0.3, 0.05], [0.05, 0.2]])

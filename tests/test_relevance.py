@@ -11,15 +11,15 @@ from scipy import integrate
 
 from corrections_sim.belief import Belief
 from corrections_sim.components import ParameterError
-from corrections_sim.learning import exact_posterior as ref
 from corrections_sim.learning.base import make_learner
-from corrections_sim.learning.relevance import Relevance, explain
+from corrections_sim.learning.exact import bayes as ref
+from corrections_sim.learning.relevance.judge import Relevance, explain
 from corrections_sim.metrics import roc_auc
 from corrections_sim.people.corrections import WaypointCorrection
 from corrections_sim.people.users import Situation, make_user
 from corrections_sim.planning.features import feature_counts
 from corrections_sim.planning.planner import PlannerConfig, shared_planner, smoothness_cost
-from corrections_sim.planning.plans import PlanBook, Target, evaluate
+from corrections_sim.plans.book import PlanBook, Target, evaluate
 from corrections_sim.scene.environments import paper_environments
 from corrections_sim.study import schema
 
@@ -87,7 +87,7 @@ def test_roc_auc_is_the_pairwise_probability_with_ties_halved(rng):
 
 
 def _starts(theta, cov):
-    from corrections_sim.learning.kalman import SigmaPoints
+    from corrections_sim.learning.kalman.filter import SigmaPoints
 
     return SigmaPoints().points(np.asarray(theta, float), np.asarray(cov, float))
 
@@ -124,7 +124,7 @@ def test_no_move_is_fully_explained(planner, task):
 def _context(planner, corrected, alphas=None):
     from corrections_sim.belief import KalmanNoise
     from corrections_sim.learning.base import LearnerContext
-    from corrections_sim.learning.kalman import SigmaPoints
+    from corrections_sim.learning.kalman.filter import SigmaPoints
 
     return LearnerContext(
         book=PlanBook(planner, warm_start=True),
@@ -336,7 +336,7 @@ def test_the_laplace_widening_is_finite_for_a_jacobian_across_a_jump(rng):
     """log det(I + t Q JᵀJ / s²) from the singular values of J L / s: the determinant's own
     value where it is well conditioned, and finite and >= 0 for a near rank-one J of norm 1e10
     (a secant across a jump of the planner), where the determinant cancelled to 0."""
-    from corrections_sim.learning.relevance import widening
+    from corrections_sim.learning.relevance.judge import widening
 
     a = rng.normal(size=(2, 2))
     spread = a @ a.T + 0.1 * np.eye(2)

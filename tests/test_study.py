@@ -10,7 +10,7 @@ import pytest
 from corrections_sim.learning.observation import CorrectedPlanFeatures
 from corrections_sim.people.users import BiasedUser, NoisyOptimalUser
 from corrections_sim.planning.planner import Plan, Planner, PlannerConfig, PlanningError
-from corrections_sim.planning.plans import PlanBook, Target, evaluate
+from corrections_sim.plans.book import PlanBook, Target, evaluate
 from corrections_sim.scene.environments import Environment, paper_environments
 from corrections_sim.study import schema
 from corrections_sim.study.loop import run_learner

@@ -385,3 +385,51 @@ def test_the_learners_legend_covers_no_panel(tmp_path, monkeypatch):
         style.learner_label(n) for n in names
     )
     style.plt.close(fig)
+
+
+def test_a_flat_key_is_read_with_a_one_line_note_of_its_nested_spelling(tmp_path, capsys):
+    """A study file written before components owned their parameters still loads, as the same
+    study as its nested spelling, and says once per flat key how to write it now; the command
+    line prints that as one ``note:`` line."""
+    import warnings
+
+    from corrections_sim.cli.main import _note
+    from corrections_sim.study.legacy import OlderSpelling
+
+    old, new = tmp_path / "old.toml", tmp_path / "new.toml"
+    old.write_text(GOOD.replace('"KF"', '"KF-C"') + 'n_starts = 3\ncorrection_model = "deform"\n')
+    new.write_text(
+        GOOD.replace('learners = ["KF"]\n', "")
+        + '[planner]\nn_starts = 3\n[learners.KF-C]\nmodel = "deform"\n'
+    )
+    with pytest.warns(OlderSpelling) as caught:
+        before = study_file.load_study(old, name="s", quick=False)
+    said = [str(w.message) for w in caught]
+    assert said == [
+        f"{old}: n_starts = 3 is an older spelling; write [planner] n_starts = 3 "
+        "(docs/study-files.md)",
+        f'{old}: correction_model = "deform" is an older spelling; write [learners.KF-C] '
+        'model = "deform" (docs/study-files.md)',
+    ]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        after = study_file.load_study(new, name="s", quick=False)
+    assert before.as_dict() == after.as_dict()
+    _note(caught[0].message, OlderSpelling, "x.py", 1)
+    assert capsys.readouterr().err == f"note: {said[0]}\n"
+
+
+@pytest.mark.parametrize("name", ["fig4", "fig5", "three_features", "physical", "ferl"])
+def test_the_shipped_study_files_are_in_the_nested_spelling(name):
+    """The flagship study files are read without a note (the legacy reader is for files a
+    user wrote before)."""
+    import warnings
+
+    from corrections_sim.study import files
+    from corrections_sim.study.legacy import OlderSpelling, note_older_spellings
+
+    path = Path(__file__).resolve().parents[1] / "experiments" / f"{name}.toml"
+    values = files.read(path, quick=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", OlderSpelling)
+        note_older_spellings(values, str(path))

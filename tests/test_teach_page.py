@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from test_interact_page import served  # noqa: F401 (a fixture, used by name)
 
-from corrections_sim.pages.page import (
+from corrections_sim.pages.teach import (
     MAP_GRID,
     MAP_SHAPE,
     MAP_UNSURE,
@@ -28,8 +28,9 @@ from corrections_sim.people.users import make_user
 from corrections_sim.scene import geometry as g
 from corrections_sim.scene.robot import cup_pose
 from corrections_sim.session.log import StudyLog
-from corrections_sim.session.session import MIN_TRACES, Session
+from corrections_sim.session.session import Session
 from corrections_sim.session.simulate import simulate
+from corrections_sim.session.teaching import MIN_TRACES
 from corrections_sim.study.schema import parse_study
 from scripted_people import drive
 

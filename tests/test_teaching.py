@@ -14,8 +14,9 @@ from corrections_sim.people.teacher import Teacher
 from corrections_sim.people.users import make_user
 from corrections_sim.session.log import StudyLog
 from corrections_sim.session.replay import replay
-from corrections_sim.session.session import MIN_TRACES, Refused, Session
+from corrections_sim.session.session import Refused, Session
 from corrections_sim.session.simulate import simulate
+from corrections_sim.session.teaching import MIN_TRACES
 from corrections_sim.study.schema import parse_study
 
 PARAMS = {"expand_traces": 4, "expand_after": 1, "expand_below": 0.99}

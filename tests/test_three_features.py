@@ -59,7 +59,7 @@ def test_kf_c_learns_all_three_weights_where_the_cup_starts_tilted(planner):
     coffee's too."""
     from corrections_sim.learning.base import make_learner
     from corrections_sim.people.users import DeformingUser
-    from corrections_sim.planning.plans import Target
+    from corrections_sim.plans.book import Target
     from corrections_sim.study.loop import run_learner
     from corrections_sim.study.settings import StudySettings
 

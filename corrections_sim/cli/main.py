@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import copy
 import sys
+import warnings
 from collections.abc import Sequence
 
 from corrections_sim.cli.command import nothing_kept_by_default
@@ -146,9 +147,19 @@ def _nothing_kept(args: argparse.Namespace | None) -> str:
     return nothing_kept_by_default(args) if command is None else command.nothing_kept(args)
 
 
+def _note(message, category, filename, lineno, file=None, line=None) -> None:
+    """A study file's older spelling as one line (``note: …``); any other warning as Python
+    shows it."""
+    if category.__name__ == "OlderSpelling":
+        print(f"note: {message}", file=sys.stderr)
+    else:
+        sys.stderr.write(warnings.formatwarning(message, category, filename, lineno, line))
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run one command; 0 on success, 1 on a failure, 2 on bad input, 130 on SIGINT/SIGTERM."""
-    with interrupts():  # from the start: the heavy imports happen inside
+    with interrupts(), warnings.catch_warnings():  # from the start: heavy imports inside
+        warnings.showwarning = _note
         try:
             given = list(sys.argv[1:] if argv is None else argv)
             command = _asks_command_help(given)

@@ -113,10 +113,11 @@ def example(settings) -> dict:
     environment: the robot's plan at θ̂⁰, the person's at θ*, the push of the column's user, the
     update of its learner told how people push (model ``physical``; else one with a covariance)
     and, online, its new plan; cup paths (n, 3) and the force (n, 3) at the person's rate."""
-    from corrections_sim.learning.base import LEARNERS, LearnerContext
+    from corrections_sim.learning import correction
+    from corrections_sim.learning.base import LEARNERS
     from corrections_sim.people.physical import PhysicalCorrection
     from corrections_sim.people.users import Situation
-    from corrections_sim.planning.plans import PlanBook
+    from corrections_sim.plans.book import PlanBook
     from corrections_sim.scene import dynamics
 
     column = next(c for c in settings.columns if c.settings.study.user.during_motion)
@@ -139,21 +140,22 @@ def example(settings) -> dict:
     person = figure.person_target([env])
     star = person.plans[0]
     rng = np.random.default_rng(study.seed)
-    ctx = LearnerContext(
+    ctx = correction.context(
+        belief,
+        study.noise(),
         book=book,
         envs=figure.envs(),
         features=figure.features,
         n_waypoints=planner.config.n_waypoints,
         alphas=None,
         rng=rng,
-        noise=study.noise(),
         sigma=study.sigma(),
     )
     learnt = []
 
     def replan(deformed, q_now, t_now):
         phi = feature_counts(deformed, env, figure.features)
-        learnt.append(agent.update(ctx, belief, env, mine, phi).belief)
+        learnt.append(correction.step(agent, ctx, belief, env, mine, phi).belief)
         return book.plan(learnt[0].theta, env).trajectory if study.online else None
 
     situation = Situation(mine.trajectory, star.trajectory, env, figure.features, person.theta_star)

@@ -3,7 +3,7 @@
     python -m corrections_sim.run reference results/quick/fig4 --learner KF-C --runs 2
 
 For each chosen run of a Gaussian learner, the posterior p(θ | corrections) is computed on a
-grid (:mod:`corrections_sim.learning.exact_posterior`) under exactly the model the learner assumes:
+grid (:mod:`corrections_sim.learning.exact.bayes`) under exactly the model the learner assumes:
 KF/AL's h(θ) = Φ(ξ*(θ, E)), KF-C/AL-C's hₜ(θ) = Φ(C(ξᵗ, ξ*(θ, E))) with its correction model,
 N fixed or (``noise = "learnt"``) integrated out under the learner's prior, and BP's Boltzmann
 likelihood. Each correction is replayed from the figure's records: Eᵗ and θ̂ᵗ⁻¹ give the
@@ -32,13 +32,13 @@ from pathlib import Path
 import numpy as np
 
 from corrections_sim.belief import Belief, PersonBelief
-from corrections_sim.cells import Cells
-from corrections_sim.learning import exact_posterior as ref
-from corrections_sim.learning.base import LearnerContext
-from corrections_sim.learning.learners.particles import particle_reference
+from corrections_sim.learning import correction
+from corrections_sim.learning.exact import bayes as ref
+from corrections_sim.learning.exact.cells import Cells
 from corrections_sim.learning.observation import features_at_plans
-from corrections_sim.learning.particles import smoothed_kl
-from corrections_sim.learning.relevance import (
+from corrections_sim.learning.particles.cloud import smoothed_kl
+from corrections_sim.learning.particles.learners import particle_reference
+from corrections_sim.learning.relevance.judge import (
     MOVED,
     NUDGE_DIMENSIONS,
     beta_rho_density,
@@ -46,10 +46,10 @@ from corrections_sim.learning.relevance import (
     random_direction_shape,
 )
 from corrections_sim.people.users import Situation
-from corrections_sim.planning.atlas import AtlasGrid
 from corrections_sim.planning.compiled import build_once
 from corrections_sim.planning.planner import Planner, PlanningError, build_key, cache_dir
-from corrections_sim.planning.plans import PlanBook
+from corrections_sim.plans.atlas import AtlasGrid
+from corrections_sim.plans.book import PlanBook
 from corrections_sim.scene.environments import Environment
 from corrections_sim.study.settings import FigureSettings
 
@@ -98,7 +98,7 @@ def _filter_step(model, study, book: PlanBook, env, robot, z, start, row) -> Bel
     observation model and noise (N / β̂ for a relevance-aware learner, its β̂ from the
     record)."""
     from corrections_sim.belief import KalmanNoise
-    from corrections_sim.learning.kalman import ukf_update
+    from corrections_sim.learning.kalman.filter import ukf_update
 
     names = book.planner.config.features
     likelihood = model.likelihood()
@@ -194,7 +194,7 @@ def reference_run(
     On a study with a plan atlas, a KF/KF-C-type model's grid is refined where the posterior
     has fewer than ``resolution`` nodes in its narrowest sd (None: 2, twice the exact
     learners' default; 0: never), as an exact learner's is
-    (:class:`~corrections_sim.learning.exact_posterior.Refinement`): every correction so far
+    (:class:`~corrections_sim.learning.exact.bayes.Refinement`): every correction so far
     weighed again at the finer nodes, ξ*(θ, E) there from the atlas over ``grid``."""
     study = settings.study
     model = study.learners[learner]
@@ -275,14 +275,15 @@ def reference_run(
     restarted: dict[int, Belief] = {}
     if engine is not None:
         cloud = engine.initial(study.prior(), study.noise())
-        ctx = LearnerContext(
+        ctx = correction.context(
+            cloud,
+            study.noise(),
             book=PlanBook(planner, warm_start=study.warm_start, atlas=study_atlas),
             envs=tuple(envs.values()),
             features=names,
             n_waypoints=planner.config.n_waypoints,
             alphas=None,
             rng=np.random.default_rng(seed),
-            noise=study.noise(),
             sigma=study.sigma(),
         )
     for row in rows[1:]:
@@ -302,8 +303,8 @@ def reference_run(
         z = np.asarray(outcome.phi_h, float)
         judged = {}
         if engine is not None:
-            seen_ctx = dataclasses.replace(ctx, iteration=t - 1, corrected=outcome.corrected)
-            cloud = engine.update(seen_ctx, cloud, env, robot, z).belief
+            at_t = dataclasses.replace(ctx, iteration=t - 1)
+            cloud = correction.step(engine, at_t, cloud, env, robot, z, outcome.corrected).belief
         if grid is None:
             log_post = None
         elif likelihood.kind == "boltzmann":

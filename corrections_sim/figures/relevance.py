@@ -8,7 +8,7 @@ feature the robot does not have; the biased user whose corrections are nudges wi
 preference 30% of the time; a person who minds only the unknown feature. Rows are learners:
 the paper's, the correction-aware ones, BP, one feature at a time (PP-MAX) and the
 relevance-aware PP-R and KF-CR, which estimate per correction the probability β̂ that it is
-explained by their features (:mod:`corrections_sim.learning.relevance`).
+explained by their features (:mod:`corrections_sim.learning.relevance.judge`).
 
 Files: ``matrix.csv`` (fig. 6's cells — final error on the known features, regret of the
 person's whole objective, calibration — plus the drift ‖θ̂¹² − θ̂⁰‖₁, and for a learner with

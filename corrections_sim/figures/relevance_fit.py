@@ -41,12 +41,12 @@ from pathlib import Path
 
 import numpy as np
 
-from corrections_sim.learning.kalman import SigmaPoints
-from corrections_sim.learning.relevance import SPACES, beta_rho_density, explain
+from corrections_sim.learning.kalman.filter import SigmaPoints
+from corrections_sim.learning.relevance.judge import SPACES, beta_rho_density, explain
 from corrections_sim.people.corrections import WaypointCorrection, worst_waypoints
 from corrections_sim.people.physical import PhysicalCorrection, worst_cup_waypoint
 from corrections_sim.planning.planner import PlannerConfig, PlanningError, shared_planner
-from corrections_sim.planning.plans import PlanBook
+from corrections_sim.plans.book import PlanBook
 from corrections_sim.scene.environments import paper_environments
 from corrections_sim.scene.robot import cup_inverse_kinematics, cup_pose
 

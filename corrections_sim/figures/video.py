@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from corrections_sim.defaults import DEFAULTS
 from corrections_sim.people.users import Situation
 from corrections_sim.planning.planner import Planner, PlannerConfig
 from corrections_sim.scene.environments import Environment, paper_environments
@@ -449,7 +450,7 @@ def make_video(
     out: Path,
     figure: str,
     *,
-    learner: str = "KF",
+    learner: str = DEFAULTS["video"][0],
     run: int = 0,
     corrections: str | None = None,
     model_path: Path | None = None,

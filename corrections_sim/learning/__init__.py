@@ -1,23 +1,27 @@
 """Learners of the human's preferences θ from corrections.
 
 * :mod:`.base`: the :class:`~.base.Learner` protocol, its context and the ``LEARNERS`` registry;
-  :mod:`.learners`: the built-in learners, one module per family, registered by name;
-  :mod:`.step`: :class:`~.step.Step`, the one result every update returns.
-* The maths, pure numpy (no planner): :mod:`.perceptron` (eq. B5), :mod:`.kalman` (UKF and
-  EKF, eqs. K1–K7, and their predicted covariances), :mod:`.active` (eq. A1),
-  :mod:`.attenuated` (a UKF for corrections that deliver an unknown fraction of the intended
-  feature change), :mod:`.preference_posterior` (a Gaussian posterior under a Boltzmann model
-  of corrections).
+  :mod:`.step`: :class:`~.step.Step`, the one result every update returns;
+  :mod:`.correction`: the one correction step every caller takes (context, update);
+  :mod:`.observation`: hₜ(θ), what a correction shows of θ; :mod:`.params`: parameter checks.
+* One folder a family, each with its maths and its learners: :mod:`.perceptron`,
+  :mod:`.kalman`, :mod:`.boltzmann`, :mod:`.particles`, :mod:`.exact`, :mod:`.relevance`;
+  :mod:`.roster` registers the built-in learners in the order tables list them.
 """
 
 from corrections_sim.belief import Belief, KalmanNoise, symmetrize
-from corrections_sim.learning.active import frobenius, select_environment
-from corrections_sim.learning.attenuated import AttenuatedStep, Attenuation
-from corrections_sim.learning.attenuated import update as attenuated_update
-from corrections_sim.learning.kalman import (
+from corrections_sim.learning.boltzmann.posterior import (
+    BoltzmannCorrection,
+    PosteriorStep,
+    tilted_moments,
+)
+from corrections_sim.learning.boltzmann.posterior import moment_match as posterior_moment_match
+from corrections_sim.learning.boltzmann.posterior import update as posterior_update
+from corrections_sim.learning.kalman.attenuation import AttenuatedStep, Attenuation
+from corrections_sim.learning.kalman.attenuation import update as attenuated_update
+from corrections_sim.learning.kalman.filter import (
     COV_FLOOR_RTOL,
     EkfStep,
-    Observe,
     SigmaPoints,
     UkfStep,
     ekf_predicted_covariance,
@@ -26,14 +30,9 @@ from corrections_sim.learning.kalman import (
     ukf_predicted_covariance,
     ukf_update,
 )
-from corrections_sim.learning.perceptron import learning_rate_schedule, perceptron_update
-from corrections_sim.learning.preference_posterior import (
-    BoltzmannCorrection,
-    PosteriorStep,
-    tilted_moments,
-)
-from corrections_sim.learning.preference_posterior import moment_match as posterior_moment_match
-from corrections_sim.learning.preference_posterior import update as posterior_update
+from corrections_sim.learning.kalman.selection import frobenius, select_environment
+from corrections_sim.learning.observation import Observe
+from corrections_sim.learning.perceptron.update import learning_rate_schedule, perceptron_update
 
 __all__ = [
     "Attenuation",
@@ -64,4 +63,4 @@ __all__ = [
 ]
 
 # The built-in learners are registered on import; first, so they lead the registry's order.
-from corrections_sim.learning import learners  # noqa: E402,F401
+from corrections_sim.learning import roster  # noqa: E402,F401

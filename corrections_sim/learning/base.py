@@ -26,7 +26,7 @@ is a :class:`Learner` subclass, a frozen dataclass whose fields are its own para
 
 :func:`make_learner` builds one by name from its parameters (a study file's
 ``[learners.MINE]`` table). The built-in learners are registered in
-:mod:`corrections_sim.learning.learners`, which the package imports first, so they come first
+:mod:`corrections_sim.learning.roster`, which the package imports first, so they come first
 in the registry's order.
 """
 
@@ -41,16 +41,16 @@ import numpy as np
 
 from corrections_sim import components
 from corrections_sim.belief import Belief, KalmanNoise
-from corrections_sim.learning.kalman import Observe, SigmaPoints
-from corrections_sim.learning.observation import Observation
+from corrections_sim.learning.observation import Observation, Observe
 from corrections_sim.learning.step import Step  # noqa: F401  (what update returns)
 from corrections_sim.planning.planner import Plan
 from corrections_sim.registry import Registry
 from corrections_sim.scene.environments import Environment
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # annotations only: a family imports this module, not the other way
+    from corrections_sim.learning.kalman.filter import SigmaPoints
     from corrections_sim.people.corrections import CorrectionModel
-    from corrections_sim.planning.plans import PlanBook
+    from corrections_sim.plans.book import PlanBook
 
 
 @dataclass(frozen=True, eq=False)
@@ -201,7 +201,7 @@ class Learner(abc.ABC):
 
     def learns_features(self) -> bool:
         """Whether it may ask its person for feature traces and learn the feature it lacks
-        (FERL, :mod:`corrections_sim.planning.learnt`): a session then builds the learnt
+        (FERL, :mod:`corrections_sim.learnt.training`): a session then builds the learnt
         feature's planner ahead and shows the teaching controls."""
         return False
 

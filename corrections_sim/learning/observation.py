@@ -2,7 +2,7 @@
 hₜ(θ) its filter, its particles and its exact reference all read.
 
 Two models, one question (:meth:`Observation.observe`): given the plans ξ*(θ, E) of a run
-(its :class:`~corrections_sim.planning.plans.PlanBook`), the environment E and the robot's
+(its :class:`~corrections_sim.plans.book.PlanBook`), the environment E and the robot's
 trajectory ξᵗ the person corrected, h as a batch callable (n, k) -> (n, k):
 
 * :class:`PlanFeatures`, the paper's filter: h(θ) = Φ(ξ*(θ, E), E), the person shows their
@@ -17,19 +17,22 @@ say how ξ* is computed, only what it believes a correction is.
 from __future__ import annotations
 
 import abc
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from corrections_sim.learning.kalman import Observe
 from corrections_sim.planning.features import feature_counts, waypoint_features
 from corrections_sim.scene.environments import Environment
 
 if TYPE_CHECKING:
     from corrections_sim.people.corrections import CorrectionModel
-    from corrections_sim.planning.plans import PlanBook
+    from corrections_sim.plans.book import PlanBook
+
+
+Observe = Callable[[np.ndarray], np.ndarray]
+"""Batch observation model: thetas (n, k) -> features Φ(ξ*(θ, E), E) for each row, (n, k)."""
 
 
 class Observation(abc.ABC):

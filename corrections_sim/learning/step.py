@@ -1,9 +1,10 @@
 """The one result every learner's update returns: :class:`Step`.
 
-The maths of each learner (:mod:`.kalman`, :mod:`.attenuated`, :mod:`.preference_posterior`,
-:mod:`.perceptron`) returns a ``Step``, or a subclass that adds what only it computes (the
-UKF's sigma points, KF-A's weights over the fraction, BP's evidence); a learner returns it to
-the study loop as it is.
+The maths of each family (:mod:`corrections_sim.learning.kalman.filter`,
+:mod:`corrections_sim.learning.kalman.attenuation`,
+:mod:`corrections_sim.learning.boltzmann.posterior`, ...) returns a ``Step``, or a subclass
+that adds what only it computes (the UKF's sigma points, KF-A's weights over the fraction, BP's
+evidence); a learner returns it to the study loop as it is.
 """
 
 from __future__ import annotations

@@ -31,16 +31,8 @@ import time
 
 import numpy as np
 
-from corrections_sim.pages.page import (
-    CORRECTION_RGB,
-    HANDLE_SCALE,
-    PLAN_RGB,
-    SKIP,
-    SKIP_BLIND,
-    Page,
-    draw_path,
-    relevance_note,
-)
+from corrections_sim.pages.drawing import CORRECTION_RGB, HANDLE_SCALE, PLAN_RGB, draw_path
+from corrections_sim.pages.page import SKIP, SKIP_BLIND, Page, relevance_note
 from corrections_sim.people.physical import spring_force
 from corrections_sim.scene.robot import cup_pose
 from corrections_sim.session.session import Refused, Session

@@ -55,7 +55,7 @@ import secrets
 import threading
 from collections.abc import Callable
 
-from corrections_sim.pages.page import clear, plural
+from corrections_sim.pages.drawing import clear, plural
 from corrections_sim.pages.server import configure, make_page
 from corrections_sim.session.log import StudyError
 from corrections_sim.userstudy.participant import Participant, StudyRun, check_answers

@@ -19,8 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from corrections_sim.learnt.training import reachable, workspace
 from corrections_sim.planning.features import FEATURES, waypoint_features
-from corrections_sim.planning.learnt import reachable, workspace
 from corrections_sim.scene.environments import Environment
 from corrections_sim.scene.robot import joint_limits
 

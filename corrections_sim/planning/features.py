@@ -98,7 +98,7 @@ def register_feature(name: str, *, replace: bool = False):
 
 
 class Network(Protocol):
-    """A learnt feature's shape (:class:`corrections_sim.planning.learnt.Network`)."""
+    """A learnt feature's shape (:class:`corrections_sim.learnt.training.Network`)."""
 
     n_params: int
     slot: str
@@ -110,7 +110,7 @@ class Network(Protocol):
 
 @dataclass(frozen=True, eq=False)
 class LearntFeature:
-    """A feature learnt from data (:mod:`corrections_sim.planning.learnt`), as the registry
+    """A feature learnt from data (:mod:`corrections_sim.learnt.training`), as the registry
     holds it: a network shape and its weights. With ``weights = None`` it is a *slot*: the
     weights are symbols, the compiled NLP's parameters (one build per shape, never one per
     learnt feature); :func:`canonical` maps learnt names to slots and :func:`learnt_values`

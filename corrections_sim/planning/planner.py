@@ -546,7 +546,7 @@ def _load_solver(name: str, plugin: str, nlp: dict, opts: dict, cfg: PlannerConf
 class Planner:
     """ξ*(θ, E) for one :class:`PlannerConfig`; build once per process, solve many times.
 
-    A learnt feature (:mod:`corrections_sim.planning.learnt`) among the config's features is
+    A learnt feature (:mod:`corrections_sim.learnt.training`) among the config's features is
     planned with through its shape's slot: the NLP is built (and compiled) for the shape, its
     weights are the NLP's last parameters, so a newly learnt feature costs no build
     (:meth:`bind`, :func:`shared_planner`)."""

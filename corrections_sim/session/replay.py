@@ -25,26 +25,28 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from corrections_sim import components, provenance
-from corrections_sim.learning.base import LEARNERS, LearnerContext
-from corrections_sim.learning.perceptron import learning_rate_schedule
+from corrections_sim.defaults import DEFAULTS
+from corrections_sim.learning import correction
+from corrections_sim.learning.base import LEARNERS
+from corrections_sim.learning.perceptron.update import learning_rate_schedule
 from corrections_sim.metrics import estimate_error, label_scores
 from corrections_sim.planning.features import feature_counts
 from corrections_sim.planning.planner import Plan, PlanningError, shared_planner
-from corrections_sim.planning.plans import PlanBook, Target, evaluate
+from corrections_sim.plans.book import PlanBook, Target, evaluate
 from corrections_sim.session.log import StudyLog
 from corrections_sim.session.session import (
     LOG_TOLERANCE,
     build_learner,
     learner_rng,
     settings_from_log,
-    teach_rng,
 )
+from corrections_sim.session.teaching import teach_rng
 from corrections_sim.study.loop import belief_columns
 from corrections_sim.study.runner import FigureResult
 from corrections_sim.study.settings import FigureSettings
 
 #: Learners a replay runs when none are named (plus the session's own).
-DEFAULT_LEARNERS = ("PP", "KF", "KF-C", "BP")
+DEFAULT_LEARNERS = DEFAULTS["replay"]
 
 
 def logged_plan(row: dict, features: np.ndarray | None = None) -> Plan:
@@ -171,21 +173,22 @@ def replay(
             else:
                 phi_h = np.asarray(logged["phi_h"])[:k]
                 plan = logged_plan(logged, np.asarray(logged["phi_robot"])[:k])
-            ctx = LearnerContext(
+            ctx = correction.context(
+                belief,
+                s.noise(),
                 book=_book(books, settings, belief),
                 envs=envs,
                 features=current,
                 n_waypoints=planner.config.n_waypoints,
                 alphas=alphas,
                 rng=learner_rng(row.seed, t),
-                noise=s.noise().grown(belief.dim),
                 sigma=s.sigma(),
                 iteration=t,
                 corrected=logged["xi_h"],
             )
             skipped, step = "", None
             try:
-                step = agent.update(ctx, belief, env, plan, phi_h)
+                step = correction.step(agent, ctx, belief, env, plan, phi_h)
                 belief = step.belief
                 if step.gain is not None:
                     gains[t] = step.gain[:k, :k]
@@ -244,8 +247,8 @@ def learnt_features(
     session learner's final weight with its sd; and
     where the log names the person's truth (a ``truth`` event: a scripted person's features
     and weights), its quality against each true feature the study lacks
-    (:func:`~corrections_sim.planning.learnt.quality`: Spearman's ρ and R², FERL's measure)."""
-    from corrections_sim.planning.learnt import quality, register_logged
+    (:func:`~corrections_sim.learnt.training.quality`: Spearman's ρ and R², FERL's measure)."""
+    from corrections_sim.learnt.training import quality, register_logged
 
     truth = log.events(session_id, "truth")
     truths = []

@@ -24,7 +24,7 @@ driven by the page or by a simulated physical user); when the robot finds the pu
 profile, executed path, sensed τ_h, where the arm was held), and :meth:`Session.replan` plans
 anew, the arm joining the new plan where it is.
 
-A learner that learns the feature it lacks (KF-CRX, :mod:`corrections_sim.planning.learnt`)
+A learner that learns the feature it lacks (KF-CRX, :mod:`corrections_sim.learnt.training`)
 may ask, after a correction, for feature traces (:attr:`Session.wanted`): the person moves
 the cup from where the feature they mind is high to where it is low. A trace's start is logged
 (``trace_start``, :meth:`Session.start_trace`), then the trace itself (``trace``,
@@ -49,7 +49,6 @@ each θ̂ checked against the logged one.
 
 from __future__ import annotations
 
-import dataclasses
 import threading
 import time
 from collections.abc import Mapping
@@ -60,23 +59,24 @@ import numpy as np
 
 from corrections_sim import components, provenance
 from corrections_sim.calibration import nis
+from corrections_sim.defaults import DEFAULTS
+from corrections_sim.learning import correction
 from corrections_sim.learning.base import LEARNERS, Learner, LearnerContext, make_learner
 from corrections_sim.people.corrections import CORRECTIONS, CorrectionModel
 from corrections_sim.people.physical import PushedMotion
 from corrections_sim.planning.features import feature_counts
 from corrections_sim.planning.planner import Plan, Planner, PlanningError, shared_planner
-from corrections_sim.planning.plans import PlanBook
 from corrections_sim.planning.risk import plan_a4
+from corrections_sim.plans.book import PlanBook
 from corrections_sim.scene.environments import Environment
 from corrections_sim.scene.robot import cup_inverse_kinematics, cup_pose
 from corrections_sim.scene.world import CollisionChecker
 from corrections_sim.session.log import ASK_KINDS, StudyLog, check_participant, now
+from corrections_sim.session.refused import Refused
+from corrections_sim.session.teaching import TEACH_EVENTS, Teaching
 from corrections_sim.study.schema import parse_study
 from corrections_sim.study.settings import FigureSettings
 
-#: The fewest feature traces a person may stop teaching after (fewer than the learner asks
-#: for give a rougher feature; one trace ranks only the states along one path).
-MIN_TRACES = 3
 #: Consecutive draws whose plan fails before a session gives up.
 MAX_FAILED_DRAWS = 20
 #: How far a θ̂ recomputed from the log (``--resume``, and ``replay`` of a session planned
@@ -95,10 +95,6 @@ def make_asks(count: int, seed: int) -> list[str]:
     kinds = ["toward"] * ((count + 1) // 2) + ["nudge"] * (count // 2)
     order = np.random.default_rng([int(seed), 38]).permutation(count)
     return [kinds[i] for i in order]
-
-
-class Refused(ValueError):
-    """A drag or submission the session will not take; the message says why (shown on the page)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -181,7 +177,7 @@ def correction_spec(model: CorrectionModel) -> dict:
     return {"name": components.name_of(CORRECTIONS, model), **components.params(model)}
 
 
-class Session:
+class Session(Teaching):
     """One session of corrections (see the module). Thread-safe: one lock around every step.
 
     Make one with :meth:`start` or :meth:`resume`.
@@ -227,7 +223,7 @@ class Session:
         if agent.learns_features() and self.planner.config.jit:
             # A learner that may learn a feature: its shape's planner is built now, not while
             # the person waits for the plan over it (a first build takes about two minutes).
-            from corrections_sim.planning.learnt import prepare_slot
+            from corrections_sim.learnt.training import prepare_slot
 
             prepare_slot(self.planner.config, agent.network())
         self.checker = CollisionChecker()
@@ -268,7 +264,7 @@ class Session:
         settings: FigureSettings,
         log: StudyLog,
         *,
-        learner: str = "KF-CL",
+        learner: str = DEFAULTS["session"][0],
         params: Mapping | None = None,
         correction: str | Mapping = "waypoint",
         participant: str = "anonymous",
@@ -399,57 +395,6 @@ class Session:
         log.add_event(session_id, session.iteration, "machine", provenance.machine())
         return session
 
-    @property
-    def learnt_before_stop(self) -> int | None:
-        """How many traces the feature was learnt from when a resumed session's last step
-        was that learning (the server stopped after the person's last trace, in the training
-        or just after it): the page tells the person, until their next correction. Else
-        None."""
-        note = self._learnt_before
-        return None if note is None or note["iteration"] != self.iteration else note["traces"]
-
-    def _replay_teaching(self, events: list[dict]) -> None:
-        """The traces given after a correction, and the feature learnt from them (retrained:
-        the same traces, the same seed give the logged weights, checked). Traces all logged
-        without a ``learnt`` event (a kill during the training): the feature is learnt now."""
-        learnt = False
-        for event in events:
-            kind, detail = event["kind"], event["detail"]
-            if kind == "trace_start":
-                self.open_trace = detail
-            elif kind in ("trace_cancelled", "trace_lost"):
-                self.open_trace = None
-            elif kind == "trace":
-                self.open_trace = None
-                self.traces.append(np.asarray(detail["states"], float))
-            elif kind == "traces" and detail.get("declined"):
-                self.belief = _asked(self.belief)
-                self.wanted, self.traces, self.open_trace = 0, [], None
-            elif kind == "traces" and "enough" in detail:
-                self.wanted = int(detail["enough"])  # the person stopped there
-            elif kind == "learnt":
-                belief, facts = self.agent.grow(
-                    self.belief,
-                    self.envs[int(detail["env_index"])],
-                    self.traces,
-                    teach_rng(self.seed, self.iteration),
-                    self._context(),
-                )
-                if facts["feature"] != detail["feature"]:
-                    raise ValueError(
-                        f"session {self.id}: retraining the feature learnt after correction "
-                        f"{self.iteration - 1} gives {facts['feature']}, the log has "
-                        f"{detail['feature']} (other code or settings?)"
-                    )
-                self._grown(belief)
-                self._learnt_before = {"traces": len(self.traces), "iteration": self.iteration}
-                self.wanted, self.traces = 0, []
-                learnt = True
-        if not learnt and self.wanted and len(self.traces) >= self.wanted:
-            self._grow(self.traces)  # logged now: the kill came before it was
-            self._learnt_before = {"traces": len(self.traces), "iteration": self.iteration}
-            self.wanted, self.traces = 0, []
-
     def _replay(self, rows: list[dict], skips: list[dict], teach: list[dict] = ()) -> None:
         """Repeat the session's steps (each draw's choice and plan, each update) as they were
         made, so the plans solved, and with warm starts their history, are the same."""
@@ -555,19 +500,19 @@ class Session:
 
     # --- the steps -------------------------------------------------------------------------
 
-    def _context(self, corrected: np.ndarray | None = None) -> LearnerContext:
+    def _context(self) -> LearnerContext:
         fixed = self.agent.fixed_rate()
-        return LearnerContext(
+        return correction.context(
+            self.belief,
+            self._noise,
             book=self.book,
             envs=self.envs,
             features=self.features,
             n_waypoints=self.n_waypoints,
             alphas=None if fixed is None else np.full(self.iteration + 1, fixed),
             rng=learner_rng(self.seed, self.iteration),
-            noise=self._noise.grown(self.belief.dim),
             sigma=self._sigma,
             iteration=self.iteration,
-            corrected=corrected,
             declined=frozenset(self.declined),
         )
 
@@ -755,166 +700,12 @@ class Session:
             self._ask_traces()
             return row
 
-    # --- teaching a feature ----------------------------------------------------------------
-
-    def _ask_traces(self) -> None:
-        """Whether the learner now asks for feature traces (after each correction)."""
-        self.wanted = int(self.agent.wants_traces(self.belief, self.iteration))
-        self.traces, self.open_trace = [], None
-
-    def start_trace(self, detail: Mapping) -> None:
-        """The person starts a trace (``detail``: where, e.g. the cup and the arm's q), logged
-        as a ``trace_start`` event before anything is recorded, so a crash mid-trace is known.
-
-        Raises:
-            Refused: none is asked for, or a trace is already being recorded.
-        """
-        with self._lock:
-            self._check_open()
-            if self.wanted <= len(self.traces):
-                raise Refused("trace: the robot asks for no (more) traces now")
-            if self.open_trace is not None:
-                raise Refused("trace: one is being recorded; end or cancel it first")
-            self.open_trace = {"index": len(self.traces), **dict(detail)}
-            self.lost_trace = None
-            self.log.add_event(self.id, self.iteration, "trace_start", self.open_trace)
-
-    def cancel_trace(self) -> None:
-        """The trace being recorded is dropped (logged as ``trace_cancelled``).
-
-        Raises:
-            Refused: no trace is being recorded.
-        """
-        with self._lock:
-            self._check_open()
-            if self.open_trace is None:
-                raise Refused("cancel: no trace is being recorded")
-            self.log.add_event(
-                self.id, self.iteration, "trace_cancelled", {"index": len(self.traces)}
-            )
-            self.open_trace = None
-
-    def add_trace(self, configurations, detail: Mapping | None = None) -> int:
-        """One feature trace, arm configurations (n, 7) from high to low, logged as a
-        ``trace`` event (it ends the trace :meth:`start_trace` began, if one did); returns
-        how many are still wanted.
-
-        Raises:
-            Refused: none is asked for, or the trace is malformed (fewer than two states,
-                a value not finite: the message says which).
-        """
-        from corrections_sim.planning.learnt import check_traces
-
-        with self._lock:
-            self._check_open()
-            if self.wanted <= len(self.traces):
-                raise Refused("trace: the robot asks for no (more) traces now")
-            try:
-                (trace,) = check_traces([np.asarray(configurations, float)])
-            except ValueError as exc:
-                raise Refused(str(exc)) from None
-            self.log.add_event(
-                self.id,
-                self.iteration,
-                "trace",
-                {"index": len(self.traces), "states": trace.tolist(), **dict(detail or {})},
-            )
-            self.traces.append(trace)
-            self.open_trace = None
-            return self.wanted - len(self.traces)
-
-    @property
-    def fewest_traces(self) -> int:
-        """How many traces the person must give before they may stop and have the robot learn
-        from those (:data:`MIN_TRACES`, or all asked for if fewer)."""
-        return min(MIN_TRACES, self.wanted)
-
-    def learn_feature(self, *, stop: bool = False) -> str:
-        """Learn the feature from the traces given, log it as a ``learnt`` event and plan
-        over it from now on; returns its name. ``stop``: the person stops before giving all
-        that were asked for (at least :attr:`fewest_traces`), logged first as a ``traces``
-        event with ``enough``.
-
-        Raises:
-            Refused: fewer traces than asked for (or with ``stop``, than the fewest), a trace
-                being recorded, or traces that rank nothing.
-        """
-        with self._lock:
-            self._check_open()
-            given = len(self.traces)
-            if self.open_trace is not None:
-                raise Refused("learn: a trace is being recorded; end or cancel it first")
-            if not self.wanted or given < (self.fewest_traces if stop else self.wanted):
-                need = "at least " + str(self.fewest_traces) if stop else "them all"
-                raise Refused(f"learn: {given} of {self.wanted} traces given; give {need}")
-            if given < self.wanted:
-                self.log.add_event(
-                    self.id, self.iteration, "traces", {"enough": given, "asked": self.wanted}
-                )
-                self.wanted = given
-            try:
-                name = self._grow(self.traces)
-            except ValueError as exc:
-                raise Refused(str(exc).splitlines()[0]) from None
-            self.wanted, self.traces = 0, []
-            return name
-
-    def decline_traces(self) -> int:
-        """Nobody will teach: the learner is told so (it does not ask again); logged, with how
-        many traces were given and are set aside (they stay in the log, not learnt from).
-        Returns that number."""
-        with self._lock:
-            self._check_open()
-            if not self.wanted:
-                raise Refused("decline: the robot asks for no traces now")
-            given = len(self.traces)
-            if self.open_trace is not None:
-                self.cancel_trace()
-            self.log.add_event(
-                self.id, self.iteration, "traces", {"declined": True, "set_aside": given}
-            )
-            self.belief = _asked(self.belief)
-            self.wanted, self.traces = 0, []
-            return given
-
-    def _grow(self, traces: list[np.ndarray]) -> str:
-        env = self.envs[int(self.last_env)]
-        rng = teach_rng(self.seed, self.iteration)
-        belief, facts = self.agent.grow(self.belief, env, traces, rng, self._context())
-        name = facts["feature"]
-        from corrections_sim.planning.features import FEATURES
-
-        f = FEATURES[name]
-        self.log.add_event(
-            self.id,
-            self.iteration,
-            "learnt",
-            {
-                "feature": name,
-                "env_index": int(self.last_env),
-                "traces": len(traces),
-                "inputs": list(f.network.inputs),
-                "hidden": list(f.network.hidden),
-                "weights": np.asarray(f.weights).tolist(),
-                "loss": facts["loss"],
-            },
-        )
-        self._grown(belief)
-        return name
-
-    def _grown(self, belief) -> None:
-        """The belief after learning a feature, and the planner over the features it has."""
-        self.belief = belief
-        self.features = self.settings.features + tuple(belief.extra)
-        config = dataclasses.replace(self.settings.planner_config(), features=self.features)
-        self.planner = shared_planner(config)
-        self.book = PlanBook(self.planner, warm_start=self.settings.study.warm_start)
-
     def _update(self, env_index: int, plan: Plan, phi_h: np.ndarray, corrected=None):
         """The learner's step for a correction with features ``phi_h`` and, where the person
         showed it, the corrected trajectory ``corrected`` (a relevance-aware learner judges it)."""
-        context = self._context(None if corrected is None else np.asarray(corrected, float))
-        return self.agent.update(context, self.belief, self.envs[env_index], plan, phi_h)
+        seen = None if corrected is None else np.asarray(corrected, float)
+        env = self.envs[env_index]
+        return correction.step(self.agent, self._context(), self.belief, env, plan, phi_h, seen)
 
     def state(self, theta) -> np.ndarray:
         """Log the person's stated preference θ (k,) as the session's reference."""
@@ -952,20 +743,6 @@ class Session:
             self.log.end_session(self.id)
             self.ended = True
             return deployment
-
-
-#: The kinds of event a resume reads to replay the teaching of a feature (in the log's order).
-TEACH_EVENTS = ("trace_start", "trace_cancelled", "trace_lost", "trace", "traces", "learnt")
-
-
-def teach_rng(seed: int, iteration: int) -> np.random.Generator:
-    """The generator a feature learnt after ``iteration`` corrections is trained with."""
-    return np.random.default_rng(np.random.SeedSequence([seed, 39, iteration]))
-
-
-def _asked(belief):
-    """``belief`` marked as having asked for traces (the learner does not ask again)."""
-    return dataclasses.replace(belief, asked=True, history=())
 
 
 def push_record(motion: PushedMotion) -> dict:

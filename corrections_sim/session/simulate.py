@@ -12,7 +12,7 @@ import numpy as np
 
 from corrections_sim.people.users import Situation, User
 from corrections_sim.planning.planner import PlanningError, shared_planner
-from corrections_sim.planning.plans import PlanBook
+from corrections_sim.plans.book import PlanBook
 from corrections_sim.session.session import Session
 
 

@@ -5,7 +5,9 @@ brought to today's form (:func:`normalize_recorded`)."""
 
 from __future__ import annotations
 
+import json
 import math
+import warnings
 from collections.abc import Mapping
 from typing import Any
 
@@ -147,6 +149,38 @@ def translate_legacy(values: dict) -> dict:
                 params.setdefault(target[2], value)
     values["learners"] = table
     return values
+
+
+class OlderSpelling(UserWarning):
+    """A study file in the flat keys of :data:`LEGACY_KEYS`: read as before, with a one-line
+    note of the nested spelling (the command line prints it as ``note: …``)."""
+
+
+def note_older_spellings(values: Mapping[str, Any], where: str) -> None:
+    """Warn (:class:`OlderSpelling`) once per flat key of ``values`` (a file's, at ``where``)
+    with the spelling a study file takes now."""
+    for key, value in values.items():
+        if key not in LEGACY_KEYS:
+            continue
+        target = LEGACY_KEYS[key]
+        shown = json.dumps(value) if isinstance(value, str | int | float) else str(value)
+        if target[0] == "learners" and target[1] is None:
+            new = "a [learners.NAME] table per learner"
+        elif target[0] == "learners":
+            runs = [n for n in target[1] if n in values.get("learners", DEFAULT_LEARNERS)]
+            value = shown
+            if key in ("correction_step", "correction_waypoints"):
+                value = f"{{ {key.removeprefix('correction_')} = {shown} }}"
+            new = " and ".join(f"[learners.{n}] {target[2]} = {value}" for n in runs or target[1])
+        elif target[1] is None:
+            new = f"a [{target[0]}] table"
+        else:
+            new = f"[{target[0]}] {target[1]} = {shown}"
+        warnings.warn(
+            f"{where}: {key} = {shown} is an older spelling; write {new} (docs/study-files.md)",
+            OlderSpelling,
+            stacklevel=2,
+        )
 
 
 def normalize_recorded(settings: Mapping[str, Any]) -> dict:

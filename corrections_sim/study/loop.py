@@ -16,7 +16,7 @@ Learners and simulated users are plug-ins, registered by name
 the loop
 calls their protocols (:class:`~corrections_sim.learning.base.Learner`,
 :class:`~corrections_sim.people.users.User`) and knows none by name. The paper's learners are in
-:mod:`corrections_sim.learning.learners`.
+:mod:`corrections_sim.learning.roster`.
 
 Everything random flows from ``np.random.Generator`` objects made from the study's seed.
 """
@@ -30,10 +30,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from corrections_sim import calibration
-from corrections_sim.learning.base import LEARNERS, LearnerContext, Step
+from corrections_sim.learning import correction
+from corrections_sim.learning.base import LEARNERS, Step
 from corrections_sim.metrics import estimate_error, regret_terms
 from corrections_sim.people.users import Situation, TaskOutcome, User
-from corrections_sim.planning.atlas import Atlas
 from corrections_sim.planning.features import feature_counts
 from corrections_sim.planning.planner import (
     Planner,
@@ -41,7 +41,8 @@ from corrections_sim.planning.planner import (
     shared_planner,
     smoothness_cost,
 )
-from corrections_sim.planning.plans import PlanBook, PlanEntries, Target, evaluate
+from corrections_sim.plans.atlas import Atlas
+from corrections_sim.plans.book import PlanBook, PlanEntries, Target, evaluate
 from corrections_sim.scene.environments import Environment
 
 if TYPE_CHECKING:
@@ -145,14 +146,15 @@ def run_learner(
     for t in range(n_iter):
         book = book_for(belief)
         current = names + tuple(belief.extra)
-        ctx = LearnerContext(
+        ctx = correction.context(
+            belief,
+            noise,
             book=book,
             envs=envs,
             features=current,
             n_waypoints=planner.config.n_waypoints,
             alphas=alphas,
             rng=rng,
-            noise=noise.grown(belief.dim),
             sigma=sigma,
             iteration=t,
             teach=lambda n, env, current=current: teach(n, env, current),
@@ -189,8 +191,7 @@ def run_learner(
                 where it is; None, the old plan goes on, when the planner finds none). The
                 plan is the book's, so the regret that follows reuses it."""
                 phi = feature_counts(deformed, env, current)
-                seen = replace(ctx, corrected=deformed)
-                online.append(agent.update(seen, prior, env, mine, phi))
+                online.append(correction.step(agent, ctx, prior, env, mine, phi, deformed))
                 try:
                     return book.plan(online[0].belief.theta, env).trajectory
                 except PlanningError:
@@ -201,11 +202,11 @@ def run_learner(
             label = _relevant(outcome, settings, known)
             if label is not None:
                 task["relevant"] = label
-            seen = replace(ctx, corrected=outcome.corrected)
-            phi_h = np.asarray(outcome.phi_h, dtype=float)
-            if belief.extra:  # the person's correction over the learner's features too
-                phi_h = feature_counts(outcome.corrected, env, current)
-            step = online[0] if online else agent.update(seen, belief, env, mine, phi_h)
+            if online:
+                step = online[0]
+            else:
+                phi_h = correction.seen_features(belief, ctx, env, outcome.corrected, outcome.phi_h)
+                step = correction.step(agent, ctx, belief, env, mine, phi_h, outcome.corrected)
             belief = step.belief
             if step.gain is not None:
                 gains[t] = step.gain[:k, :k]
@@ -230,7 +231,7 @@ def _learnt_quality(name: str, target, current: tuple[str, ...], env: Environmen
     """A learnt feature against the person's feature it was taught for: Spearman ρ and the
     affine fit true ≈ a·learnt + b over random reachable configurations of the environment
     it was taught in; the person's weight maps to a·θ* on the learnt feature."""
-    from corrections_sim.planning.learnt import quality
+    from corrections_sim.learnt.training import quality
 
     true = _missing(target, current)
     if true is None:

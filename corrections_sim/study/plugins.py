@@ -1,6 +1,6 @@
 """Plug-in files a study imports before anything else: they register users, learners,
 correction models or features, in the main process and in every worker. A ``.json`` plug-in
-is a learnt feature (:meth:`corrections_sim.planning.learnt.Learnt.save`): loading it
+is a learnt feature (:meth:`corrections_sim.learnt.training.Learnt.save`): loading it
 registers the feature under its name."""
 
 from __future__ import annotations
@@ -69,7 +69,7 @@ def load_plugins(plugins: tuple[PluginFile, ...]) -> None:
         if module in sys.modules:
             continue
         if plugin.path.endswith(".json"):  # a learnt feature
-            from corrections_sim.planning.learnt import load
+            from corrections_sim.learnt.training import load
 
             load(plugin.path)
             sys.modules[module] = sys.modules[__name__]  # loaded: once per process

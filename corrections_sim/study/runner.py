@@ -26,9 +26,9 @@ import numpy as np
 from corrections_sim import components
 from corrections_sim.learning import learning_rate_schedule
 from corrections_sim.learning.base import LEARNERS, make_learner
-from corrections_sim.planning import atlas, interpolation
 from corrections_sim.planning.planner import shared_planner
-from corrections_sim.planning.plans import PlanBook, PlanEntries, Target, evaluate
+from corrections_sim.plans import atlas, interpolation
+from corrections_sim.plans.book import PlanBook, PlanEntries, Target, evaluate
 from corrections_sim.study.loop import RunResult, run_learner
 from corrections_sim.study.plugins import load_plugins
 from corrections_sim.study.settings import FigureSettings

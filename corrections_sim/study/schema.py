@@ -45,7 +45,7 @@ from corrections_sim.study.environments import (  # noqa: F401  (part of the sch
     resolve,
 )
 from corrections_sim.study.files import as_table, parse_value, read, set_path
-from corrections_sim.study.legacy import LEGACY_KEYS, translate_legacy
+from corrections_sim.study.legacy import LEGACY_KEYS, note_older_spellings, translate_legacy
 from corrections_sim.study.plugins import PluginFile, load_plugins, parse_plugins  # noqa: F401
 from corrections_sim.study.settings import (
     DEFAULT_LEARNERS,
@@ -391,9 +391,12 @@ def load_study(
     """A study from its file (a path, or a resource of the installed package) with the
     command line's overrides (key paths -> values; see :func:`apply_overrides`)."""
     values = read(source, quick=quick, keys=(*STUDY_KEYS, *LEGACY_KEYS))
+    given = dict(values)
     values = apply_overrides(values, overrides or {})
     base = Path(source).resolve().parent if isinstance(source, str | Path) else None
-    return parse_study(values, name=name, base=base)
+    settings = parse_study(values, name=name, base=base)
+    note_older_spellings(given, str(source))  # a file that loads: an error is its one line
+    return settings
 
 
 #: Command-line options and the key (path) each sets; ``--set PATH=VALUE`` reaches any other.

@@ -19,18 +19,19 @@ import numpy as np
 from corrections_sim import components
 from corrections_sim.belief import Belief, KalmanNoise
 from corrections_sim.components import ParameterError
+from corrections_sim.defaults import DEFAULTS
 from corrections_sim.learning.base import LEARNERS, Learner, make_learner
-from corrections_sim.learning.kalman import SigmaPoints
+from corrections_sim.learning.kalman.filter import SigmaPoints
 from corrections_sim.people.teacher import Teacher
 from corrections_sim.people.users import USERS, BiasedUser, User
-from corrections_sim.planning.atlas import AtlasGrid, AtlasSpec
 from corrections_sim.planning.planner import PlannerConfig, shared_planner
-from corrections_sim.planning.plans import Target
+from corrections_sim.plans.atlas import AtlasGrid, AtlasSpec
+from corrections_sim.plans.book import Target
 from corrections_sim.scene.environments import Environment
 from corrections_sim.study import environments
 
-#: The paper's three; the others are opt-in (``learners`` in a study file, ``--learners``).
-DEFAULT_LEARNERS = ("PP", "KF", "AL")
+#: A study's learners when its file names none (:data:`~corrections_sim.defaults.DEFAULTS`).
+DEFAULT_LEARNERS = DEFAULTS["study"]
 #: Largest counts accepted: a run is ~50 planner solves per iteration (≈ 0.1 s), so these are
 #: far beyond a week on one machine, and refusing them up front beats running out of memory.
 MAX_COUNT = {"runs": 100_000, "iterations": 10_000}
@@ -85,7 +86,7 @@ class FilterSettings:
 @dataclass(frozen=True)
 class AtlasSettings:
     """Where a study's plans come from when they come from a plan atlas
-    (:mod:`corrections_sim.planning.atlas`): a grid of ``points`` values a weight over the
+    (:mod:`corrections_sim.plans.atlas`): a grid of ``points`` values a weight over the
     prior's box θ̂⁰ ± ``width`` sd, built with cold starts on every ``cold_stride``-th node."""
 
     width: float = 5.0
@@ -128,7 +129,7 @@ class StudySettings:
         user: the simulated user (with its parameters); ``user_name`` its registered name.
         filter: M, N and sigma points, shared by the filters.
         warm_start: start each new solve of a run from its nearest solved θ in the same
-            environment (see :class:`~corrections_sim.planning.plans.PlanBook`); faster, and
+            environment (see :class:`~corrections_sim.plans.book.PlanBook`); faster, and
             history-dependent at the level of the solver's tolerance.
         online: learn during the motion (the IJRR 2022 setting): when the user's correction
             ends, the learner updates and the robot replans the rest of the motion from its

@@ -42,7 +42,7 @@ import numpy as np
 
 from corrections_sim.people.users import make_user
 from corrections_sim.planning.planner import PlanningError, shared_planner
-from corrections_sim.planning.plans import PlanBook
+from corrections_sim.plans.book import PlanBook
 from corrections_sim.session.log import StudyError, StudyLog, check_participant, now
 from corrections_sim.session.session import Session, physical_learner
 from corrections_sim.session.simulate import simulate

@@ -14,6 +14,7 @@ from corrections_sim.cli import output_folder
 from corrections_sim.cli.command import Command
 from corrections_sim.cli.errors import UsageError
 from corrections_sim.cli.options import label
+from corrections_sim.defaults import DEFAULTS
 
 
 def _interact_settings(args: argparse.Namespace):
@@ -55,7 +56,7 @@ def db_of(args: argparse.Namespace) -> Path:
 
 
 #: Who learns in a session without --learner.
-DEFAULT_LEARNER = "KF-CL"
+DEFAULT_LEARNER = DEFAULTS["session"][0]
 #: What ``interact --resume`` takes besides; the session's own settings are the rest.
 RESUME_OPTIONS = ("resume", "db", "host", "port", "speed")
 #: After "Done", the server keeps the page (the deployment) up until its tab closes, at most
@@ -309,7 +310,7 @@ COMMAND = Command(
     ),
     option_help={
         "study_file": "a study file (TOML) whose settings the session runs (default: fig. 4's)",
-        "learner": "who learns (default KF-CL)",
+        "learner": f"who learns (default {DEFAULT_LEARNER})",
     },
     nothing_kept=nothing_kept,
 )

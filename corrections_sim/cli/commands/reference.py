@@ -15,6 +15,7 @@ import numpy as np
 
 from corrections_sim.cli.command import Command, wrote_nothing
 from corrections_sim.cli.errors import UsageError
+from corrections_sim.defaults import DEFAULTS
 
 
 def run_reference(args: argparse.Namespace) -> list[Path]:
@@ -22,15 +23,15 @@ def run_reference(args: argparse.Namespace) -> list[Path]:
     JSON beside the figure's files, and the table of its means over runs printed."""
     from corrections_sim.figures.output import write_records
     from corrections_sim.figures.reference import recorded_runs, reference_run, summary_at
-    from corrections_sim.learning import exact_posterior as ref
-    from corrections_sim.planning import interpolation
+    from corrections_sim.learning.exact import bayes as ref
     from corrections_sim.planning.planner import Planner
+    from corrections_sim.plans import interpolation
     from corrections_sim.study import schema
 
     if not args.study_file:
         raise UsageError("reference: give a finished figure's folder, e.g. results/quick/fig4")
     folder = Path(args.study_file)
-    learner = args.learner or "KF-C"
+    learner = args.learner or DEFAULTS["reference"][0]
     count = 2 if args.runs is None else args.runs
     points = args.points or 61
     restart = args.restart or ""
@@ -187,7 +188,7 @@ COMMAND = Command(
     file="DIR",
     option_help={
         "study_file": "a finished learning figure's folder (curves.csv, summary.json)",
-        "learner": "whose runs to judge (default KF-C)",
+        "learner": f"whose runs to judge (default {DEFAULTS['reference'][0]})",
         "runs": "how many runs (the first N; default 2)",
         "seed": "the particle reference's seed (default 0; run r uses seed + r)",
     },

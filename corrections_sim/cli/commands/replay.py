@@ -13,6 +13,7 @@ from corrections_sim import provenance
 from corrections_sim.cli.command import Command, wrote_nothing
 from corrections_sim.cli.common import out_dir, staged, writable_dir
 from corrections_sim.cli.errors import UsageError
+from corrections_sim.defaults import DEFAULTS
 
 
 def _learner_sets(items) -> dict[str, dict]:
@@ -109,7 +110,8 @@ COMMAND = Command(
         "set": "change a replayed learner's parameter, learners.NAME.KEY=VALUE, e.g. "
         "learners.KF-C.model=physical (repeatable; any other key is refused)",
         "learners": "which learners to replay, any registered ones (default "
-        "PP,KF,KF-C,BP and the session's own); their parameters are the session's",
+        f"{','.join(DEFAULTS['replay'])} and the session's own); their parameters are the "
+        "session's",
     },
     nothing_kept=wrote_nothing,
 )

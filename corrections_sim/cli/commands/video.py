@@ -9,6 +9,7 @@ from pathlib import Path
 from corrections_sim.cli.command import Command, wrote_nothing
 from corrections_sim.cli.common import out_dir
 from corrections_sim.cli.errors import UsageError
+from corrections_sim.defaults import DEFAULTS
 
 
 def run_video(args: argparse.Namespace) -> list[Path]:
@@ -20,7 +21,7 @@ def run_video(args: argparse.Namespace) -> list[Path]:
         result = video.make_video(
             out_dir(args),
             args.source or "fig4",
-            learner=args.learner or "KF",
+            learner=args.learner or DEFAULTS["video"][0],
             run=0 if args.run is None else args.run,
             corrections=args.corrections,
             model_path=None if args.model is None else Path(args.model),
@@ -39,6 +40,6 @@ COMMAND = Command(
     run=run_video,
     help="animate corrections of a recorded fig4/fig5 run (MP4 or GIF)",
     options=("out", "source", "learner", "run", "corrections", "model", "video_file"),
-    option_help={"learner": "whose run to show (default KF)"},
+    option_help={"learner": f"whose run to show (default {DEFAULTS['video'][0]})"},
     nothing_kept=wrote_nothing,
 )

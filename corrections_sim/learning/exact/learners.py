@@ -1,0 +1,197 @@
+"""EX-C and EX-CL: the exact posterior over θ under KF-C's and KF-CL's models, on the nodes
+of the study's plan atlas (:mod:`corrections_sim.plans.atlas`).
+
+A correction in E is weighed at every node θ of the atlas's grid by hₜ(θ) = Φ(C(ξᵗ, ξ*(θ, E))),
+ξ*(θ, E) the atlas's plan there: no solve, one feature count of every node's corrected plan.
+The posterior is the grid's (:mod:`corrections_sim.learning.exact.bayes`, the functions
+the exact reference of ``run reference`` uses), so on the atlas's grid it *is* that reference;
+its moments are the belief every consumer reads. θ is static (no process noise M, as in the
+reference); the grid truncates the prior to the atlas's box (θ̂⁰ ± ``width`` sd).
+
+Where the posterior grows narrower than the atlas's spacing resolves (fewer than
+``resolution`` nodes in its narrowest sd), the cells of its core are cut finer
+(:class:`~corrections_sim.learning.exact.bayes.Refinement`; the integrals are the
+trapezoid rule's on every cell, :class:`~corrections_sim.learning.exact.cells.Cells`):
+ξ*(θ, E) at each new node from the atlas (:meth:`Atlas.plans
+<corrections_sim.plans.atlas.Atlas.plans>`, warm from the best corner of its atlas cell),
+and every correction so far weighed again there (the learner keeps them). The reference tool
+refines the same way, at twice the resolution.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from corrections_sim.belief import (
+    Belief,
+    CorrectionEntry,
+    GridPosterior,
+    KalmanNoise,
+    PriorEntry,
+    floored,
+    symmetrize,
+)
+from corrections_sim.components import ParameterError
+from corrections_sim.learning.base import LearnerContext, Step
+from corrections_sim.learning.exact import bayes as ref
+from corrections_sim.learning.exact.cells import Cells
+from corrections_sim.learning.kalman.learners import CorrectionAwareKalman
+from corrections_sim.learning.params import require_count
+from corrections_sim.planning.planner import Plan, PlanningError
+from corrections_sim.scene.environments import Environment
+
+
+@dataclass(frozen=True)
+class ExactCorrectionAware(CorrectionAwareKalman):
+    """The posterior of KF-C's model, exactly, on the study's atlas grid (module docstring):
+    p(θ | z₁…zₜ) ∝ N(θ; θ̂⁰, P⁰) Πᵢ N(zᵢ; hᵢ(θ), N), N the study's (``noise = "fixed"``) or,
+    with ``noise = "learnt"``, integrated out under KF-CL's prior IW(ν₀, V₀):
+    Πᵢ → |V₀ + Σᵢ rᵢ rᵢᵀ|^(−(ν₀ + t)/2), rᵢ = zᵢ − hᵢ(θ).
+
+    Attributes:
+        resolution: grid nodes the posterior's narrowest sd needs before the grid is refined
+            (0: the atlas's nodes only; module docstring).
+        cut: the posterior's core, whose cells are refined: where its density is within
+            ``cut`` (in log) of its peak (9.2: 1e-4 of it).
+        max_level: the finest refinement, the atlas's spacing / 2^max_level.
+    """
+
+    label = "Exact posterior, KF-C's model (EX-C)"
+    style = ("#393b79", "-")
+    needs_atlas = True  # its grid is the study's plan atlas
+
+    resolution: float = 1.0
+    cut: float = 9.2
+    max_level: int = 4
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.iterate != "none":
+            raise ParameterError("iterate", "an exact learner is not linearised")
+        if not (isinstance(self.resolution, int | float) and 0 <= self.resolution < np.inf):
+            raise ParameterError("resolution", f"must be a number >= 0, got {self.resolution!r}")
+        require_count("max_level", self.max_level, 0)
+        if not (isinstance(self.cut, int | float) and 0 < self.cut < np.inf):
+            raise ParameterError("cut", f"must be a number > 0, got {self.cut!r}")
+
+    def initial(self, belief: Belief, noise: KalmanNoise) -> Belief:
+        start = super().initial(belief, noise)  # N's prior, for EX-CL
+        prior = PriorEntry(belief.theta, belief.cov)  # what a refined grid weighs again
+        return Belief(theta=start.theta, cov=start.cov, noise=start.noise, history=(prior,))
+
+    def update(
+        self, ctx: LearnerContext, belief: Belief, env: Environment, plan: Plan, phi_h: np.ndarray
+    ) -> Step:
+        atlas = ctx.book.atlas
+        if atlas is None:
+            raise ValueError(f"{type(self).__name__}: needs the study's plan atlas (atlas = true)")
+        history = belief.history or (PriorEntry(belief.theta, belief.cov),)
+        before = belief.grid
+        if before is None:
+            g = atlas.grid
+            cells = Cells.base(g.lows, g.highs, g.counts, self.max_level)
+            log_d, scatter = self._fresh(history[:1], ctx, cells.thetas())
+            before = GridPosterior(cells.thetas(), log_d, scatter, 0, cells)
+        plans = atlas.plans(before.thetas, env)
+        h = self.observation().at_plans(plans, plan.trajectory, env, ctx.features)
+        z = np.asarray(phi_h, float)
+        coefficients = before.cells.coefficients
+        weights = ref.posterior(self._log_posterior(before, belief), coefficients)
+        seen = np.all(np.isfinite(h), axis=1) & (weights > 0)
+        if not seen.any():
+            raise PlanningError(
+                f"{env.name}: the atlas has no plan where the posterior lives; update skipped"
+            )
+        noise_n = ctx.noise.observation
+        # What it expected before the correction: the predictive mean and spread of h.
+        w = weights[seen] / weights[seen].sum()
+        expected = w @ h[seen]
+        spread = (w[:, None] * (h[seen] - expected)).T @ (h[seen] - expected)
+        log_d, scatter = self._weighed(before.log_density, before.scatter, z, h, noise_n)
+        after = GridPosterior(before.thetas, log_d, scatter, before.count + 1, before.cells)
+        if self.noise == "learnt":
+            noise_mean = w @ self._noise_means(before, belief)[seen].reshape(len(w), -1)
+            noise = noise_mean.reshape(z.size, z.size)
+        else:
+            noise = noise_n
+        history = (*history, CorrectionEntry(env, plan.trajectory, z, noise_n))
+        after = self._refined(ctx, after, history, belief)
+        log_post = self._log_posterior(after, belief)
+        mean, cov = _moments(after.thetas, ref.posterior(log_post, after.cells.coefficients))
+        new = Belief(theta=mean, cov=cov, noise=belief.noise, history=history, grid=after)
+        return Step(new, None, z - plan.features, symmetrize(spread + noise))
+
+    def _refined(
+        self, ctx: LearnerContext, grid: GridPosterior, history: tuple, belief: Belief
+    ) -> GridPosterior:
+        """``grid``, its cells cut finer while the posterior needs it (class docstring): at
+        each new node, the prior and every correction in ``history``."""
+        refine = ref.Refinement(self.resolution, self.cut)
+        while (cells := refine.finer(grid.cells, self._log_posterior(grid, belief))) is not None:
+            new = cells.thetas()[len(grid.thetas) :]
+            log_d, scatter = self._fresh(history, ctx, new)
+            if scatter is not None:
+                scatter = np.concatenate([grid.scatter, scatter])
+            log_d = np.concatenate([grid.log_density, log_d])
+            grid = GridPosterior(cells.thetas(), log_d, scatter, grid.count, cells)
+        return grid
+
+    def _fresh(self, history: tuple, ctx: LearnerContext, thetas: np.ndarray):
+        """(log density, scatter) at ``thetas``: the prior (``history[0]``) and every
+        correction after it (the scatter None with N fixed)."""
+        prior = history[0]
+        log_d = ref.gaussian_log_prior(thetas, Belief(theta=prior.theta, cov=prior.cov))
+        k = thetas.shape[1]
+        scatter = np.zeros((len(thetas), k, k)) if self.noise == "learnt" else None
+        for seen in history[1:]:
+            plans = ctx.book.atlas.plans(thetas, seen.env)
+            h = self.observation().at_plans(plans, seen.robot, seen.env, ctx.features)
+            log_d, scatter = self._weighed(log_d, scatter, seen.phi_h, h, seen.noise)
+        return log_d, scatter
+
+    @staticmethod
+    def _weighed(log_d: np.ndarray, scatter, z: np.ndarray, h: np.ndarray, noise: np.ndarray):
+        """(log density, scatter) with one more correction z, predicted h, taken in."""
+        if scatter is None:
+            return log_d + ref.gaussian_log_likelihood(z, h, noise), None
+        r = np.asarray(z, float)[None, :] - h
+        bad = ~np.all(np.isfinite(r), axis=1)
+        r[bad] = 0.0
+        return np.where(bad, -np.inf, log_d), scatter + np.einsum("ni,nj->nij", r, r)
+
+    @staticmethod
+    def _log_posterior(grid: GridPosterior, belief: Belief) -> np.ndarray:
+        if grid.scatter is None:
+            return grid.log_density
+        prior = belief.noise  # the IW prior, kept as the run started
+        spread = prior.scale[None, :, :] + grid.scatter
+        sign, logdet = np.linalg.slogdet(spread)
+        if np.any(sign <= 0):
+            raise ValueError("EX-CL: V0 + sum r r^T must stay positive definite")
+        return grid.log_density - 0.5 * (prior.dof + grid.count) * logdet
+
+    @staticmethod
+    def _noise_means(grid: GridPosterior, belief: Belief) -> np.ndarray:
+        """E[N | θ, corrections] = (V₀ + Σ r rᵀ) / (ν₀ + t − k − 1) at every node."""
+        prior = belief.noise
+        k = grid.thetas.shape[1]
+        return (prior.scale[None] + grid.scatter) / (prior.dof + grid.count - k - 1)
+
+
+@dataclass(frozen=True)
+class ExactCorrectionAwareLearntNoise(ExactCorrectionAware):
+    """EX-C with N integrated out under KF-CL's prior (``noise = "learnt"``)."""
+
+    label = "Exact posterior, KF-CL's model (EX-CL)"
+    style = ("#5254a3", ":")
+
+    noise: str = "learnt"
+
+
+def _moments(thetas: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The grid posterior's mean and covariance (the reference's, :func:`ref.moments`), the
+    covariance kept positive definite where the mass sits on one node or one line of nodes."""
+    mean, cov = ref.moments(thetas, weights)
+    return mean, floored(cov)

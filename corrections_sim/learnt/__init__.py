@@ -1,0 +1,1 @@
+"""Learnt features: a small network trained on a person's feature traces."""

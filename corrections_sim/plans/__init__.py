@@ -1,0 +1,1 @@
+"""Where plans come from, apart from the planner that solves them."""

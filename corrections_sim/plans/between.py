@@ -1,0 +1,153 @@
+"""The plans of a plan atlas between its nodes — the exact learners' finer cells, the reference
+tool's, a particle learner's interpolation cells — kept so that a machine solves each once.
+
+Every such plan is :meth:`Atlas.solve <corrections_sim.plans.atlas.Atlas.solve>`'s answer,
+a function of (θ, E) alone, so keeping it changes no number. :class:`BetweenNodes` keeps them
+per process (θ's bytes -> the trajectory, None where no start converged), and
+:class:`PlanShards` on disk, beside the atlas's own files: one shard
+``<atlas key>-<answer version>.extra-<checksum>.npz`` per save (the version hashes the code
+the answer comes from, :func:`~corrections_sim.plans.atlas.answer_version`), written
+atomically; shards only add up (two
+workers that solved the same θ wrote the same plan), and one whose bytes do not match its
+checksum is skipped and said, its plans solved again.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import tempfile
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import numpy as np
+
+from corrections_sim.planning.cache import mark_used
+
+#: Plans between nodes kept per process (0.67 kB each at T = 12: 670 MB at most; past it,
+#: the unsaved ones are saved, all are dropped, and they are read again from disk when asked).
+MAX_KEPT = 1_000_000
+
+
+def write_shard(root: Path, prefix: str, arrays: dict[str, np.ndarray]) -> Path:
+    """``arrays`` as ``<prefix>-<sha256[:16]>.npz`` in ``root``, named by its checksum,
+    written to a temporary name and renamed."""
+    root.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=root, suffix=".npz.tmp")
+    with os.fdopen(fd, "wb") as fh:
+        np.savez(fh, **arrays)
+    digest = hashlib.sha256(Path(tmp).read_bytes()).hexdigest()[:16]
+    path = root / f"{prefix}-{digest}.npz"
+    os.replace(tmp, path)
+    return path
+
+
+def read_shards(
+    root: Path,
+    prefix: str,
+    rejected: list[tuple[str, str]],
+    check: Callable[[dict[str, np.ndarray]], None],
+) -> Iterator[dict[str, np.ndarray]]:
+    """The arrays of every shard ``<prefix>-*.npz`` in ``root`` (:func:`write_shard`), each
+    marked as used; one whose bytes do not match its name's checksum, that lacks an array
+    or that ``check`` refuses (ValueError) is appended to ``rejected`` as (name, why) and
+    skipped."""
+    for path in sorted(root.glob(f"{prefix}-*.npz")):
+        try:
+            digest = path.name[len(prefix) + 1 : -len(".npz")]
+            if hashlib.sha256(path.read_bytes()).hexdigest()[:16] != digest:
+                raise ValueError("its data does not match its checksum (truncated or changed)")
+            with np.load(path) as data:
+                arrays = {name: data[name] for name in data.files}
+            check(arrays)
+        except (OSError, ValueError, KeyError) as exc:
+            rejected.append((path.name, str(exc).splitlines()[0]))
+            continue
+        mark_used(path)
+        yield arrays
+
+
+class PlanShards:
+    """The plans between an atlas's nodes on disk, in ``root``; files found and not trusted
+    are appended to ``rejected`` as (name, why)."""
+
+    def __init__(self, root: Path, rejected: list[tuple[str, str]] | None = None) -> None:
+        self.root = Path(root)
+        self.rejected = rejected if rejected is not None else []
+
+    def load(self, key: str, T: int, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """Every plan kept for the atlas ``key``: θ (n, k) and trajectories (n, T, 7), NaN
+        where no start converged; a shard whose content does not match its checksum, or of
+        another shape, is reported (:attr:`rejected`) and skipped."""
+
+        def check(arrays: dict[str, np.ndarray]) -> None:
+            t, p = arrays["thetas"], arrays["plans"]
+            if t.shape[1:] != (k,) or p.shape != (len(t), T, 7):
+                raise ValueError(f"shapes {t.shape}, {p.shape}")
+
+        thetas, plans = [np.zeros((0, k))], [np.zeros((0, T, 7))]
+        for arrays in read_shards(self.root, f"{key}.extra", self.rejected, check):
+            thetas.append(arrays["thetas"])
+            plans.append(arrays["plans"])
+        return np.concatenate(thetas), np.concatenate(plans)
+
+    def save(self, key: str, thetas: np.ndarray, plans: np.ndarray) -> Path:
+        """Plans of the atlas ``key`` (θ (n, k), trajectories (n, T, 7)) as a shard of their
+        own (:func:`write_shard`)."""
+        arrays = {"thetas": np.asarray(thetas, float), "plans": np.asarray(plans, float)}
+        return write_shard(self.root, f"{key}.extra", arrays)
+
+
+class BetweenNodes:
+    """One process's plans between an atlas's nodes, environment by environment, read from
+    ``shards`` (None: memory only) when an environment is first asked about."""
+
+    def __init__(self, shards: PlanShards | None, T: int, k: int) -> None:
+        self.shards, self.T, self.k = shards, T, k
+        self._known: dict[bytes, dict[bytes, np.ndarray | None]] = {}
+        self._unsaved: dict[bytes, list[bytes]] = {}
+        self._keys: dict[bytes, str] = {}
+        self._kept = 0
+
+    def known(self, env_key: bytes, atlas_key: str) -> dict[bytes, np.ndarray | None]:
+        """E's plans known here (θ's bytes -> trajectory or None), to read and add to (then
+        :meth:`added`); ``atlas_key`` names E's atlas on disk."""
+        if self._kept >= MAX_KEPT:
+            self.save()
+            self._known.clear()
+            self._kept = 0
+        found = self._known.get(env_key)
+        if found is None:
+            found = self._known[env_key] = {}
+            self._keys[env_key] = atlas_key
+            if self.shards is not None:
+                thetas, plans = self.shards.load(atlas_key, self.T, self.k)
+                for theta, plan in zip(thetas, plans, strict=True):
+                    found[theta.tobytes()] = plan if np.all(np.isfinite(plan)) else None
+                self._kept += len(thetas)
+        return found
+
+    def added(self, env_key: bytes, theta: bytes) -> None:
+        """A plan solved here for E at θ (its bytes), to be saved."""
+        self._unsaved.setdefault(env_key, []).append(theta)
+        self._kept += 1
+
+    def save(self, at_least: int = 1) -> int:
+        """The unsaved plans of every environment with at least ``at_least`` of them, a shard
+        each (nothing without shards); how many were written."""
+        if self.shards is None:
+            return 0
+        written = 0
+        for env_key, thetas in self._unsaved.items():
+            if len(thetas) < max(1, at_least):
+                continue
+            known = self._known.get(env_key, {})
+            kept = [t for t in thetas if t in known]
+            if kept:
+                nan = np.full((self.T, 7), np.nan)
+                plans = np.array([nan if known[t] is None else known[t] for t in kept])
+                stacked = np.array([np.frombuffer(t) for t in kept])
+                self.shards.save(self._keys[env_key], stacked, plans)
+                written += len(kept)
+            thetas.clear()
+        return written
