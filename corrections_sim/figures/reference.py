@@ -27,24 +27,19 @@ import dataclasses
 import hashlib
 import json
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from corrections_sim.belief import Belief, PersonBelief
+from corrections_sim.belief import Belief
 from corrections_sim.learning import correction
 from corrections_sim.learning.exact import bayes as ref
 from corrections_sim.learning.exact.cells import Cells
+from corrections_sim.learning.exact.grid import GRID_MODELS, Seen
 from corrections_sim.learning.observation import features_at_plans
 from corrections_sim.learning.particles.cloud import smoothed_kl
 from corrections_sim.learning.particles.learners import particle_reference
-from corrections_sim.learning.relevance.judge import (
-    MOVED,
-    NUDGE_DIMENSIONS,
-    beta_rho_density,
-    embed,
-    random_direction_shape,
-)
 from corrections_sim.people.users import Situation
 from corrections_sim.planning.compiled import build_once
 from corrections_sim.planning.planner import Planner, PlanningError, build_key, cache_dir
@@ -92,23 +87,16 @@ def _solve_grid(planner: Planner, env: Environment, grid: ref.Grid) -> np.ndarra
     return plans
 
 
-def _filter_step(model, study, book: PlanBook, env, robot, z, start, row) -> Belief:
+def _filter_step(model, study, book: PlanBook, env, robot, z, start) -> Belief:
     """The learner's update of the correction ``z`` to the robot's plan ``robot``, from the
     Gaussian N(``start``) (the reference's moments before it): the UKF with the learner's
-    observation model and noise (N / β̂ for a relevance-aware learner, its β̂ from the
-    record)."""
-    from corrections_sim.belief import KalmanNoise
+    observation model and the study's noise (a plain model's: nothing judged)."""
     from corrections_sim.learning.kalman.filter import ukf_update
 
     names = book.planner.config.features
-    likelihood = model.likelihood()
     observe = model.observation().observe(book, env, robot.trajectory, names)
-    noise = study.noise()
-    if likelihood.relevance == "per-correction" and row.get("relevance"):
-        beta = float(row["relevance"])
-        noise = KalmanNoise(process=noise.process, observation=noise.observation / beta)
     prior = Belief(theta=start[0], cov=start[1])
-    step = ukf_update(prior, observe, z, noise, study.sigma(), reference=robot.features)
+    step = ukf_update(prior, observe, z, study.noise(), study.sigma(), reference=robot.features)
     return step.belief
 
 
@@ -116,29 +104,6 @@ def grid_observations(plans: np.ndarray, robot: np.ndarray, correct, env, names)
     """h(θ) at every grid point (n, k): Φ of ``correct(robot, ξ*(θ))``, NaN where the grid
     has no plan (:func:`~corrections_sim.learning.observation.features_at_plans`)."""
     return features_at_plans(plans, robot, correct, env, names)
-
-
-#: Equal-probability nodes of KF-CRP's prior on τ in its exact reference.
-PERSON_TAU_NODES = 48
-
-
-def grid_residuals(
-    plans: np.ndarray, robot: np.ndarray, corrected: np.ndarray, model, space: str = "joint"
-) -> np.ndarray:
-    """ρ(θ) = ‖ξ_h − ĉ(θ)‖ / ‖ξ_h − ξ‖ on the moved waypoints, in ``space``, at every grid
-    point (n,), ĉ the correction ``model`` toward the grid's plan; NaN where the grid has no
-    plan."""
-    corrected = np.asarray(corrected, float)
-    rows = np.linalg.norm(corrected - robot, axis=1) > MOVED
-    target = embed(space, corrected[rows])
-    size = float(np.linalg.norm(target - embed(space, robot[rows])))
-    out = np.full(plans.shape[0], np.nan)
-    if size == 0.0:
-        return np.zeros(plans.shape[0])
-    for i, plan in enumerate(plans):
-        if np.all(np.isfinite(plan)):
-            out[i] = np.linalg.norm(target - embed(space, model.at(robot, plan, rows))) / size
-    return out
 
 
 def recorded_runs(folder: Path, learner: str) -> dict[int, list[dict]]:
@@ -207,8 +172,7 @@ def reference_run(
     likelihood = model.likelihood()
     if likelihood is None:
         raise ValueError(f"learner {learner}: no reference for it (KF-type learners and BP)")
-    if likelihood.relevance == "per-correction" and likelihood.noise == "learnt":
-        raise ValueError(f"learner {learner}: no reference for relevance with N learnt")
+    kind = GRID_MODELS[likelihood.kind]
     engine = particle_reference(model, learner, particles) if particles else None
     if grid is None and (engine is None or one_step or restarts):
         raise ValueError(
@@ -222,20 +186,10 @@ def reference_run(
     intended = dict(zip(envs, (p.trajectory for p in target.plans), strict=True))
     thetas = grid.thetas() if grid is not None else np.zeros((1, k))
     log_p = ref.gaussian_log_prior(thetas, study.prior())
-    noise = study.noise().observation
-    learnt = likelihood.kind == "gaussian" and likelihood.noise == "learnt"
-    prior_noise = model.initial(study.prior(), study.noise()).noise if learnt else None
-    zs, hs, out = [], [], []
-    person = None
-    if likelihood.relevance == "person":
-        _, (shape, rate), _ = model.densities()
-        a = model.relevance_prior * model.relevance_count
-        b = (1.0 - model.relevance_prior) * model.relevance_count
-        fine = PersonBelief.prior(shape, rate, a, b, tau_points=PERSON_TAU_NODES, rate_points=41)
-        person = ref.PersonPosterior.prior(thetas, log_p, fine)
-    if (one_step or restarts) and (
-        person is not None or not (likelihood.kind == "gaussian" and not learnt)
-    ):
+    out = []
+    # The learner's parameters checked before anything is solved.
+    grid_model = None if grid is None else kind(learner, likelihood, model, study, thetas, log_p)
+    if (one_step or restarts) and not kind.plain:
         raise ValueError(
             f"learner {learner}: --one-step and --restart need a Kalman learner with N fixed"
         )
@@ -249,12 +203,7 @@ def reference_run(
         spec = settings.atlas_spec()
         box = AtlasGrid(grid.low, grid.high, (grid.points,) * k)
         at_nodes = dataclasses.replace(spec, grid=box).atlas()
-    refinable = (
-        at_nodes is not None
-        and likelihood.kind == "gaussian"
-        and likelihood.relevance == "none"
-        and person is None
-    )
+    refinable = at_nodes is not None and kind.refinable
     if resolution is not None and not (np.isfinite(resolution) and resolution >= 0):
         raise ValueError(f"--resolution {resolution!r}: expected a number >= 0")
     if resolution is not None and resolution > 0 and not refinable:
@@ -272,6 +221,9 @@ def reference_run(
         cells = Cells.base(box.lows, box.highs, box.counts, depth)
         thetas = cells.thetas()
         log_p = ref.gaussian_log_prior(thetas, study.prior())
+        grid_model = kind(learner, likelihood, model, study, thetas, log_p)
+    c = likelihood.correction
+    correct = c.apply if c is not None else (lambda r, x: x)
     restarted: dict[int, Belief] = {}
     if engine is not None:
         cloud = engine.initial(study.prior(), study.noise())
@@ -290,7 +242,7 @@ def reference_run(
         start = None
         if one_step or restarts:
             at = None if cells is None else cells.coefficients
-            start = ref.moments(thetas, ref.posterior(log_p, at))
+            start = ref.moments(thetas, ref.posterior(grid_model.density(), at))
         t = int(row["iteration"])
         for s in restarts:
             if s == t - 1:
@@ -305,84 +257,31 @@ def reference_run(
         if engine is not None:
             at_t = dataclasses.replace(ctx, iteration=t - 1)
             cloud = correction.step(engine, at_t, cloud, env, robot, z, outcome.corrected).belief
-        if grid is None:
+        if grid_model is None:
             log_post = None
-        elif likelihood.kind == "boltzmann":
-            betas = model.correction_model(0.0).betas
-            log_l = ref.boltzmann_log_likelihood(thetas, z - robot.features, betas, model.lapse)
-            log_p = log_p + log_l
-            log_post = log_p
         else:
-            if at_nodes is None:
-                plans = grid_plans(planner, env, grid)
-            else:
-                plans = at_nodes.plans(thetas, env)
-            c = likelihood.correction
-            correct = c.apply if c is not None else (lambda r, x: x)
-            h = grid_observations(plans, robot.trajectory, correct, env, names)
-            if person is not None:
-                plans_rho = grid_residuals(
-                    plans, robot.trajectory, outcome.corrected, likelihood.correction, model.space
-                )
-                recorded = float(row["relevance_residual"] or 1.0)
-                rho_star = min(float(np.nanmin(plans_rho)), recorded)
-                shape, _, scatter = model.densities()
-                f0 = beta_rho_density(
-                    rho_star, *(shape or random_direction_shape(NUDGE_DIMENSIONS, k))
-                )
-                mixture = [(w, sd**2 * np.eye(k)) for w, sd in scatter]
-                tau0 = float(np.mean(person.taus))
-                place = ref.irrelevant_place(
-                    thetas, plans_rho, rho_star, before.theta, mixture, tau0
-                )
-                judged["ref_relevance"] = person.correct(
-                    ref.gaussian_log_likelihood(z, h, noise),
-                    plans_rho,
-                    rho_star,
-                    tau0,
-                    np.log(max(f0, 1e-300)) + place,
-                )
-                judged["ref_relevance_rate"] = person.rate_mean()
-                judged["ref_relevance_spread"] = person.spread()
-                log_post = np.log(np.maximum(person.theta_weights(), 1e-300))
-            elif likelihood.relevance == "per-correction":
-                if row.get("relevance"):  # else the learner skipped this update
-                    log_l = ref.relevance_log_likelihood(
-                        ref.gaussian_log_likelihood(z, h, noise), log_p, float(row["relevance"])
-                    )
-                    log_p = log_p + log_l
-                log_post = log_p
-            elif learnt:
-                zs.append(z)
-                hs.append(h)
-                log_l = ref.learnt_noise_log_likelihood(
-                    np.array(zs), np.array(hs), prior_noise.dof, prior_noise.scale
-                )
-                log_post = log_p + log_l
-            else:
-                log_l = ref.gaussian_log_likelihood(z, h, noise)
-                log_p = log_p + log_l
-                log_post = log_p
+            plans = h = None
+            if kind.needs_plans:
+                if at_nodes is None:
+                    plans = grid_plans(planner, env, grid)
+                else:
+                    plans = at_nodes.plans(thetas, env)
+                h = grid_observations(plans, robot.trajectory, correct, env, names)
+            seen_here = Seen(z, robot, plans, h, outcome.corrected, row, before)
+            log_post = grid_model.correct(seen_here)
+            judged = grid_model.judged
             if cells is not None:
-                past.append((env, robot.trajectory, z))
+                past.append((env, robot.trajectory))
                 while (finer := refine.finer(cells, log_post)) is not None:
                     new = finer.thetas()[len(thetas) :]
                     new_hs = [
                         grid_observations(at_nodes.plans(new, e), r, correct, e, names)
-                        for e, r, _ in past
+                        for e, r in past
                     ]
                     new_p = ref.gaussian_log_prior(new, study.prior())
-                    if learnt:
-                        hs = [np.concatenate(pair) for pair in zip(hs, new_hs, strict=True)]
-                        log_p = np.concatenate([log_p, new_p])
-                        log_post = log_p + ref.learnt_noise_log_likelihood(
-                            np.array(zs), np.array(hs), prior_noise.dof, prior_noise.scale
-                        )
-                    else:
-                        for (*_, seen_z), seen_h in zip(past, new_hs, strict=True):
-                            new_p = new_p + ref.gaussian_log_likelihood(seen_z, seen_h, noise)
-                        log_p = log_post = np.concatenate([log_p, new_p])
+                    log_post = grid_model.refined(new_p, new_hs)
                     cells, thetas = finer, finer.thetas()
+                    grid_model.thetas = thetas
         coefficients = None if cells is None else cells.coefficients
         belief = _belief(row, k)
         if log_post is None:  # the particles are the reference
@@ -413,15 +312,208 @@ def reference_run(
             rec["relevance"] = float(row["relevance"]) if row.get("relevance") else None
             rec |= judged
         if one_step:
-            step = _filter_step(model, study, book, env, robot, z, start, row)
+            step = _filter_step(model, study, book, env, robot, z, start)
             rec["one_step_nees"] = ref.nees(step.theta, step.cov, theta_star)
             rec["one_step_kl"] = ref.kl_to_gaussian(grid, thetas, weights, step, coefficients)
         for s, state in restarted.items():
-            state = _filter_step(model, study, book, env, robot, z, (state.theta, state.cov), row)
+            state = _filter_step(model, study, book, env, robot, z, (state.theta, state.cov))
             restarted[s] = state
             rec[f"restart_{s}_nees"] = ref.nees(state.theta, state.cov, theta_star)
         out.append(rec)
     return out
+
+
+@dataclass(frozen=True)
+class Judged:
+    """What :func:`judge_figure` found: every record, the summary at each iteration (the last
+    is the final one) and, with ``check_grid``, how much the first run's reference moves on
+    the halved grid (points per axis before and after, the largest move of a mean in its sd
+    and of a variance, relative)."""
+
+    learner: str
+    records: list[dict]
+    by_iteration: list[dict]
+    grid_check: tuple[int, int, float, float] | None = None
+
+
+def reference_grid(settings: FigureSettings, points: int | None) -> ref.Grid | None:
+    """The reference's grid: on a study with a plan atlas its box, at its spacing unless
+    ``points`` is given; else [-3, 3]² with ``points`` (61) a side; None beyond k = 2."""
+    k = settings.study.k
+    if k != 2:
+        return None
+    spec = settings.atlas_spec()
+    if spec is not None:
+        box = spec.grid
+        return ref.Grid(box.lows, box.highs, points or box.counts[0])
+    return ref.Grid((-3.0,) * k, (3.0,) * k, points or 61)
+
+
+def judge_figure(
+    folder: Path,
+    learner: str,
+    *,
+    runs: int = 2,
+    points: int | None = None,
+    restarts: tuple[int, ...] = (),
+    particles: int = 0,
+    seed: int = 0,
+    one_step: bool = False,
+    resolution: float | None = None,
+    check_grid: bool = False,
+    progress=None,
+) -> Judged:
+    """The exact reference of the first ``runs`` runs of ``learner`` in the finished figure
+    in ``folder`` (its ``summary.json`` and ``curves.csv``): see :func:`reference_run` for
+    the options; ``progress(run)`` after each run.
+
+    Raises:
+        ValueError: one line, naming what does not fit (a learner not in the figure, an
+            option the learner's model or k cannot take).
+    """
+    from corrections_sim.planning.planner import Planner
+    from corrections_sim.plans import interpolation
+    from corrections_sim.study import schema
+
+    summary = json.loads((folder / "summary.json").read_text())
+    settings = schema.parse_study(summary["settings"], name=summary.get("figure", ""))
+    if learner not in settings.study.learners:
+        known = ", ".join(settings.study.learners)
+        raise ValueError(f"--learner {learner}: not in this figure ({known})")
+    recorded = recorded_runs(folder, learner)
+    if any(s < 0 for s in restarts):
+        raise ValueError(f"--restart {','.join(map(str, restarts))}: iterations are >= 0")
+    if check_grid and settings.study.k != 2:
+        raise ValueError(f"--check-grid: the grid exists only for k = 2, not {settings.study.k}")
+    grid = reference_grid(settings, points)
+    planner = Planner(settings.planner_config())
+    records = []
+    for run in sorted(recorded)[:runs]:
+        records += reference_run(
+            settings,
+            learner,
+            recorded[run],
+            grid,
+            planner,
+            one_step=one_step,
+            restarts=restarts,
+            particles=particles,
+            seed=seed + run,
+            resolution=resolution,
+        )
+        if progress is not None:
+            progress(run)
+        if settings.atlas() is not None:  # the plans solved between nodes, kept
+            settings.atlas().save()
+            interpolation.save_kept()  # and the particles' checked cells
+    by_t = [summary_at(records, t) for t in sorted({r["iteration"] for r in records})]
+    moved = None
+    if check_grid:
+        fine = grid.halved()
+        first = sorted(recorded)[0]
+        coarse = [r for r in records if r["run"] == first]
+        finer = reference_run(
+            settings, learner, recorded[first], fine, planner, resolution=resolution
+        )
+        pairs = list(zip(coarse, finer, strict=True))
+        k = settings.study.k
+        worst_mean = max(
+            abs(a[f"ref_theta_{i}"] - b[f"ref_theta_{i}"]) / np.sqrt(b[f"ref_cov_{i}{i}"])
+            for a, b in pairs
+            for i in range(k)
+        )
+        worst_cov = max(
+            abs(a[f"ref_cov_{i}{i}"] - b[f"ref_cov_{i}{i}"]) / b[f"ref_cov_{i}{i}"]
+            for a, b in pairs
+            for i in range(k)
+        )
+        moved = (grid.points, fine.points, worst_mean, worst_cov)
+    return Judged(learner, records, by_t, moved)
+
+
+def write_judged(folder: Path, judged: Judged) -> list[Path]:
+    """``reference-<learner>.csv`` (every record) and ``.json`` (the final summary and every
+    iteration's) in ``folder``."""
+    from corrections_sim.figures.output import write_records
+
+    csv_path = write_records(folder / f"reference-{judged.learner}.csv", judged.records)
+    json_path = folder / f"reference-{judged.learner}.json"
+    final = judged.by_iteration[-1]
+    json_path.write_text(
+        json.dumps(
+            {"learner": judged.learner, **final, "by_iteration": judged.by_iteration}, indent=1
+        )
+        + "\n"
+    )
+    return [csv_path, json_path]
+
+
+def report_lines(judged: Judged, particles: int = 0) -> list[str]:
+    """The table of the means over runs at each iteration and what the final one says, as
+    the command prints them."""
+    by_t, final = judged.by_iteration, judged.by_iteration[-1]
+    lines = [
+        f"(means over {len({r['run'] for r in judged.records})} runs; 95% intervals over runs)",
+        f"{'t':>3} {'ref NEES':>9} {'NEES':>7} {'NEES / ref NEES':>22} {'ref_kl':>22} "
+        f"{'Gaussian part':>22}",
+    ]
+    for row in by_t:
+        ratio = f"{row['ratio']:.2f} [{row['ratio_ci95'][0]:.2f}, {row['ratio_ci95'][1]:.2f}]"
+        kl = (
+            f"{row['ref_kl']:.3f} [{row['ref_kl_ci95'][0]:.3f}, {row['ref_kl_ci95'][1]:.3f}]"
+            if "ref_kl" in row
+            else "-"
+        )
+        lo, hi = row["ref_kl_gaussian_ci95"]
+        gauss = f"{row['ref_kl_gaussian']:.3f} [{lo:.3f}, {hi:.3f}]"
+        lines.append(
+            f"{row['iteration']:>3} {row['ref_nees']:9.2f} {row['nees']:7.2f} {ratio:>22} "
+            f"{kl:>22} {gauss:>22}"
+        )
+    kl_text = (
+        f"ref_kl = {final['ref_kl']:.3f} [{final['ref_kl_ci95'][0]:.3f}, "
+        f"{final['ref_kl_ci95'][1]:.3f}], of which Gaussian "
+        if "ref_kl" in final
+        else "the reference is the particles': ref_kl's Gaussian part "
+    )
+    lines.append(
+        f"t = {final['iteration']}: NEES / reference NEES = {final['ratio']:.2f} "
+        f"[{final['ratio_ci95'][0]:.2f}, {final['ratio_ci95'][1]:.2f}], {kl_text}"
+        f"{final['ref_kl_gaussian']:.3f} (95% intervals over {final['runs']} runs)"
+    )
+    if "particle_kl" in final:
+        lines.append(
+            f"{particles} particles against the grid: KL (smoothed on the grid) "
+            f"{final['particle_kl']:.3f}, mean within {final['particle_mean_gap']:.1%} of an "
+            f"sd, variances within {final['particle_var_gap']:.1%}, ESS "
+            f"{final['particle_ess']:.0f}"
+        )
+    if "one_step_ratio" in final:
+        low, high = final["one_step_ratio_ci95"]
+        lines.append(
+            f"one filter step from the reference: NEES / reference NEES = "
+            f"{final['one_step_ratio']:.2f} [{low:.2f}, {high:.2f}], KL "
+            f"{final['one_step_kl']:.3f}"
+        )
+    if "relevance_gap" in final:
+        lines.append(
+            f"β̂ against the exact one: mean |gap| {final['relevance_gap']:.3f} (largest "
+            f"{final['relevance_gap_max']:.3f}); the same side of 1/2 for "
+            f"{final['relevance_agree']:.0%} of the corrections"
+        )
+    for key, value in final.items():
+        if key.startswith("restart_"):
+            at = key.split("_")[1]
+            lines.append(
+                f"the filter from the reference at t = {at} on: NEES / ref NEES {value:.2f}"
+            )
+    if judged.grid_check is not None:
+        points, finer, worst_mean, worst_cov = judged.grid_check
+        lines.append(
+            f"grid {points} -> {finer} points per axis: the mean moves by at most "
+            f"{worst_mean:.2%} of its sd, the variances by {worst_cov:.2%}"
+        )
+    return lines
 
 
 def _particles_against_grid(cloud, thetas, weights, mean, cov, coefficients=None) -> dict:
@@ -496,66 +588,3 @@ def summary_at(records: list[dict], iteration: int, *, resamples: int = 2000) ->
             np.mean([r[key] for r in at]) / ref_nees.mean()
         )
     return out
-
-
-def calibration_figure(folder: Path) -> Path:
-    """The calibration figure from the reference summaries in ``folder`` (``<figure>-<learner>
-    .json``, as in ``results/reference_posterior``, each with its ``by_iteration``): per
-    figure, every learner's NEES / reference NEES and the Gaussian part of ``ref_kl``
-    against t. Writes ``calibration.png`` there."""
-
-    panels: dict[str, dict] = {}
-    for path in sorted(folder.glob("*.json")):
-        data = json.loads(path.read_text())
-        if "by_iteration" not in data:
-            continue
-        figure = path.stem.removesuffix(f"-{data['learner']}")
-        panels.setdefault(figure, {})[data["learner"]] = data["by_iteration"]
-    if not panels:
-        raise ValueError(f"{folder}: no reference summaries with by_iteration in it")
-    runs = sorted({rows[-1]["runs"] for learners in panels.values() for rows in learners.values()})
-    out = folder / "calibration.png"
-    title = "Each learner against exact Bayes under its own model (95% intervals over "
-    plot_reference_calibration(panels, f"{title}{'/'.join(map(str, runs))} runs)", [out])
-    return out
-
-
-def plot_reference_calibration(panels: dict, title: str, paths) -> None:
-    """Each learner against its exact reference over t, one column per figure (``panels``:
-    figure label -> {learner: by-iteration summaries of ``figures.reference``}): NEES /
-    reference NEES with its 95% interval (1 is exact Bayes' confidence; the band
-    [0.8, 1.25] shaded) and the Gaussian part of ``ref_kl`` (nats; 0 is the reference's own
-    moments) with its interval."""
-    from corrections_sim.figures.style import learner_style, plt, save_and_close
-
-    columns = list(panels)
-    fig, axes = plt.subplots(
-        2, len(columns), figsize=(4.2 * len(columns), 6.4), squeeze=False, sharex="col"
-    )
-    for c, figure in enumerate(columns):
-        top, bottom = axes[0, c], axes[1, c]
-        top.axhspan(0.8, 1.25, color="0.9")
-        top.axhline(1.0, color="0.5", lw=0.8)
-        for learner, rows in panels[figure].items():
-            colour, style = learner_style(learner)
-            t = [r["iteration"] for r in rows]
-            ratio = [r["ratio"] for r in rows]
-            low, high = zip(*(r["ratio_ci95"] for r in rows), strict=True)
-            top.plot(t, ratio, color=colour, ls=style, marker="o", ms=3, label=learner)
-            top.fill_between(t, low, high, color=colour, alpha=0.15)
-            gauss = [r["ref_kl_gaussian"] for r in rows]
-            low, high = zip(*(r["ref_kl_gaussian_ci95"] for r in rows), strict=True)
-            bottom.plot(t, gauss, color=colour, ls=style, marker="o", ms=3, label=learner)
-            bottom.fill_between(t, low, high, color=colour, alpha=0.15)
-        top.set_yscale("log")
-        top.set_title(figure, fontsize=9)
-        top.set_ylabel("NEES / reference NEES")
-        bottom.axhline(0.02, color="0.6", lw=0.8, ls=":")
-        bottom.set_ylabel("ref_kl, Gaussian part (nats)")
-        bottom.set_xlabel("corrections t")
-        for ax in (top, bottom):
-            ax.grid(alpha=0.3)
-        top.legend(fontsize=7)
-    fig.suptitle(title, fontsize=9)
-    fig.tight_layout()
-    save_and_close(fig, paths, dpi=130)

@@ -35,7 +35,7 @@ from __future__ import annotations
 import abc
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, ClassVar, Literal
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
@@ -101,17 +101,17 @@ class Likelihood:
     computed under (:mod:`corrections_sim.figures.reference`), read instead of its class.
 
     Attributes:
-        kind: "gaussian", Φ_h ~ N(h(θ), N); or "boltzmann", BP's P(ξ_h ≻ ξᵗ | θ).
+        kind: the model's name, registered by the learner's family
+            (:data:`~corrections_sim.learning.exact.grid.GRID_MODELS`): "gaussian", Φ_h ~
+            N(h(θ), N) with N known; "gaussian-learnt-noise", N integrated out under the
+            learner's prior; "boltzmann", BP's P(ξ_h ≻ ξᵗ | θ); "relevance-per-correction",
+            N / β̂ with β̂ as the learner judged it; "relevance-person", θ with the
+            person's rate and precision.
         correction: C in hₜ(θ) = Φ(C(ξᵗ, ξ*(θ, E))); None: h(θ) = Φ(ξ*(θ, E)) itself.
-        noise: "fixed" (N known) or "learnt" (N integrated out under the learner's prior).
-        relevance: "none"; "per-correction" (N / β̂, β̂ as the learner judged it); or
-            "person" (θ with the person's rate and precision).
     """
 
-    kind: Literal["gaussian", "boltzmann"]
+    kind: str
     correction: CorrectionModel | None = None
-    noise: Literal["fixed", "learnt"] = "fixed"
-    relevance: Literal["none", "per-correction", "person"] = "none"
 
 
 class Learner(abc.ABC):

@@ -16,7 +16,11 @@ the study through :class:`~corrections_sim.learning.base.LearnerContext`.
 """
 
 from corrections_sim.learning.base import LEARNERS
+
+# The families' models of a correction on the exact reference's grid, registered on import.
+from corrections_sim.learning.boltzmann import grid as _boltzmann_grid  # noqa: F401
 from corrections_sim.learning.boltzmann.learners import BoltzmannPosterior
+from corrections_sim.learning.exact import grid as _exact_grid  # noqa: F401
 from corrections_sim.learning.exact.learners import (
     ExactCorrectionAware,
     ExactCorrectionAwareLearntNoise,
@@ -40,6 +44,7 @@ from corrections_sim.learning.perceptron.learners import (
     Perceptron,
     PerceptronFromCorrectionAware,
 )
+from corrections_sim.learning.relevance import grid as _relevance_grid  # noqa: F401
 from corrections_sim.learning.relevance.expansion import ExpandingRelevanceKalman
 from corrections_sim.learning.relevance.learners import (
     PersonRelevanceKalman,

@@ -32,6 +32,7 @@ import numpy as np
 from corrections_sim import calibration
 from corrections_sim.learning import correction
 from corrections_sim.learning.base import LEARNERS, Step
+from corrections_sim.learning.relevance import expansion
 from corrections_sim.metrics import estimate_error, regret_terms
 from corrections_sim.people.users import Situation, TaskOutcome, User
 from corrections_sim.planning.features import feature_counts
@@ -106,7 +107,7 @@ def run_learner(
     def teach(n: int, env: Environment, current: tuple[str, ...]) -> list[np.ndarray] | None:
         """The person's traces of the feature they mind most that the robot lacks (None:
         there is none)."""
-        missing = _missing(target, current)
+        missing = expansion.missing_feature(target, current)
         if missing is None:
             return None
         return settings.teacher.traces(missing, n, env, rng)
@@ -138,7 +139,7 @@ def run_learner(
             "update_skipped": skipped,
         }
         rec |= belief_columns(belief, step, known, cls.has_covariance)
-        rec |= _expansion_columns(belief, step, learnt, k)
+        rec |= expansion.columns(belief, step, learnt, k)
         rec |= task
         records.append(rec)
 
@@ -211,53 +212,12 @@ def run_learner(
             if step.gain is not None:
                 gains[t] = step.gain[:k, :k]
             if step.expansion is not None and step.expansion.get("taught"):
-                learnt.update(_learnt_quality(step.expansion["feature"], target, current, env))
+                learnt.update(expansion.quality_of(step.expansion["feature"], target, current, env))
                 learnt["expanded_at"] = t + 1
         except PlanningError as exc:
             skipped = str(exc).splitlines()[0]
         record(t + 1, env.name, skipped, step, task)
     return RunResult(records=tuple(records), gains=gains, solves=book.solves)
-
-
-def _missing(target, current: tuple[str, ...]) -> str | None:
-    """The feature the person minds most (largest |θ*|) that ``current`` lacks, or None."""
-    theirs = target.features or current
-    weights = {n: abs(float(w)) for n, w in zip(theirs, target.theta_star, strict=True)}
-    lacking = [n for n in theirs if n not in current and weights[n] > 0]
-    return max(lacking, key=lambda n: weights[n]) if lacking else None
-
-
-def _learnt_quality(name: str, target, current: tuple[str, ...], env: Environment) -> dict:
-    """A learnt feature against the person's feature it was taught for: Spearman ρ and the
-    affine fit true ≈ a·learnt + b over random reachable configurations of the environment
-    it was taught in; the person's weight maps to a·θ* on the learnt feature."""
-    from corrections_sim.learnt.training import quality
-
-    true = _missing(target, current)
-    if true is None:
-        return {}
-    q = quality(name, true, env)
-    weight = float(target.theta_star[list(target.features or current).index(true)])
-    return {"spearman": q.spearman, "r2": q.r2, "target": weight * q.scale}
-
-
-def _expansion_columns(belief, step: Step | None, learnt: dict, k: int) -> dict:
-    """Columns of a learner that can learn features: whether it asked, whether it has
-    expanded (and at which correction), the learnt feature's quality against the person's
-    (Spearman ρ, R² of the best affine fit), its weight θ̂ and the weight the person's maps
-    to through that fit (θ*·a), for every record after it expanded."""
-    if not (belief.asked or (step is not None and step.expansion is not None)):
-        return {}
-    out: dict = {"asked": float(belief.asked), "expanded": float(bool(belief.extra))}
-    if belief.extra and learnt:
-        out |= {
-            "expanded_at": learnt["expanded_at"],
-            "learnt_spearman": learnt.get("spearman"),
-            "learnt_r2": learnt.get("r2"),
-            "learnt_weight": float(belief.theta[k]),
-            "learnt_weight_target": learnt.get("target"),
-        }
-    return out
 
 
 def belief_columns(

@@ -15,7 +15,7 @@ from corrections_sim.cli.errors import UsageError
 
 def run_reference_plot(args: argparse.Namespace) -> list[Path]:
     """The calibration figure of every ``reference-*.json`` in the folder FILE."""
-    from corrections_sim.figures.reference import calibration_figure
+    from corrections_sim.figures.reference_plot import calibration_figure
 
     if not args.study_file:
         raise UsageError("reference-plot: give the folder of the references, e.g. results/fig4")

@@ -107,7 +107,8 @@ class UnscentedKalman(Learner):
         return Belief(theta=belief.theta, cov=belief.cov, noise=prior)
 
     def likelihood(self) -> Likelihood:
-        return Likelihood("gaussian", self.assumed_correction(), self.noise)
+        kind = "gaussian" if self.noise == "fixed" else "gaussian-learnt-noise"
+        return Likelihood(kind, self.assumed_correction())
 
     def filter_noise(self, ctx: LearnerContext, belief: Belief) -> KalmanNoise:
         """M and N as this filter believes them now (N̂ when it learns N)."""

@@ -19,6 +19,7 @@ from corrections_sim.belief import (
 from corrections_sim.components import ParameterError
 from corrections_sim.learning.base import Learner, LearnerContext, Step
 from corrections_sim.learning.exact.bayes import gaussian_log_likelihood as particle_likelihood
+from corrections_sim.learning.exact.grid import GRID_MODELS
 from corrections_sim.learning.kalman.active import ActiveMixin
 from corrections_sim.learning.kalman.learners import CorrectionAwareKalman
 from corrections_sim.learning.observation import Observe
@@ -201,8 +202,7 @@ def particle_reference(learner: Learner, name: str, count: int) -> ParticleCorre
     if isinstance(count, bool) or not isinstance(count, int) or count < 2:
         raise ValueError(f"--particles {count!r}: expected an integer >= 2")
     likelihood = learner.likelihood()
-    plain = likelihood is not None and likelihood.kind == "gaussian" and likelihood.noise == "fixed"
-    if not plain or likelihood.relevance != "none":
+    if likelihood is None or not GRID_MODELS[likelihood.kind].plain:
         raise ValueError(
             f"learner {name}: a particle reference needs a KF or KF-C type learner, N fixed"
         )

@@ -95,7 +95,7 @@ class RelevanceAwareKalman(_RelevanceAware, CorrectionAwareKalman):
         self.relevance(2)
 
     def likelihood(self) -> Likelihood:
-        return dataclasses.replace(super().likelihood(), relevance="per-correction")
+        return dataclasses.replace(super().likelihood(), kind="relevance-per-correction")
 
     def update(
         self, ctx: LearnerContext, belief: Belief, env: Environment, plan: Plan, phi_h: np.ndarray
@@ -157,7 +157,7 @@ class PersonRelevanceKalman(CorrectionAwareKalman):
     expand_hidden: tuple[int, ...] = Network().hidden
 
     def likelihood(self) -> Likelihood:
-        return dataclasses.replace(super().likelihood(), relevance="person")
+        return dataclasses.replace(super().likelihood(), kind="relevance-person")
 
     def __post_init__(self) -> None:
         super().__post_init__()

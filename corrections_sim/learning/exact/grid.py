@@ -1,0 +1,147 @@
+"""What one correction tells about θ at every point of a grid, one model a registered name.
+
+A learner names the model it assumes (:meth:`Learner.likelihood
+<corrections_sim.learning.base.Learner.likelihood>`, a
+:class:`~corrections_sim.learning.base.Likelihood` whose ``kind`` is a name here); the exact
+reference (:mod:`corrections_sim.figures.reference`) computes that learner's posterior on a
+grid under the model registered by that name (:data:`GRID_MODELS`), each family registering
+its own: ``gaussian`` and ``gaussian-learnt-noise`` here (the Kalman, particle and exact
+families'), ``boltzmann`` in :mod:`corrections_sim.learning.boltzmann.grid`, and the
+relevance models in :mod:`corrections_sim.learning.relevance.grid`.
+"""
+
+from __future__ import annotations
+
+import abc
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+
+from corrections_sim.belief import Belief
+from corrections_sim.learning.exact import bayes
+from corrections_sim.registry import Registry
+
+
+@dataclass(frozen=True, eq=False)
+class Seen:
+    """One correction as a grid model reads it.
+
+    Attributes:
+        z: Φ_h, the correction's features (k,).
+        robot: the robot's plan ξᵗ (a :class:`~corrections_sim.planning.planner.Plan`).
+        plans: ξ*(θ, E) at the grid's points (n, T, 7), or None for a model that reads none.
+        h: hₜ(θ) at the grid's points (n, k), or None likewise.
+        corrected: the person's ξ_h (T, 7).
+        row: the learner's record after this correction (its β̂, its ρ).
+        before: the learner's belief before it.
+    """
+
+    z: np.ndarray
+    robot: Any
+    plans: np.ndarray | None
+    h: np.ndarray | None
+    corrected: np.ndarray
+    row: dict
+    before: Belief
+
+
+class GridModel(abc.ABC):
+    """A correction model on a grid: the log density of θ (prior times every correction's
+    likelihood, unnormalised) at the grid's points, one correction at a time.
+
+    Class attributes:
+        plain: Gaussian with N fixed and nothing judged, what a Kalman filter step assumes:
+            the reference's ``--one-step`` and ``--restart`` and a particle reference need it.
+        refinable: its grid may be cut finer where the posterior lives (:meth:`refined`).
+        needs_plans: it reads hₜ(θ) (ξ*(θ, E) at every point); else only Φ_h and ξᵗ.
+    """
+
+    plain: ClassVar[bool] = False
+    refinable: ClassVar[bool] = False
+    needs_plans: ClassVar[bool] = True
+
+    def __init__(
+        self, name: str, likelihood, learner, study, thetas: np.ndarray, log_prior: np.ndarray
+    ):
+        """The model of ``likelihood`` (its correction model C) for ``learner`` (its own
+        parameters) in ``study`` (N), from the log prior ``log_prior`` at ``thetas``.
+
+        Raises:
+            ValueError: one line naming the learner ``name``, for parameters the model cannot
+                carry.
+        """
+        self.learner, self.study, self.correction = learner, study, likelihood.correction
+        self.noise = study.noise().observation
+        self.thetas = thetas
+        self.log_p = log_prior  # the prior times every correction's likelihood taken in
+        self.judged: dict = {}  # what the last correction's columns add (the exact β̂)
+
+    @abc.abstractmethod
+    def correct(self, seen: Seen) -> np.ndarray:
+        """The log posterior (unnormalised) at the grid's points after ``seen``."""
+
+    def refined(self, new_prior: np.ndarray, new_hs: list[np.ndarray]) -> np.ndarray:
+        """The log posterior after the grid gained points (their log prior ``new_prior``, and
+        hₜ there of every correction so far, ``new_hs``, in order)."""
+        raise TypeError(f"{type(self).__name__}: its grid is not refined")
+
+    def density(self) -> np.ndarray:
+        """The log density the filter-step tools start from (prior times likelihoods)."""
+        return self.log_p
+
+
+GRID_MODELS: Registry[type[GridModel]] = Registry("likelihood", base=GridModel)
+"""Every grid model by the name a learner's :class:`Likelihood` gives."""
+
+
+@GRID_MODELS.decorator("gaussian")
+class GaussianGrid(GridModel):
+    """Φ_h ~ N(hₜ(θ), N), N known: KF/AL's h = Φ(ξ*), KF-C's Φ(C(ξᵗ, ξ*)), PF-C's, EX-C's."""
+
+    plain = True
+    refinable = True
+
+    def __init__(self, name, likelihood, learner, study, thetas, log_prior):
+        super().__init__(name, likelihood, learner, study, thetas, log_prior)
+        self.zs: list[np.ndarray] = []
+
+    def correct(self, seen: Seen) -> np.ndarray:
+        self.zs.append(seen.z)
+        self.log_p = self.log_p + bayes.gaussian_log_likelihood(seen.z, seen.h, self.noise)
+        return self.log_p
+
+    def refined(self, new_prior, new_hs):
+        for z, h in zip(self.zs, new_hs, strict=True):
+            new_prior = new_prior + bayes.gaussian_log_likelihood(z, h, self.noise)
+        self.log_p = np.concatenate([self.log_p, new_prior])
+        return self.log_p
+
+
+@GRID_MODELS.decorator("gaussian-learnt-noise")
+class LearntNoiseGrid(GridModel):
+    """Φ_h ~ N(hₜ(θ), N) with N integrated out under the learner's inverse-Wishart prior
+    (KF-CL, EX-CL): every correction so far enters together."""
+
+    refinable = True
+
+    def __init__(self, name, likelihood, learner, study, thetas, log_prior):
+        super().__init__(name, likelihood, learner, study, thetas, log_prior)
+        self.prior_noise = learner.initial(study.prior(), study.noise()).noise
+        self.zs: list[np.ndarray] = []
+        self.hs: list[np.ndarray] = []
+
+    def _posterior(self) -> np.ndarray:
+        noise = self.prior_noise
+        zs, hs = np.array(self.zs), np.array(self.hs)
+        return self.log_p + bayes.learnt_noise_log_likelihood(zs, hs, noise.dof, noise.scale)
+
+    def correct(self, seen: Seen) -> np.ndarray:
+        self.zs.append(seen.z)
+        self.hs.append(seen.h)
+        return self._posterior()
+
+    def refined(self, new_prior, new_hs):
+        self.hs = [np.concatenate(pair) for pair in zip(self.hs, new_hs, strict=True)]
+        self.log_p = np.concatenate([self.log_p, new_prior])
+        return self._posterior()
