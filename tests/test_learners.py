@@ -512,3 +512,36 @@ def test_active_learning_over_a_learner_that_predicts_no_covariance_is_refused()
         @dataclass(frozen=True)
         class ActivePerceptron(ActiveMixin, Perceptron):
             pass
+
+
+def test_the_correction_step_grows_the_noise_and_shows_the_correction():
+    """One correction step for every caller: a learner that learnt a feature (θ̂ over k + 1
+    weights) gets the study's M and N grown to its dimension, and the person's ξ_h in its
+    context; a belief over the study's k gets the study's noise itself."""
+    from dataclasses import dataclass
+
+    from corrections_sim.learning import correction
+    from corrections_sim.learning.base import Learner, Step
+
+    seen = []
+
+    @dataclass(frozen=True)
+    class Recording(Learner):
+        def update(self, ctx, belief, env, plan, phi_h):
+            seen.append(ctx)
+            return Step(belief, gain=None, innovation=phi_h)
+
+    noise = KalmanNoise.isotropic(2, 1e-4, 0.25)
+    fields = dict(book=None, envs=(), features=("laptop", "table"), n_waypoints=12)
+    fields |= dict(alphas=None, rng=np.random.default_rng(0), sigma=SigmaPoints())
+    grown = Belief(theta=np.zeros(3), cov=np.eye(3), extra=("learnt-0",))
+    ctx = correction.context(grown, noise, **fields)
+    assert ctx.noise.dim == 3 and ctx.noise.observation[2, 2] == 0.25
+    corrected = np.ones((12, 7))
+    correction.step(Recording(), ctx, grown, None, None, np.zeros(3), corrected)
+    assert seen[-1].noise.dim == 3 and seen[-1].corrected is corrected
+    plain = Belief(theta=np.zeros(2), cov=np.eye(2))
+    correction.step(
+        Recording(), correction.context(plain, noise, **fields), plain, None, None, np.zeros(2)
+    )
+    assert seen[-1].noise is noise and seen[-1].corrected is None
