@@ -1,1 +1,3 @@
-"""Learnt features: a small network trained on a person's feature traces."""
+"""Learnt features (FERL): a small network trained on a person's feature traces by a
+deterministic L-BFGS (:mod:`.training`, :mod:`.lbfgs`), planned over through the optimizer's
+learnt-feature slots."""
