@@ -150,8 +150,10 @@ def test_the_learners_refuse_bad_counts_in_one_line():
         make_learner("KF-CI", {"iterations": 0})
     with pytest.raises(ValueError, match="tolerance"):
         make_learner("KF-CI", {"tolerance": 0})
-    with pytest.raises(ValueError, match="iterate: must be one of none, each, all"):
+    with pytest.raises(ValueError, match="iterate: must be one of none, each, got 'twice'"):
         make_learner("KF-C", {"iterate": "twice"})
+    with pytest.raises(ValueError, match="iterate: must be one of none, each, got 'all'"):
+        make_learner("KF-C", {"iterate": "all"})  # KF-CB's batch form, removed
     with pytest.raises(ValueError, match='needs noise = "fixed"'):
         make_learner("KF-CL", {"iterate": "each"})
     with pytest.raises(ValueError, match="learners.PF-C.noise: PF-C keeps N fixed"):

@@ -87,16 +87,18 @@ def _solve_grid(planner: Planner, env: Environment, grid: ref.Grid) -> np.ndarra
     return plans
 
 
-def _filter_step(model, study, book: PlanBook, env, robot, z, start) -> Belief:
+def _filter_step(model, grid_model, study, book: PlanBook, env, robot, z, start, row) -> Belief:
     """The learner's update of the correction ``z`` to the robot's plan ``robot``, from the
     Gaussian N(``start``) (the reference's moments before it): the UKF with the learner's
-    observation model and the study's noise (a plain model's: nothing judged)."""
+    observation model and noise (N / β̂ for a relevance-aware learner, its β̂ from the
+    record: :meth:`~corrections_sim.learning.exact.grid.GridModel.filter_noise`)."""
     from corrections_sim.learning.kalman.filter import ukf_update
 
     names = book.planner.config.features
     observe = model.observation().observe(book, env, robot.trajectory, names)
+    noise = grid_model.filter_noise(study.noise(), row)
     prior = Belief(theta=start[0], cov=start[1])
-    step = ukf_update(prior, observe, z, study.noise(), study.sigma(), reference=robot.features)
+    step = ukf_update(prior, observe, z, noise, study.sigma(), reference=robot.features)
     return step.belief
 
 
@@ -189,7 +191,7 @@ def reference_run(
     out = []
     # The learner's parameters checked before anything is solved.
     grid_model = None if grid is None else kind(learner, likelihood, model, study, thetas, log_p)
-    if (one_step or restarts) and not kind.plain:
+    if (one_step or restarts) and not kind.filtered:
         raise ValueError(
             f"learner {learner}: --one-step and --restart need a Kalman learner with N fixed"
         )
@@ -312,11 +314,12 @@ def reference_run(
             rec["relevance"] = float(row["relevance"]) if row.get("relevance") else None
             rec |= judged
         if one_step:
-            step = _filter_step(model, study, book, env, robot, z, start)
+            step = _filter_step(model, grid_model, study, book, env, robot, z, start, row)
             rec["one_step_nees"] = ref.nees(step.theta, step.cov, theta_star)
             rec["one_step_kl"] = ref.kl_to_gaussian(grid, thetas, weights, step, coefficients)
         for s, state in restarted.items():
-            state = _filter_step(model, study, book, env, robot, z, (state.theta, state.cov))
+            state = (state.theta, state.cov)
+            state = _filter_step(model, grid_model, study, book, env, robot, z, state, row)
             restarted[s] = state
             rec[f"restart_{s}_nees"] = ref.nees(state.theta, state.cov, theta_star)
         out.append(rec)

@@ -235,7 +235,7 @@ def belief_columns(
     if belief.noise is not None:  # a learner that learns N: its estimate N̂
         estimate = belief.noise.estimate()
         rec |= {f"noise_{i}{j}": float(estimate[i, j]) for i, j in upper}
-    if getattr(belief, "person", None) is not None:  # relevance judged across corrections
+    if belief.person is not None:  # relevance judged across corrections
         rec["relevance_rate"] = belief.person.rate_mean
         rec["relevance_spread"] = belief.person.spread
     known = slice(0, k - len(belief.extra))

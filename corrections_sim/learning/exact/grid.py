@@ -18,7 +18,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from corrections_sim.belief import Belief
+from corrections_sim.belief import Belief, KalmanNoise
 from corrections_sim.learning.exact import bayes
 from corrections_sim.registry import Registry
 
@@ -51,13 +51,15 @@ class GridModel(abc.ABC):
     likelihood, unnormalised) at the grid's points, one correction at a time.
 
     Class attributes:
-        plain: Gaussian with N fixed and nothing judged, what a Kalman filter step assumes:
-            the reference's ``--one-step`` and ``--restart`` and a particle reference need it.
+        plain: Gaussian with N fixed and nothing judged: a particle reference can carry it.
+        filtered: a Kalman filter step with :meth:`filter_noise` is the learner's own, so the
+            reference's ``--one-step`` and ``--restart`` can start one from its moments.
         refinable: its grid may be cut finer where the posterior lives (:meth:`refined`).
         needs_plans: it reads hₜ(θ) (ξ*(θ, E) at every point); else only Φ_h and ξᵗ.
     """
 
     plain: ClassVar[bool] = False
+    filtered: ClassVar[bool] = False
     refinable: ClassVar[bool] = False
     needs_plans: ClassVar[bool] = True
 
@@ -90,6 +92,11 @@ class GridModel(abc.ABC):
         """The log density the filter-step tools start from (prior times likelihoods)."""
         return self.log_p
 
+    def filter_noise(self, noise: KalmanNoise, row: dict) -> KalmanNoise:
+        """The noise of the learner's filter step for the correction of ``row`` (a
+        :attr:`filtered` model's): the study's."""
+        return noise
+
 
 GRID_MODELS: Registry[type[GridModel]] = Registry("likelihood", base=GridModel)
 """Every grid model by the name a learner's :class:`Likelihood` gives."""
@@ -100,6 +107,7 @@ class GaussianGrid(GridModel):
     """Φ_h ~ N(hₜ(θ), N), N known: KF/AL's h = Φ(ξ*), KF-C's Φ(C(ξᵗ, ξ*)), PF-C's, EX-C's."""
 
     plain = True
+    filtered = True
     refinable = True
 
     def __init__(self, name, likelihood, learner, study, thetas, log_prior):

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from corrections_sim.belief import PersonBelief
+from corrections_sim.belief import KalmanNoise, PersonBelief
 from corrections_sim.learning.exact import bayes
 from corrections_sim.learning.exact.grid import GRID_MODELS, GridModel, Seen
 from corrections_sim.learning.relevance.judge import (
@@ -25,7 +25,16 @@ PERSON_TAU_NODES = 48
 @GRID_MODELS.decorator("relevance-per-correction")
 class PerCorrectionGrid(GridModel):
     """A correction's Gaussian likelihood mixed with an irrelevant one by the β̂ the learner
-    judged (KF-CR); a correction it skipped is not taken in."""
+    judged (KF-CR); a correction it skipped is not taken in. Its filter step is the UKF's
+    with N / β̂."""
+
+    filtered = True
+
+    def filter_noise(self, noise: KalmanNoise, row: dict) -> KalmanNoise:
+        if not row.get("relevance"):
+            return noise
+        beta = float(row["relevance"])
+        return KalmanNoise(process=noise.process, observation=noise.observation / beta)
 
     def __init__(self, name, likelihood, learner, study, thetas, log_prior):
         if learner.noise == "learnt":
