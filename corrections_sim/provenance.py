@@ -128,7 +128,7 @@ def code_fingerprint() -> str:
     for name, value in sorted(versions().items()):
         digest.update(f"{name}={value}".encode())
     # The fitted densities a learner reads when a study names no fit file (see
-    # learning.relevance.DEFAULT_FIT): data, but they change what a run computes.
+    # learning.relevance.judge.DEFAULT_FIT): data, but they change what a run computes.
     from importlib import resources
 
     fit = resources.files("corrections_sim.experiments").joinpath("relevance_fit.json")

@@ -281,9 +281,8 @@ def reference_run(
                         for e, r in past
                     ]
                     new_p = ref.gaussian_log_prior(new, study.prior())
-                    log_post = grid_model.refined(new_p, new_hs)
+                    log_post = grid_model.refined(new, new_p, new_hs)
                     cells, thetas = finer, finer.thetas()
-                    grid_model.thetas = thetas
         coefficients = None if cells is None else cells.coefficients
         belief = _belief(row, k)
         if log_post is None:  # the particles are the reference

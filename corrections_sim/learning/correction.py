@@ -3,9 +3,10 @@ browser session, a replayed log, the exact reference, the physical figure and th
 
 :func:`context` is what a learner reads before and during a correction (to choose Eᵗ, to
 update): the study's filter noise grown to the belief's dimension (a learner that learnt a
-feature weighs more than the study's k). :func:`step` is the update itself: the context with
-the person's corrected trajectory, the features the learner sees (over its learnt features
-too), and the learner's :class:`~corrections_sim.learning.step.Step`.
+feature weighs more than the study's k). :func:`step` is the update itself: that context with
+the person's corrected trajectory, and the learner's
+:class:`~corrections_sim.learning.step.Step`; :func:`seen_features` the features it sees of
+the correction (over its learnt features too).
 """
 
 from __future__ import annotations
@@ -40,11 +41,10 @@ def step(
     """The belief after one correction: ``agent``'s update of ``belief`` for the person's
     correction of ``plan`` in ``env`` with features ``phi_h`` (over ``ctx.features``) and,
     where they showed it, the corrected trajectory ``corrected`` (T, 7), which a
-    relevance-aware learner judges. May raise ``PlanningError`` (the update is then skipped)."""
-    seen = {"noise": ctx.noise.grown(belief.dim)}
-    if corrected is not None:
-        seen["corrected"] = corrected
-    return agent.update(replace(ctx, **seen), belief, env, plan, phi_h)
+    relevance-aware learner judges; ``ctx`` is :func:`context`'s for ``belief``. May raise
+    ``PlanningError`` (the update is then skipped)."""
+    seen = ctx if corrected is None else replace(ctx, corrected=corrected)
+    return agent.update(seen, belief, env, plan, phi_h)
 
 
 def seen_features(

@@ -83,10 +83,19 @@ class GridModel(abc.ABC):
     def correct(self, seen: Seen) -> np.ndarray:
         """The log posterior (unnormalised) at the grid's points after ``seen``."""
 
-    def refined(self, new_prior: np.ndarray, new_hs: list[np.ndarray]) -> np.ndarray:
-        """The log posterior after the grid gained points (their log prior ``new_prior``, and
-        hₜ there of every correction so far, ``new_hs``, in order)."""
-        raise TypeError(f"{type(self).__name__}: its grid is not refined")
+    def refined(
+        self, new_thetas: np.ndarray, new_prior: np.ndarray, new_hs: list[np.ndarray]
+    ) -> np.ndarray:
+        """The log posterior after the grid gained the points ``new_thetas`` (after its own;
+        their log prior ``new_prior``, and hₜ there of every correction so far, ``new_hs``,
+        in order)."""
+        if not self.refinable:
+            raise TypeError(f"{type(self).__name__}: its grid is not refined")
+        self.thetas = np.concatenate([self.thetas, new_thetas])
+        return self._refined(new_prior, new_hs)
+
+    def _refined(self, new_prior: np.ndarray, new_hs: list[np.ndarray]) -> np.ndarray:
+        raise NotImplementedError
 
     def density(self) -> np.ndarray:
         """The log density the filter-step tools start from (prior times likelihoods)."""
@@ -119,7 +128,7 @@ class GaussianGrid(GridModel):
         self.log_p = self.log_p + bayes.gaussian_log_likelihood(seen.z, seen.h, self.noise)
         return self.log_p
 
-    def refined(self, new_prior, new_hs):
+    def _refined(self, new_prior, new_hs):
         for z, h in zip(self.zs, new_hs, strict=True):
             new_prior = new_prior + bayes.gaussian_log_likelihood(z, h, self.noise)
         self.log_p = np.concatenate([self.log_p, new_prior])
@@ -149,7 +158,7 @@ class LearntNoiseGrid(GridModel):
         self.hs.append(seen.h)
         return self._posterior()
 
-    def refined(self, new_prior, new_hs):
+    def _refined(self, new_prior, new_hs):
         self.hs = [np.concatenate(pair) for pair in zip(self.hs, new_hs, strict=True)]
         self.log_p = np.concatenate([self.log_p, new_prior])
         return self._posterior()
