@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from corrections_sim.belief import Belief, KalmanNoise, Particles
+from corrections_sim.belief import Belief, KalmanNoise
 from corrections_sim.learning.base import make_learner
 from corrections_sim.learning.exact import bayes as ref
 from corrections_sim.learning.kalman.filter import ukf_update
@@ -18,6 +18,7 @@ from corrections_sim.learning.kalman.iterated import (
     linearise,
 )
 from corrections_sim.learning.particles import cloud as smc
+from corrections_sim.learning.particles.state import Particles
 
 PRIOR = Belief(theta=np.zeros(2), cov=np.eye(2))
 N = np.array([[0.25, 0.0], [0.0, 0.25]])
@@ -205,10 +206,10 @@ def test_a_session_with_an_iterated_or_particle_learner_resumes_exactly(tmp_path
         np.testing.assert_array_equal(resumed.belief.cov, session.belief.cov)
         if "P" in learner:
             np.testing.assert_array_equal(
-                resumed.belief.particles.thetas, session.belief.particles.thetas
+                resumed.belief.state.particles.thetas, session.belief.state.particles.thetas
             )
-            assert session.belief.particles.count == 24
+            assert session.belief.state.particles.count == 24
         if learner != "KF-CI":  # the particles read the past again
-            assert len(session.belief.history) == 4  # the prior and three corrections
+            assert len(session.belief.state.history) == 4  # the prior and three corrections
         _, _, facts = replay(log, session.id, [learner])
         assert facts["max_gap_to_log"] == 0.0

@@ -10,11 +10,11 @@ import csv
 import numpy as np
 import pytest
 
-from corrections_sim.belief import Particles
 from corrections_sim.cli import main as cli
 from corrections_sim.learning.base import make_learner
 from corrections_sim.learning.observation import CorrectedPlanFeatures, PlanFeatures
 from corrections_sim.learning.particles.cloud import smoothed_kl
+from corrections_sim.learning.particles.state import Particles
 from corrections_sim.people.corrections import (
     OptimalCorrection,
     WaypointCorrection,

@@ -70,3 +70,51 @@ def test_every_default_learner_and_every_likelihood_is_registered():
     assert named and named <= set(LEARNERS), named - set(LEARNERS)
     kinds = {make_learner(n).likelihood().kind for n in LEARNERS if make_learner(n).likelihood()}
     assert kinds == set(GRID_MODELS), (kinds, set(GRID_MODELS))
+
+
+def test_a_familys_state_is_read_only_by_its_family():
+    """Above ``learning/`` a belief's family state is asked only what every state answers
+    (``FamilyState``: its record columns, N̂, a sentence for a page), never a field of one
+    family's state (the import contract keeps the state modules out; this keeps the fields
+    out, e.g. ``belief.state.person``)."""
+    from corrections_sim.belief import FamilyState
+
+    allowed = {name for name in vars(FamilyState) if not name.startswith("_")}
+    pattern = re.compile(r"\.state\.([a-z_]+)")
+    found, asked = [], set()
+    for folder in ("corrections_sim", "benchmarks", "scripted_people"):
+        for path in (ROOT / folder).rglob("*.py"):
+            relative = path.relative_to(ROOT).as_posix()
+            if relative.startswith("corrections_sim/learning/"):
+                continue
+            for m in pattern.finditer(path.read_text()):
+                asked.add(m.group(1))
+                if m.group(1) not in allowed:
+                    found.append(f"{relative}: {m.group(0)}")
+    assert not found, found
+    assert {"columns", "noise_estimate", "describe"} <= asked, asked
+
+
+def test_every_learner_keeps_its_own_state_and_answers_for_it():
+    """Every registered learner's first belief carries a ``FamilyState`` whose answers are
+    plain values: columns named and finite, N̂ None or (k, k), a string for the page."""
+    import numpy as np
+
+    from corrections_sim.belief import Belief, FamilyState, KalmanNoise
+    from corrections_sim.learning.base import LEARNERS, make_learner
+
+    prior = Belief(theta=np.zeros(2), cov=np.eye(2))
+    noise = KalmanNoise.isotropic(2, 1e-3, 0.25)
+    kinds = set()
+    for name in LEARNERS:
+        belief = make_learner(name).initial(prior, noise)
+        state = belief.state
+        assert isinstance(state, FamilyState), name
+        kinds.add(type(state).__name__)
+        columns = state.columns()
+        assert all(isinstance(v, float) and np.isfinite(v) for v in columns.values()), name
+        estimate = state.noise_estimate()
+        assert estimate is None or np.shape(estimate) == (2, 2), name
+        assert isinstance(state.describe(), str), name
+    # the plain filters keep nothing; the families with a state of their own each show it
+    assert {"FamilyState", "NoiseState", "ParticleState", "ExactState", "RelevanceState"} <= kinds

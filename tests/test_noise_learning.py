@@ -10,10 +10,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from corrections_sim.belief import Belief, KalmanNoise, NoisePosterior
+from corrections_sim.belief import Belief, KalmanNoise
 from corrections_sim.learning.kalman.filter import SigmaPoints, ukf_update
 from corrections_sim.learning.kalman.learnt_noise import vb_ukf_update
+from corrections_sim.learning.kalman.state import NoisePosterior, NoiseState
 from corrections_sim.study import schema
+
+
+def _noisy(noise: NoisePosterior) -> Belief:
+    """N(0, I) over θ with ``noise`` the posterior over N."""
+    return Belief(np.zeros(2), np.eye(2), state=NoiseState(noise))
 
 
 def _problem(rng: np.random.Generator):
@@ -32,7 +38,7 @@ def test_a_prior_held_with_infinite_weight_is_the_fixed_noise_ukf():
         z, ref = rng.normal(size=2), rng.normal(size=2)
         fixed = ukf_update(prior, h, z, noise, SigmaPoints(), reference=ref)
         learnt = vb_ukf_update(
-            Belief(prior.theta, prior.cov, noise=NoisePosterior.around(n, 1e13)),
+            Belief(prior.theta, prior.cov, state=NoiseState(NoisePosterior.around(n, 1e13))),
             h,
             z,
             noise,
@@ -50,7 +56,7 @@ def _learn(true_noise: float, seed: int, corrections: int = 400) -> Belief:
     rng = np.random.default_rng(seed)
     theta_star = np.array([1.0, -1.0])
     noise = KalmanNoise(process=np.zeros((2, 2)), observation=0.25 * np.eye(2))
-    belief = Belief(np.zeros(2), np.eye(2), noise=NoisePosterior.around(0.25 * np.eye(2), 4.0))
+    belief = _noisy(NoisePosterior.around(0.25 * np.eye(2), 4.0))
     for _ in range(corrections):
         a = rng.normal(size=(2, 2))
         z = a @ theta_star + rng.normal(0.0, np.sqrt(true_noise), size=2)
@@ -61,7 +67,7 @@ def _learn(true_noise: float, seed: int, corrections: int = 400) -> Belief:
 @pytest.mark.parametrize("true_noise", [0.05, 0.5])
 def test_on_a_linear_gaussian_person_the_noise_is_found(true_noise):
     belief = _learn(true_noise, seed=3)
-    estimate = belief.noise.estimate()
+    estimate = belief.state.noise_estimate()
     np.testing.assert_allclose(np.diag(estimate), true_noise, rtol=0.15)
     assert abs(estimate[0, 1]) < 0.15 * true_noise
     np.testing.assert_allclose(belief.theta, [1.0, -1.0], atol=0.1)
@@ -69,13 +75,13 @@ def test_on_a_linear_gaussian_person_the_noise_is_found(true_noise):
 
 def test_a_noisier_person_gives_a_larger_estimate_and_the_fixed_point_converges():
     quiet, loud = (_learn(n, seed=5, corrections=60) for n in (0.05, 0.5))
-    assert np.all(np.diag(loud.noise.estimate()) > 2 * np.diag(quiet.noise.estimate()))
+    assert np.all(np.diag(loud.state.noise_estimate()) > 2 * np.diag(quiet.state.noise_estimate()))
     h = _problem(np.random.default_rng(2))
     noise = KalmanNoise.isotropic(2, 1e-4, 0.25)
-    belief = Belief(np.zeros(2), np.eye(2), noise=NoisePosterior.around(0.25 * np.eye(2), 4.0))
+    belief = _noisy(NoisePosterior.around(0.25 * np.eye(2), 4.0))
     step = vb_ukf_update(belief, h, np.array([0.4, -0.3]), noise, iterations=30)
     assert step.fixed_point_change < 1e-10
-    assert step.belief.noise.dof == 5.0
+    assert step.belief.state.noise.dof == 5.0
 
 
 def test_bad_noise_settings_are_refused_by_their_key_path():
@@ -83,12 +89,18 @@ def test_bad_noise_settings_are_refused_by_their_key_path():
         schema.parse_study({"theta_star": [1, -1], "learners": {"KF-C": {"noise": "guessed"}}})
     with pytest.raises(ValueError, match="learners.KF.noise_dof: must be a finite number > 0"):
         schema.parse_study({"theta_star": [1, -1], "learners": {"KF": {"noise_dof": -1}}})
-    with pytest.raises(ValueError, match="belief.noise"):
+    with pytest.raises(ValueError, match="belief.state"):
         vb_ukf_update(
             Belief(np.zeros(2), np.eye(2)), lambda t: t, np.zeros(2), KalmanNoise.isotropic(2, 0, 1)
         )
     with pytest.raises(ValueError, match="NoisePosterior.dof"):
         NoisePosterior(dof=0.5, scale=np.eye(2))
+    with pytest.raises(
+        ValueError, match=r"NoiseState.noise: a posterior over 2 x 2 noise, expected 3"
+    ):
+        Belief(np.zeros(3), np.eye(3), state=NoiseState(NoisePosterior.around(np.eye(2), 4.0)))
+    with pytest.raises(ValueError, match="Belief.state: expected a FamilyState"):
+        Belief(np.zeros(2), np.eye(2), state=NoisePosterior.around(np.eye(2), 4.0))
 
 
 def test_a_noise_learning_learner_records_its_estimate_and_others_leave_it_empty(tmp_path):

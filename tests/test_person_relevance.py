@@ -11,11 +11,12 @@ import pytest
 from scipy import integrate, stats
 from test_relevance import _context
 
-from corrections_sim.belief import Belief, PersonBelief
+from corrections_sim.belief import Belief
 from corrections_sim.learning.base import make_learner
 from corrections_sim.learning.exact import bayes as ref
 from corrections_sim.learning.kalman.filter import SigmaPoints
 from corrections_sim.learning.relevance.judge import judge
+from corrections_sim.learning.relevance.state import PersonBelief
 from corrections_sim.people.corrections import WaypointCorrection
 from corrections_sim.people.users import Situation, make_user
 from corrections_sim.planning.features import feature_counts
@@ -145,8 +146,8 @@ def test_kf_crp_is_kf_c_on_a_relevant_correction_and_learns_the_person(planner, 
     step = learner.update(_context(planner, corrected), belief, env, mine, phi)
     assert step.relevance > 0.99
     np.testing.assert_allclose(step.belief.theta, twin.belief.theta, atol=0.02)
-    assert step.belief.person.rate_mean > belief.person.rate_mean
-    assert step.belief.person.precision > belief.person.precision
+    assert step.belief.state.person.rate_mean > belief.state.person.rate_mean
+    assert step.belief.state.person.precision > belief.state.person.precision
 
 
 def test_kf_crp_does_not_move_on_a_nudge_and_lowers_the_persons_rate(planner, task, rng):
@@ -158,7 +159,7 @@ def test_kf_crp_does_not_move_on_a_nudge_and_lowers_the_persons_rate(planner, ta
     outcome = user.perform(seen, rng)
     step = learner.update(_context(planner, outcome.corrected), belief, env, mine, outcome.phi_h)
     assert step.relevance < 0.01 and np.abs(step.belief.theta).sum() < 0.01
-    assert step.belief.person.rate_mean < 0.4
+    assert step.belief.state.person.rate_mean < 0.4
 
 
 def test_without_a_trajectory_kf_crp_uses_the_persons_rate(planner, task):
@@ -168,7 +169,7 @@ def test_without_a_trajectory_kf_crp_uses_the_persons_rate(planner, task):
     phi = feature_counts(star.trajectory, env, FEATURES)
     step = learner.update(_context(planner, None), belief, env, mine, phi)
     assert step.relevance == pytest.approx(0.3) and step.residual is None
-    assert step.belief.person == belief.person  # nothing was judged, nothing learnt
+    assert step.belief.state.person == belief.state.person  # nothing was judged, nothing learnt
 
 
 # ---- the exact posterior of its model ------------------------------------------------------

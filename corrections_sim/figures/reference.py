@@ -38,7 +38,7 @@ from corrections_sim.learning.exact import bayes as ref
 from corrections_sim.learning.exact.cells import Cells
 from corrections_sim.learning.exact.grid import GRID_MODELS, Seen
 from corrections_sim.learning.observation import features_at_plans
-from corrections_sim.learning.particles.cloud import smoothed_kl
+from corrections_sim.learning.particles.cloud import against_grid
 from corrections_sim.learning.particles.learners import particle_reference
 from corrections_sim.people.users import Situation
 from corrections_sim.planning.compiled import build_once
@@ -145,7 +145,7 @@ def reference_run(
     that many particles also runs on the same corrections under the learner's model (KF/KF-C
     types with N fixed), seeded by ``seed``: where the grid exists (``grid`` not None) it is
     judged against the grid (``particle_kl``, KL from the grid to the smoothed particles,
-    :func:`~.learning.particles.smoothed_kl`; ``particle_mean_gap``,
+    :func:`~.learning.particles.cloud.against_grid`; ``particle_mean_gap``,
     the largest |Δ mean| in the grid's sd; ``particle_var_gap``, the largest relative
     |Δ variance|); without a grid (k > 2) it *is* the reference (its moments; no ``ref_kl``,
     only its Gaussian part ``ref_kl_gaussian``).
@@ -287,7 +287,7 @@ def reference_run(
         belief = _belief(row, k)
         if log_post is None:  # the particles are the reference
             weights = None
-            mean, cov = cloud.particles.moments()
+            mean, cov = cloud.theta, cloud.cov  # the particles' moments
         else:
             weights = ref.posterior(log_post, coefficients)
             mean, cov = ref.moments(thetas, weights)
@@ -306,9 +306,7 @@ def reference_run(
         )
         rec["ref_kl_gaussian"] = ref.gaussian_kl(mean, cov, belief)
         if engine is not None and weights is not None:
-            rec |= _particles_against_grid(
-                cloud.particles, thetas, weights, mean, cov, coefficients
-            )
+            rec |= against_grid(cloud, thetas, weights, mean, cov, coefficients)
         if judged:
             rec["relevance"] = float(row["relevance"]) if row.get("relevance") else None
             rec |= judged
@@ -516,19 +514,6 @@ def report_lines(judged: Judged, particles: int = 0) -> list[str]:
             f"{worst_mean:.2%} of its sd, the variances by {worst_cov:.2%}"
         )
     return lines
-
-
-def _particles_against_grid(cloud, thetas, weights, mean, cov, coefficients=None) -> dict:
-    """How far the particles are from the grid reference: KL (the particles smoothed on the
-    grid, its refined cells' volumes ``coefficients`` if any), moments."""
-    p_mean, p_cov = cloud.moments()
-    sd = np.sqrt(np.diag(cov))
-    return {
-        "particle_kl": smoothed_kl(thetas, weights, cloud, coefficients),
-        "particle_mean_gap": float(np.max(np.abs(p_mean - mean) / sd)),
-        "particle_var_gap": float(np.max(np.abs(np.diag(p_cov) - np.diag(cov)) / np.diag(cov))),
-        "particle_ess": cloud.effective_size(),
-    }
 
 
 def summary_at(records: list[dict], iteration: int, *, resamples: int = 2000) -> dict:

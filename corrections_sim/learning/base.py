@@ -210,6 +210,11 @@ class Learner(abc.ABC):
         ``belief`` (0: none, which a learner that does not learn features always says)."""
         return 0
 
+    def declined(self, belief: Belief) -> Belief:
+        """``belief`` once the person has said they cannot give the traces it asked for (it
+        does not ask again)."""
+        return belief
+
     @abc.abstractmethod
     def update(
         self, ctx: LearnerContext, belief: Belief, env: Environment, plan: Plan, phi_h: np.ndarray

@@ -645,12 +645,9 @@ class Page(Teaching):
                 + ("" if rho is None else f", the fraction the features do not span ρ = {rho:.2f}")
                 + "; learnt from in proportion."
             )
-        if b.person is not None and s.iteration > 0:  # relevance judged across corrections
-            relevance += (
-                f"\n\nThe person's corrections so far: relevant at rate E[r] = "
-                f"**{b.person.rate_mean:.2f}**; a relevant one scattered by σ̂ = "
-                f"**{b.person.spread:.2f}** (feature units)."
-            )
+        learnt = b.state.describe()  # what its family learnt beyond θ̂ and P (the person, …)
+        if learnt and s.iteration > 0:
+            relevance += "\n\n" + learnt
         self.belief_text.content = (
             f"After **{s.iteration}** {plural(s.iteration, 'correction')}:\n\n"
             f"| feature | θ̂ | σ |\n|---|---|---|\n{rows}" + relevance

@@ -317,7 +317,7 @@ def _teach(agent, belief, corrections: int, teaching: dict, envs, seed: int, ctx
         return belief
     given = teaching.get(corrections)
     if given is None or "learnt" not in given:
-        return dataclasses.replace(belief, asked=True, history=())
+        return agent.declined(belief)
     env = envs[int(given["learnt"]["env_index"])]
     grown, _ = agent.grow(belief, env, given["traces"], teach_rng(seed, corrections), ctx)
     return grown

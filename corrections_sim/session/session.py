@@ -665,7 +665,7 @@ class Session(Teaching):
                 "cov_before": before.cov,
                 "theta_after": after.theta,
                 "cov_after": after.cov,
-                "noise_after": None if after.noise is None else after.noise.estimate(),
+                "noise_after": after.state.noise_estimate(),
                 "nis": (
                     nis(step.innovation, step.innovation_cov)
                     if step is not None and step.innovation_cov is not None

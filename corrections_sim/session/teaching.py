@@ -30,11 +30,6 @@ def teach_rng(seed: int, iteration: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence([seed, 39, iteration]))
 
 
-def _asked(belief):
-    """``belief`` marked as having asked for traces (the learner does not ask again)."""
-    return dataclasses.replace(belief, asked=True, history=())
-
-
 class Teaching:
     """A session's feature teaching (a part of
     :class:`~corrections_sim.session.session.Session`, which owns the log, the learner and
@@ -64,7 +59,7 @@ class Teaching:
                 self.open_trace = None
                 self.traces.append(np.asarray(detail["states"], float))
             elif kind == "traces" and detail.get("declined"):
-                self.belief = _asked(self.belief)
+                self.belief = self.agent.declined(self.belief)
                 self.wanted, self.traces, self.open_trace = 0, [], None
             elif kind == "traces" and "enough" in detail:
                 self.wanted = int(detail["enough"])  # the person stopped there
@@ -207,7 +202,7 @@ class Teaching:
             self.log.add_event(
                 self.id, self.iteration, "traces", {"declined": True, "set_aside": given}
             )
-            self.belief = _asked(self.belief)
+            self.belief = self.agent.declined(self.belief)
             self.wanted, self.traces = 0, []
             return given
 

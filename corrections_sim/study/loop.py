@@ -232,12 +232,7 @@ def belief_columns(
     rec: dict = {f"theta_{i}": float(belief.theta[i]) for i in range(k)}
     upper = [(i, j) for i in range(k) for j in range(i, k)]
     rec |= {f"cov_{i}{j}": float(belief.cov[i, j]) for i, j in upper}
-    if belief.noise is not None:  # a learner that learns N: its estimate N̂
-        estimate = belief.noise.estimate()
-        rec |= {f"noise_{i}{j}": float(estimate[i, j]) for i, j in upper}
-    if belief.person is not None:  # relevance judged across corrections
-        rec["relevance_rate"] = belief.person.rate_mean
-        rec["relevance_spread"] = belief.person.spread
+    rec |= belief.state.columns()  # its family's: N̂ (``noise_ij``), the person's rate, …
     known = slice(0, k - len(belief.extra))
     rec["nees"] = (
         calibration.nees(belief.theta[known], belief.cov[known, known], reference)

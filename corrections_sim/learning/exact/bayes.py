@@ -255,7 +255,8 @@ def nees(mean: np.ndarray, cov: np.ndarray, theta_star: np.ndarray) -> float:
 @dataclass
 class PersonPosterior:
     """The exact posterior of KF-CRP's model on a grid: θ on ``thetas`` (n, k), and (τ, r) on
-    a grid as :class:`~corrections_sim.belief.PersonBelief` has it (finer than the learner's).
+    a grid as :class:`~corrections_sim.learning.relevance.state.PersonBelief` has it (finer
+    than the learner's).
     Per correction (relevant with probability r, each independently):
 
     * relevant: p(z, ξ_h | θ, τ) = N(z; h(θ), N) · f₁(ρ*; τ) · exp(−τ₀ (ρ(θ)² − ρ*²)/2): the
@@ -280,7 +281,7 @@ class PersonPosterior:
     @classmethod
     def prior(cls, thetas: np.ndarray, log_prior: np.ndarray, person) -> PersonPosterior:
         """The prior: ``log_prior`` over θ (n,) times ``person``'s prior over (τ, r) (a
-        :class:`~corrections_sim.belief.PersonBelief`, on the grid it has)."""
+        :class:`~corrections_sim.learning.relevance.state.PersonBelief`, on the grid it has)."""
         log_w = log_prior[:, None, None] + np.asarray(person.log_w)[None, :, :]
         return cls(np.asarray(thetas, float), np.array(person.taus), np.array(person.rates), log_w)
 

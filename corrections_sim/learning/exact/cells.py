@@ -1,5 +1,6 @@
 """The cells of a grid over θ, refined where needed: what an exact learner's posterior
-(:class:`~corrections_sim.belief.GridPosterior`) integrates over. Plain values, no planning."""
+(:class:`~corrections_sim.learning.exact.state.GridPosterior`) integrates over. Plain values,
+no planning."""
 
 from __future__ import annotations
 

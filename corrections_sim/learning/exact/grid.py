@@ -144,7 +144,7 @@ class LearntNoiseGrid(GridModel):
 
     def __init__(self, name, likelihood, learner, study, thetas, log_prior):
         super().__init__(name, likelihood, learner, study, thetas, log_prior)
-        self.prior_noise = learner.initial(study.prior(), study.noise()).noise
+        self.prior_noise = learner.noise_prior(study.prior(), study.noise())
         self.zs: list[np.ndarray] = []
         self.hs: list[np.ndarray] = []
 

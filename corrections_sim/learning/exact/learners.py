@@ -24,20 +24,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from corrections_sim.belief import (
-    Belief,
-    CorrectionEntry,
-    GridPosterior,
-    KalmanNoise,
-    PriorEntry,
-    floored,
-    symmetrize,
-)
+from corrections_sim.belief import Belief, KalmanNoise, floored, symmetrize
 from corrections_sim.components import ParameterError
 from corrections_sim.learning.base import LearnerContext, Step
 from corrections_sim.learning.exact import bayes as ref
 from corrections_sim.learning.exact.cells import Cells
+from corrections_sim.learning.exact.state import ExactState, GridPosterior
+from corrections_sim.learning.history import CorrectionEntry, PriorEntry
 from corrections_sim.learning.kalman.learners import CorrectionAwareKalman
+from corrections_sim.learning.kalman.state import NoisePosterior
 from corrections_sim.learning.params import require_count
 from corrections_sim.planning.planner import Plan, PlanningError
 from corrections_sim.scene.environments import Environment
@@ -77,9 +72,9 @@ class ExactCorrectionAware(CorrectionAwareKalman):
             raise ParameterError("cut", f"must be a number > 0, got {self.cut!r}")
 
     def initial(self, belief: Belief, noise: KalmanNoise) -> Belief:
-        start = super().initial(belief, noise)  # N's prior, for EX-CL
         prior = PriorEntry(belief.theta, belief.cov)  # what a refined grid weighs again
-        return Belief(theta=start.theta, cov=start.cov, noise=start.noise, history=(prior,))
+        state = ExactState(noise=self.noise_prior(belief, noise), history=(prior,))
+        return Belief(theta=belief.theta, cov=belief.cov, state=state)
 
     def update(
         self, ctx: LearnerContext, belief: Belief, env: Environment, plan: Plan, phi_h: np.ndarray
@@ -87,8 +82,10 @@ class ExactCorrectionAware(CorrectionAwareKalman):
         atlas = ctx.book.atlas
         if atlas is None:
             raise ValueError(f"{type(self).__name__}: needs the study's plan atlas (atlas = true)")
-        history = belief.history or (PriorEntry(belief.theta, belief.cov),)
-        before = belief.grid
+        state = belief.state if isinstance(belief.state, ExactState) else ExactState()
+        history = state.history or (PriorEntry(belief.theta, belief.cov),)
+        noise_prior = state.noise  # N's prior, kept as the run started (EX-CL)
+        before = state.grid
         if before is None:
             g = atlas.grid
             cells = Cells.base(g.lows, g.highs, g.counts, self.max_level)
@@ -98,7 +95,7 @@ class ExactCorrectionAware(CorrectionAwareKalman):
         h = self.observation().at_plans(plans, plan.trajectory, env, ctx.features)
         z = np.asarray(phi_h, float)
         coefficients = before.cells.coefficients
-        weights = ref.posterior(self._log_posterior(before, belief), coefficients)
+        weights = ref.posterior(self._log_posterior(before, noise_prior), coefficients)
         seen = np.all(np.isfinite(h), axis=1) & (weights > 0)
         if not seen.any():
             raise PlanningError(
@@ -112,24 +109,31 @@ class ExactCorrectionAware(CorrectionAwareKalman):
         log_d, scatter = self._weighed(before.log_density, before.scatter, z, h, noise_n)
         after = GridPosterior(before.thetas, log_d, scatter, before.count + 1, before.cells)
         if self.noise == "learnt":
-            noise_mean = w @ self._noise_means(before, belief)[seen].reshape(len(w), -1)
+            noise_mean = w @ self._noise_means(before, noise_prior)[seen].reshape(len(w), -1)
             noise = noise_mean.reshape(z.size, z.size)
         else:
             noise = noise_n
         history = (*history, CorrectionEntry(env, plan.trajectory, z, noise_n))
-        after = self._refined(ctx, after, history, belief)
-        log_post = self._log_posterior(after, belief)
+        after = self._refined(ctx, after, history, noise_prior)
+        log_post = self._log_posterior(after, noise_prior)
         mean, cov = _moments(after.thetas, ref.posterior(log_post, after.cells.coefficients))
-        new = Belief(theta=mean, cov=cov, noise=belief.noise, history=history, grid=after)
+        kept = ExactState(noise=noise_prior, grid=after, history=history)
+        new = Belief(theta=mean, cov=cov, state=kept)
         return Step(new, None, z - plan.features, symmetrize(spread + noise))
 
     def _refined(
-        self, ctx: LearnerContext, grid: GridPosterior, history: tuple, belief: Belief
+        self,
+        ctx: LearnerContext,
+        grid: GridPosterior,
+        history: tuple,
+        noise_prior: NoisePosterior | None,
     ) -> GridPosterior:
         """``grid``, its cells cut finer while the posterior needs it (class docstring): at
         each new node, the prior and every correction in ``history``."""
         refine = ref.Refinement(self.resolution, self.cut)
-        while (cells := refine.finer(grid.cells, self._log_posterior(grid, belief))) is not None:
+        while (
+            cells := refine.finer(grid.cells, self._log_posterior(grid, noise_prior))
+        ) is not None:
             new = cells.thetas()[len(grid.thetas) :]
             log_d, scatter = self._fresh(history, ctx, new)
             if scatter is not None:
@@ -162,10 +166,9 @@ class ExactCorrectionAware(CorrectionAwareKalman):
         return np.where(bad, -np.inf, log_d), scatter + np.einsum("ni,nj->nij", r, r)
 
     @staticmethod
-    def _log_posterior(grid: GridPosterior, belief: Belief) -> np.ndarray:
+    def _log_posterior(grid: GridPosterior, prior: NoisePosterior | None) -> np.ndarray:
         if grid.scatter is None:
             return grid.log_density
-        prior = belief.noise  # the IW prior, kept as the run started
         spread = prior.scale[None, :, :] + grid.scatter
         sign, logdet = np.linalg.slogdet(spread)
         if np.any(sign <= 0):
@@ -173,9 +176,8 @@ class ExactCorrectionAware(CorrectionAwareKalman):
         return grid.log_density - 0.5 * (prior.dof + grid.count) * logdet
 
     @staticmethod
-    def _noise_means(grid: GridPosterior, belief: Belief) -> np.ndarray:
+    def _noise_means(grid: GridPosterior, prior: NoisePosterior) -> np.ndarray:
         """E[N | θ, corrections] = (V₀ + Σ r rᵀ) / (ν₀ + t − k − 1) at every node."""
-        prior = belief.noise
         k = grid.thetas.shape[1]
         return (prior.scale[None] + grid.scatter) / (prior.dof + grid.count - k - 1)
 

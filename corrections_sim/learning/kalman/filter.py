@@ -40,9 +40,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from corrections_sim.belief import (
+    NO_STATE,
     Belief,
     KalmanNoise,
     _as_vector,
+    frozen,
     symmetrize,
 )
 from corrections_sim.learning.observation import Observe
@@ -232,10 +234,10 @@ def ukf_update(
 
 def ukf_step(cls, prior: Belief, stats: UkfStatistics, innovation: np.ndarray, **more):
     """The step ``cls`` (a :class:`UkfStep`) of a correction; ``more``: the posterior belief's
-    ``noise`` and the subclass's own fields."""
-    noise = more.pop("noise", None)
+    ``state`` and the subclass's own fields."""
+    state = more.pop("state", NO_STATE)
     return cls(
-        belief=Belief(theta=prior.theta + stats.gain @ innovation, cov=stats.cov, noise=noise),
+        belief=Belief(theta=prior.theta + stats.gain @ innovation, cov=stats.cov, state=state),
         gain=stats.gain,
         innovation=innovation,
         predicted_obs=stats.obs_mean,
@@ -501,8 +503,3 @@ def check_iterations(iterations) -> None:
 def _check_noise(noise: KalmanNoise, k: int) -> None:
     if noise.dim != k:
         raise ValueError(f"noise: expected {k}x{k} covariances for k={k}, got {noise.dim}")
-
-
-def frozen(arr: np.ndarray) -> np.ndarray:
-    arr.setflags(write=False)
-    return arr

@@ -10,17 +10,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from corrections_sim.belief import (
-    Belief,
-    KalmanNoise,
-    _as_vector,
-    symmetrize,
-)
+from corrections_sim.belief import Belief, KalmanNoise, _as_vector, frozen, symmetrize
 from corrections_sim.learning.kalman.filter import (
     SigmaPoints,
     UkfStep,
     check_iterations,
-    frozen,
     observe_batch,
     repair_covariance,
     ukf_update,

@@ -11,11 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from corrections_sim import components
-from corrections_sim.belief import (
-    Belief,
-    KalmanNoise,
-    NoisePosterior,
-)
+from corrections_sim.belief import Belief, KalmanNoise
 from corrections_sim.components import ParameterError
 from corrections_sim.learning.base import Learner, LearnerContext, Likelihood, Step
 from corrections_sim.learning.kalman.filter import (
@@ -26,6 +22,7 @@ from corrections_sim.learning.kalman.filter import (
 )
 from corrections_sim.learning.kalman.iterated import iterated_update
 from corrections_sim.learning.kalman.learnt_noise import vb_ukf_update
+from corrections_sim.learning.kalman.state import NoisePosterior, NoiseState
 from corrections_sim.learning.observation import (
     CorrectedPlanFeatures,
     Observation,
@@ -98,13 +95,19 @@ class UnscentedKalman(Learner):
             )
 
     def initial(self, belief: Belief, noise: KalmanNoise) -> Belief:
-        if self.noise == "fixed":
+        prior = self.noise_prior(belief, noise)
+        if prior is None:
             return belief
+        return Belief(theta=belief.theta, cov=belief.cov, state=NoiseState(prior))
+
+    def noise_prior(self, belief: Belief, noise: KalmanNoise) -> NoisePosterior | None:
+        """The inverse-Wishart prior over N around the study's ``noise`` (None with N fixed)."""
+        if self.noise == "fixed":
+            return None
         dof = self.noise_dof if self.noise_dof is not None else belief.dim + 2.0
         if not dof > belief.dim - 1:
             raise ParameterError("noise_dof", f"must be > k - 1 = {belief.dim - 1}, got {dof}")
-        prior = NoisePosterior.around(noise.observation, dof)
-        return Belief(theta=belief.theta, cov=belief.cov, noise=prior)
+        return NoisePosterior.around(noise.observation, dof)
 
     def likelihood(self) -> Likelihood:
         kind = "gaussian" if self.noise == "fixed" else "gaussian-learnt-noise"
@@ -112,9 +115,10 @@ class UnscentedKalman(Learner):
 
     def filter_noise(self, ctx: LearnerContext, belief: Belief) -> KalmanNoise:
         """M and N as this filter believes them now (N̂ when it learns N)."""
-        if belief.noise is None:
+        estimate = belief.state.noise_estimate()
+        if estimate is None:
             return ctx.noise
-        return KalmanNoise(process=ctx.noise.process, observation=belief.noise.estimate())
+        return KalmanNoise(process=ctx.noise.process, observation=estimate)
 
     def observation(self) -> Observation:
         """h(θ) = Φ(ξ*(θ, E), E), the paper's; a correction model's for KF-C and its kin."""
@@ -134,7 +138,7 @@ class UnscentedKalman(Learner):
     ) -> Step:
         # Innovation against Φ(ξᵗ) (eq. K5); for KF-C that is hₜ(θ̂), since C(ξᵗ, ξᵗ) = ξᵗ.
         observe = self.observer(ctx, belief, env)
-        if belief.noise is not None:
+        if isinstance(belief.state, NoiseState):
             return vb_ukf_update(
                 belief, observe, phi_h, ctx.noise, ctx.sigma, reference=plan.features
             )

@@ -8,22 +8,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from corrections_sim.belief import (
-    Belief,
-    KalmanNoise,
-    NoisePosterior,
-    _as_vector,
-    symmetrize,
-)
+from corrections_sim.belief import Belief, KalmanNoise, _as_vector, frozen, symmetrize
 from corrections_sim.learning.kalman.filter import (
     SigmaPoints,
     UkfStep,
     check_iterations,
     correct_moments,
-    frozen,
     sigma_moments,
     ukf_step,
 )
+from corrections_sim.learning.kalman.state import NoisePosterior, NoiseState
 from corrections_sim.learning.observation import Observe
 
 
@@ -51,7 +45,7 @@ def vb_ukf_update(
     iterations: int = 10,
 ) -> VbUkfStep:
     """One UKF step that learns the observation noise N jointly with θ: variational Bayes in
-    the sigma-point filter (Särkkä & Hartikainen 2013), N ~ IW(ν, V) (``belief.noise``).
+    the sigma-point filter (Särkkä & Hartikainen 2013), N ~ IW(ν, V) (``belief.state``).
 
     The 2k + 1 observations h(χ) are made once, as in :func:`ukf_update`; the fixed point
     iterates only on them (no extra h), with N̂ = V⁽ʲ⁾/ν⁺, ν⁺ = ν + 1:
@@ -68,7 +62,7 @@ def vb_ukf_update(
     noise M comes from ``noise``; its observation noise is not used.
 
     Args:
-        belief: prior belief N(θ̂ᵗ, Pᵗ) with ``belief.noise`` the posterior over N so far.
+        belief: prior belief N(θ̂ᵗ, Pᵗ) with ``belief.state`` the posterior over N so far.
         observe: as in :func:`ukf_update`.
         phi_human: as in :func:`ukf_update`.
         sigma: as in :func:`ukf_update`.
@@ -77,20 +71,21 @@ def vb_ukf_update(
         iterations: fixed-point iterations (≥ 1).
 
     Returns:
-        The posterior (its ``belief.noise`` updated) and the intermediate quantities.
+        The posterior (its ``belief.state`` updated) and the intermediate quantities.
 
     Raises:
         ValueError: a belief without a noise posterior, or as :func:`ukf_update`.
     """
-    if belief.noise is None:
-        raise ValueError("belief.noise: a noise-learning update needs a posterior over N")
+    if not isinstance(belief.state, NoiseState):
+        raise ValueError("belief.state: a noise-learning update needs a posterior over N")
+    prior = belief.state.noise
     check_iterations(iterations)
     phi_human = _as_vector("phi_human", phi_human, belief.dim)
     moments = sigma_moments(belief, observe, noise, sigma or SigmaPoints())
     base = moments.obs_mean if reference is None else _as_vector("reference", reference, belief.dim)
     innovation = phi_human - base
-    dof = belief.noise.dof + 1.0
-    scale = belief.noise.scale
+    dof = prior.dof + 1.0
+    scale = prior.scale
     estimate = scale / dof
     change = np.inf
     for _ in range(iterations):
@@ -98,7 +93,7 @@ def vb_ukf_update(
         share = np.linalg.solve(stats.innovation_cov, estimate).T  # N̂ S⁻¹
         noise_mean = share @ innovation  # E[n | Φ_h]
         noise_cov = estimate - share @ estimate  # Cov[n | Φ_h]
-        scale = symmetrize(belief.noise.scale + noise_cov + np.outer(noise_mean, noise_mean))
+        scale = symmetrize(prior.scale + noise_cov + np.outer(noise_mean, noise_mean))
         new_estimate = scale / dof
         change = float(np.max(np.abs(new_estimate - estimate)))
         estimate = new_estimate
@@ -109,7 +104,7 @@ def vb_ukf_update(
         belief,
         stats,
         innovation,
-        noise=posterior,
+        state=NoiseState(posterior),
         noise_estimate=frozen(posterior.estimate()),
         fixed_point_change=change,
     )

@@ -1,13 +1,14 @@
 """Sequential Monte Carlo over a static θ, one likelihood term per correction.
 
 The posterior p(θ | z₁…z_t) ∝ p(θ) Πᵢ p(zᵢ | θ) is carried by weighted particles
-(:class:`~corrections_sim.belief.Particles`). A correction reweights every particle by its
-likelihood; when the effective sample size falls below a fraction of the count, the particles
-are resampled (systematic) and each is moved by random-walk Metropolis steps that target the
-whole posterior, re-evaluating every past correction at the proposal (resample-move; Chopin,
-"A sequential particle filter method for static models", Biometrika 2002, IBIS; Gilks &
-Berzuini 2001). Moves keep the posterior invariant, so the sample stays exact in the limit of
-many particles; they undo the degeneracy that reweighting alone leaves.
+(:class:`~corrections_sim.learning.particles.state.Particles`). A correction reweights every
+particle by its likelihood; when the effective sample size falls below a fraction of the
+count, the particles are resampled (systematic) and each is moved by random-walk Metropolis
+steps that target the whole posterior, re-evaluating every past correction at the proposal
+(resample-move; Chopin, "A sequential particle filter method for static models", Biometrika
+2002, IBIS; Gilks & Berzuini 2001). Moves keep the posterior invariant, so the sample stays
+exact in the limit of many particles; they undo the degeneracy that reweighting alone
+leaves.
 
 Plain numpy: the caller passes the log-likelihoods (which need the planner) as arrays or as
 a batch callable; everything random comes from the ``rng`` given.
@@ -20,7 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from corrections_sim.belief import Belief, Particles
+from corrections_sim.belief import Belief
+from corrections_sim.learning.particles.state import Particles, ParticleState
 
 LogDensity = Callable[[np.ndarray], np.ndarray]
 """thetas (n, k) -> a log density at each (n,), up to one constant; −inf where impossible."""
@@ -118,12 +120,6 @@ def correct(
     return Moved(moved, ess, True, rate, evaluations)
 
 
-def belief_of(particles: Particles, **fields) -> Belief:
-    """The Gaussian summary N(mean, cov) of ``particles``, carrying them (and ``fields``)."""
-    mean, cov = particles.moments()
-    return Belief(theta=mean, cov=cov, particles=particles, **fields)
-
-
 def smoothed_kl(
     points: np.ndarray,
     weights: np.ndarray,
@@ -157,3 +153,28 @@ def smoothed_kl(
     p = np.asarray(weights, float) / np.sum(weights)
     keep = p > 0
     return float(np.sum(p[keep] * (np.log(p[keep]) - np.log(np.maximum(q[keep], 1e-300)))))
+
+
+def against_grid(
+    belief: Belief,
+    thetas: np.ndarray,
+    weights: np.ndarray,
+    mean: np.ndarray,
+    cov: np.ndarray,
+    coefficients: np.ndarray | None = None,
+) -> dict:
+    """How far the particles of ``belief`` (a particle learner's) are from a grid reference
+    (``weights`` at ``thetas``, its moments ``mean`` and ``cov``): KL (the particles smoothed
+    on the grid, its refined cells' volumes ``coefficients`` if any), the moments' gaps and
+    the effective sample size."""
+    if not isinstance(belief.state, ParticleState) or belief.state.particles is None:
+        raise ValueError("against_grid: the belief holds no particles")
+    cloud = belief.state.particles
+    p_mean, p_cov = cloud.moments()
+    sd = np.sqrt(np.diag(cov))
+    return {
+        "particle_kl": smoothed_kl(thetas, weights, cloud, coefficients),
+        "particle_mean_gap": float(np.max(np.abs(p_mean - mean) / sd)),
+        "particle_var_gap": float(np.max(np.abs(np.diag(p_cov) - np.diag(cov)) / np.diag(cov))),
+        "particle_ess": cloud.effective_size(),
+    }

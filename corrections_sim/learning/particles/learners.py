@@ -9,24 +9,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from corrections_sim.belief import (
-    Belief,
-    CorrectionEntry,
-    KalmanNoise,
-    PriorEntry,
-    symmetrize,
-)
+from corrections_sim.belief import Belief, KalmanNoise, symmetrize
 from corrections_sim.components import ParameterError
 from corrections_sim.learning.base import Learner, LearnerContext, Step
 from corrections_sim.learning.exact.bayes import gaussian_log_likelihood as particle_likelihood
 from corrections_sim.learning.exact.grid import GRID_MODELS
+from corrections_sim.learning.history import CorrectionEntry, PriorEntry
 from corrections_sim.learning.kalman.active import ActiveMixin
 from corrections_sim.learning.kalman.learners import CorrectionAwareKalman
 from corrections_sim.learning.observation import Observe
 from corrections_sim.learning.params import require_count
-from corrections_sim.learning.particles.cloud import belief_of as particles_belief
 from corrections_sim.learning.particles.cloud import correct as particles_correct
 from corrections_sim.learning.particles.cloud import draw as particles_draw
+from corrections_sim.learning.particles.state import ParticleState
 from corrections_sim.people.corrections import OptimalCorrection
 from corrections_sim.planning.planner import Plan, PlanningError
 from corrections_sim.plans.interpolation import (
@@ -97,7 +92,7 @@ class ParticleCorrectionAware(CorrectionAwareKalman):
 
     def initial(self, belief: Belief, noise: KalmanNoise) -> Belief:
         prior = PriorEntry(belief.theta, belief.cov)
-        return Belief(theta=belief.theta, cov=belief.cov, history=(prior,))
+        return Belief(theta=belief.theta, cov=belief.cov, state=ParticleState(history=(prior,)))
 
     @staticmethod
     def predict(observe: Observe, thetas: np.ndarray) -> np.ndarray:
@@ -137,9 +132,10 @@ class ParticleCorrectionAware(CorrectionAwareKalman):
         self, ctx: LearnerContext, belief: Belief, env: Environment, plan: Plan, phi_h: np.ndarray
     ) -> Step:
         rng = ctx.rng.spawn(1)[0]
-        first = belief.history[0] if belief.history else PriorEntry(belief.theta, belief.cov)
+        state = belief.state if isinstance(belief.state, ParticleState) else ParticleState()
+        first = state.history[0] if state.history else PriorEntry(belief.theta, belief.cov)
         prior = Belief(theta=first.theta, cov=first.cov)
-        cloud = belief.particles or particles_draw(prior, self.particles, rng)
+        cloud = state.particles or particles_draw(prior, self.particles, rng)
         z = np.asarray(phi_h, float)
         noise = ctx.noise.observation
         h = self.likelihood_means(ctx, env, plan.trajectory)(cloud.thetas)
@@ -151,7 +147,7 @@ class ParticleCorrectionAware(CorrectionAwareKalman):
         expected = w @ h[seen]
         spread = (w[:, None] * (h[seen] - expected)).T @ (h[seen] - expected)
         entry = CorrectionEntry(env, plan.trajectory, z, noise)
-        past = [*belief.history[1:], entry]
+        past = [*state.history[1:], entry]
         means = [(self.likelihood_means(ctx, s.env, s.robot), s.phi_h, s.noise) for s in past]
 
         def log_total(thetas: np.ndarray) -> tuple[np.ndarray, int]:
@@ -175,9 +171,10 @@ class ParticleCorrectionAware(CorrectionAwareKalman):
             moves=self.moves,
             threshold=self.resample_below,
         )
-        after = particles_belief(moved.particles, history=(first, *past))
+        mean, cov = moved.particles.moments()
+        kept = ParticleState(moved.particles, (first, *past))
         return Step(
-            after,
+            Belief(theta=mean, cov=cov, state=kept),
             None,
             z - plan.features,
             symmetrize(spread + noise),

@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from corrections_sim.learning.relevance.learners import PersonRelevanceKalman
+from corrections_sim.learning.relevance.state import RelevanceState
 from corrections_sim.learning.step import Step
 from corrections_sim.learnt.training import quality
 from corrections_sim.scene.environments import Environment
@@ -52,9 +53,10 @@ def columns(belief, step: Step | None, learnt: dict, k: int) -> dict:
     expanded (and at which correction), the learnt feature's quality against the person's
     (Spearman ρ, R² of the best affine fit), its weight θ̂ and the weight the person's maps
     to through that fit (θ*·a), for every record after it expanded."""
-    if not (belief.asked or (step is not None and step.expansion is not None)):
+    asked = isinstance(belief.state, RelevanceState) and belief.state.asked
+    if not (asked or (step is not None and step.expansion is not None)):
         return {}
-    out: dict = {"asked": float(belief.asked), "expanded": float(bool(belief.extra))}
+    out: dict = {"asked": float(asked), "expanded": float(bool(belief.extra))}
     if belief.extra and learnt:
         out |= {
             "expanded_at": learnt["expanded_at"],

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from corrections_sim.belief import KalmanNoise, PersonBelief
+from corrections_sim.belief import KalmanNoise
 from corrections_sim.learning.exact import bayes
 from corrections_sim.learning.exact.grid import GRID_MODELS, GridModel, Seen
 from corrections_sim.learning.relevance.judge import (
@@ -17,6 +17,7 @@ from corrections_sim.learning.relevance.judge import (
     embed,
     random_direction_shape,
 )
+from corrections_sim.learning.relevance.state import PersonBelief
 
 #: Equal-probability nodes of KF-CRP's prior on τ in its exact reference.
 PERSON_TAU_NODES = 48

@@ -44,8 +44,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from corrections_sim.belief import PersonBelief
 from corrections_sim.components import ParameterError
+from corrections_sim.learning.relevance.state import PersonBelief
 from corrections_sim.people.corrections import CorrectionModel
 from corrections_sim.planning.planner import PlanningError
 from corrections_sim.plans.book import PlanBook
@@ -279,7 +279,8 @@ def judge(
 ) -> Judgement:
     """β̂ of a correction under the belief N(``belief_mean``, ``belief_cov``) over θ and the
     belief over the ``person`` (their rate r of relevant corrections and the precision τ of
-    those, :class:`~corrections_sim.belief.PersonBelief`), and that belief after it.
+    those, :class:`~corrections_sim.learning.relevance.state.PersonBelief`), and that belief
+    after it.
 
     What a correction shows: ρ*, the least unexplained fraction of the move over θ (ρ(θ) =
     ‖ξ_h − ĉ(θ)‖ / ‖ξ_h − ξ‖ in ``space``), and *where* it is explained. Both hypotheses give

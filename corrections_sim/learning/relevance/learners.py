@@ -12,15 +12,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from corrections_sim import components
-from corrections_sim.belief import (
-    Belief,
-    KalmanNoise,
-    PersonBelief,
-    PriorEntry,
-    ShownEntry,
-)
+from corrections_sim.belief import Belief, KalmanNoise
 from corrections_sim.components import ParameterError
 from corrections_sim.learning.base import LearnerContext, Likelihood, Step
+from corrections_sim.learning.history import PriorEntry, ShownEntry
 from corrections_sim.learning.kalman.learners import (
     CorrectionAwareKalman,
     model_fits,
@@ -30,6 +25,7 @@ from corrections_sim.learning.params import require_count, require_positive
 from corrections_sim.learning.perceptron.learners import Perceptron
 from corrections_sim.learning.perceptron.update import perceptron_update
 from corrections_sim.learning.relevance.judge import SPACES, Relevance, explain, judge, load_fit
+from corrections_sim.learning.relevance.state import PersonBelief, RelevanceState
 from corrections_sim.learnt.training import Network, learn
 from corrections_sim.learnt.training import register as register_learnt
 from corrections_sim.people.corrections import (
@@ -223,12 +219,14 @@ class PersonRelevanceKalman(CorrectionAwareKalman):
         # A learner that may learn a feature keeps the prior and its corrections, to read
         # them again over the new feature (see :meth:`grow`).
         kept = (PriorEntry(belief.theta, belief.cov),) if self.expand_traces else ()
-        return Belief(theta=belief.theta, cov=belief.cov, person=self.person(), history=kept)
+        state = RelevanceState(person=self.person(), history=kept)
+        return Belief(theta=belief.theta, cov=belief.cov, state=state)
 
     def update(
         self, ctx: LearnerContext, belief: Belief, env: Environment, plan: Plan, phi_h: np.ndarray
     ) -> Step:
-        person = belief.person or self.person()
+        state = self._state(belief)
+        person = state.person or self.person()
         prior = Belief(theta=belief.theta, cov=belief.cov)
         if belief.extra:
             # Expanded: the person taught what their corrections were about, so they are
@@ -263,18 +261,12 @@ class PersonRelevanceKalman(CorrectionAwareKalman):
         step = super().update(dataclasses.replace(ctx, noise=noise), prior, env, plan, phi_h)
         if found is not None:
             person = found.person
-        history = belief.history
-        if history and not belief.asked and ctx.corrected is not None:
+        history = state.history
+        if history and not state.asked and ctx.corrected is not None:
             shown = ShownEntry(env, plan.trajectory, np.asarray(ctx.corrected, float))
             history = (*history, shown)
-        after = Belief(
-            theta=step.belief.theta,
-            cov=step.belief.cov,
-            person=person,
-            extra=belief.extra,
-            asked=belief.asked,
-            history=history,
-        )
+        kept = RelevanceState(person=person, asked=state.asked, history=history)
+        after = Belief(theta=step.belief.theta, cov=step.belief.cov, extra=belief.extra, state=kept)
         after, expansion = self.expand(ctx, after, env)
         return dataclasses.replace(
             step,
@@ -297,8 +289,7 @@ class PersonRelevanceKalman(CorrectionAwareKalman):
             return belief, None
         traces = ctx.teach(wanted, env)
         if traces is None:
-            declined = dataclasses.replace(belief, asked=True, history=())
-            return declined, {"asked": True, "taught": False}
+            return self.declined(belief), {"asked": True, "taught": False}
         return self.grow(belief, env, traces, ctx.rng, ctx)
 
     def learns_features(self) -> bool:
@@ -307,15 +298,24 @@ class PersonRelevanceKalman(CorrectionAwareKalman):
     def wants_traces(self, belief: Belief, corrections: int) -> int:
         """How many feature traces it asks for after ``corrections`` corrections with
         ``belief`` (0: none; it asks once)."""
-        person = belief.person
+        state = self._state(belief)
         due = (
             self.expand_traces > 0
-            and not belief.asked
+            and not state.asked
             and corrections >= self.expand_after
-            and person is not None
-            and person.rate_mean < self.expand_below
+            and state.person is not None
+            and state.person.rate_mean < self.expand_below
         )
         return self.expand_traces if due else 0
+
+    def declined(self, belief: Belief) -> Belief:
+        state = dataclasses.replace(self._state(belief), asked=True, history=())
+        return dataclasses.replace(belief, state=state)
+
+    @staticmethod
+    def _state(belief: Belief) -> RelevanceState:
+        """Its own state in ``belief`` (a fresh one for a belief it did not make)."""
+        return belief.state if isinstance(belief.state, RelevanceState) else RelevanceState()
 
     def grow(
         self,
@@ -335,7 +335,7 @@ class PersonRelevanceKalman(CorrectionAwareKalman):
         start = time.process_time()
         learnt = learn(traces, env, rng, network=self.network())
         name = register_learnt(learnt)
-        first, *past = belief.history or (PriorEntry(belief.theta, belief.cov),)
+        first, *past = self._state(belief).history or (PriorEntry(belief.theta, belief.cov),)
         theta0, cov0 = first.theta, first.cov
         k = len(theta0)
         cov = np.zeros((k + 1, k + 1))
@@ -365,7 +365,8 @@ class PersonRelevanceKalman(CorrectionAwareKalman):
                 grown = CorrectionAwareKalman.update(self, seen, grown, env_i, plan, phi_h).belief
             except PlanningError:
                 continue  # skipped, as the loop skips an update whose plans fail
-        grown = Belief(theta=grown.theta, cov=grown.cov, extra=(*belief.extra, name), asked=True)
+        asked = RelevanceState(asked=True)
+        grown = Belief(theta=grown.theta, cov=grown.cov, extra=(*belief.extra, name), state=asked)
         return grown, {
             "asked": True,
             "taught": True,

@@ -1,0 +1,89 @@
+"""The exact family's part of a belief: its posterior on the grid's nodes, the past it
+weighs again at a new node and, for EX-CL, N's prior (:class:`ExactState`). Plain values.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from corrections_sim.belief import FamilyState, frozen
+from corrections_sim.learning.exact.cells import Cells
+from corrections_sim.learning.history import HistoryEntry, checked
+from corrections_sim.learning.kalman.state import NoisePosterior, check_noise, noise_columns
+
+
+@dataclass(frozen=True, eq=False)
+class GridPosterior:
+    """An exact learner's posterior over θ on the nodes of a grid (its plan atlas's): the
+    belief's θ̂ and P are its moments.
+
+    Attributes:
+        thetas: the nodes (n, k).
+        log_density: the unnormalized log posterior at each node (n,), −inf where it is
+            impossible; with N learnt, the log prior only (the corrections are in
+            ``scatter``).
+        scatter: with N learnt, Σᵢ rᵢ rᵢᵀ at each node (n, k, k), rᵢ = zᵢ − hᵢ(θ); else None.
+        count: corrections taken in.
+        cells: the nodes as cells (:class:`~corrections_sim.learning.exact.cells.Cells`;
+            their trapezoid weights integrate the density), or None: every node weighs the
+            same.
+    """
+
+    thetas: np.ndarray
+    log_density: np.ndarray
+    scatter: np.ndarray | None = None
+    count: int = 0
+    cells: Cells | None = None
+
+    def __post_init__(self) -> None:
+        thetas = np.array(self.thetas, dtype=float, copy=True)
+        log_d = np.array(self.log_density, dtype=float, copy=True)
+        if thetas.ndim != 2 or log_d.shape != (thetas.shape[0],) or np.any(np.isnan(log_d)):
+            raise ValueError(
+                f"GridPosterior: expected nodes (n, k) and n log densities without NaN, got "
+                f"{thetas.shape} and {log_d.shape}"
+            )
+        if not np.any(np.isfinite(log_d)):
+            raise ValueError("GridPosterior.log_density: every node is impossible")
+        object.__setattr__(self, "thetas", frozen(thetas))
+        object.__setattr__(self, "log_density", frozen(log_d))
+        if self.scatter is not None:
+            scatter = np.array(self.scatter, dtype=float, copy=True)
+            k = thetas.shape[1]
+            if scatter.shape != (thetas.shape[0], k, k):
+                raise ValueError(f"GridPosterior.scatter: expected (n, k, k), got {scatter.shape}")
+            object.__setattr__(self, "scatter", frozen(scatter))
+        if self.cells is not None and len(self.cells.coords) != thetas.shape[0]:
+            raise ValueError(
+                f"GridPosterior.cells: {len(self.cells.coords)} nodes for {thetas.shape[0]} θ"
+            )
+
+
+@dataclass(frozen=True, eq=False)
+class ExactState(FamilyState):
+    """EX-C's and EX-CL's own state: the grid posterior (None before the first correction),
+    the prior and every correction (what a refined cell weighs again) and, for EX-CL, the
+    inverse-Wishart prior over N it integrates N out under (None for EX-C: N is known).
+    Its N̂ is that prior's, as the run started."""
+
+    noise: NoisePosterior | None = None
+    grid: GridPosterior | None = None
+    history: tuple[HistoryEntry, ...] = ()
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "history", checked(self.history, "ExactState.history"))
+
+    def check(self, k: int) -> None:
+        check_noise(self.noise, k, "ExactState.noise")
+        if self.grid is not None and self.grid.thetas.shape[1] != k:
+            raise ValueError(
+                f"ExactState.grid: nodes over {self.grid.thetas.shape[1]} weights, expected {k}"
+            )
+
+    def columns(self) -> dict[str, float]:
+        return noise_columns(self.noise)
+
+    def noise_estimate(self) -> np.ndarray | None:
+        return None if self.noise is None else self.noise.estimate()
