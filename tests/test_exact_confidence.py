@@ -159,8 +159,8 @@ def test_the_learners_refuse_bad_counts_in_one_line():
         make_learner("KF-CL", {"iterate": "each"})
     with pytest.raises(ValueError, match="learners.PF-C.noise: PF-C keeps N fixed"):
         make_learner("PF-C", {"noise": "learnt"})
-    with pytest.raises(ValueError, match="learners.KF-CRP.expand_after: must be an integer >= 1"):
-        make_learner("KF-CRP", {"expand_after": 0})
+    with pytest.raises(ValueError, match="learners.KF-CRX.expand_after: must be an integer >= 1"):
+        make_learner("KF-CRX", {"expand_after": 0})
     with pytest.raises(ValueError, match="resample_below"):
         make_learner("PF-C", {"resample_below": 0})
     with pytest.raises(ValueError, match="particles = 1: expected an integer >= 2"):

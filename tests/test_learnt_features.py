@@ -163,7 +163,23 @@ def test_expansion_options_are_checked_in_one_line():
             make_learner("KF-CRX", params)
         assert "\n" not in str(info.value)
     assert make_learner("KF-CRX").expand_traces == 10
-    assert make_learner("KF-CRP").expand_traces == 0  # KF-CRP never asks
+    assert not make_learner("KF-CRP").learns_features()  # KF-CRP never asks
+    with pytest.raises(ValueError, match="learners.KF-CRP.expand_traces: the KF-CRP learner has"):
+        make_learner("KF-CRP", {"expand_traces": 3})  # expansion is KF-CRX's
+
+
+def test_a_folder_made_when_kf_crp_held_expansion_compares_equal_where_it_never_asked():
+    """Before issue 64 KF-CRP carried KF-CRX's ``expand_*`` (at ``expand_traces = 0``: never
+    used); a summary recorded then is today's settings, one that asked is not."""
+    from corrections_sim import components
+    from corrections_sim.study.legacy import normalize_recorded
+
+    today = components.params(make_learner("KF-CRP"))
+    gone = {"expand_below": 0.35, "expand_after": 3, "expand_variance": 1.0}
+    old = {"learners": {"KF-CRP": {**today, "expand_traces": 0, **gone}}}
+    assert normalize_recorded(old)["learners"]["KF-CRP"] == today
+    asked = {"learners": {"KF-CRP": {**today, "expand_traces": 3, **gone}}}
+    assert normalize_recorded(asked)["learners"]["KF-CRP"] != today
 
 
 def test_a_session_asks_for_traces_learns_the_feature_logs_resumes_and_replays(tmp_path):

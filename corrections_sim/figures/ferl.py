@@ -8,7 +8,7 @@ close to them (`human`, weight −2) and one who minds only that (−5); and the
 with a robot that knows `human` from the start (a column may set ``features`` and
 ``learners``): the upper bound. Rows are learners: KF-C, KF-CRP (which notices) and KF-CRX
 (which notices and asks,
-:meth:`~corrections_sim.learning.relevance.learners.PersonRelevanceKalman.expand`).
+:meth:`~corrections_sim.learning.relevance.expansion.ExpandingRelevanceKalman.expand`).
 
 Besides the study, the quality of a learnt feature against the number of traces and the
 teacher's noise: Spearman ρ between the learnt and the true `human` on 10,000 random

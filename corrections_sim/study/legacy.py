@@ -183,6 +183,14 @@ def note_older_spellings(values: Mapping[str, Any], where: str) -> None:
         )
 
 
+def _without_retired(name: str, params: Any) -> Any:
+    """A recorded learner's parameters without those it gave up where they did nothing:
+    KF-CRP's ``expand_*`` went to KF-CRX (issue 64); with ``expand_traces = 0`` it never asked."""
+    if name == "KF-CRP" and isinstance(params, dict) and params.get("expand_traces", 0) == 0:
+        return {k: v for k, v in params.items() if not k.startswith("expand_")}
+    return params
+
+
 def normalize_recorded(settings: Mapping[str, Any]) -> dict:
     """Settings recorded in an older ``summary.json`` (flat keys) in today's nested form, so an
     output folder made before components owned their parameters compares equal when its
@@ -204,6 +212,7 @@ def normalize_recorded(settings: Mapping[str, Any]) -> dict:
     if isinstance(learners, dict):
         out = {}
         for name, params in learners.items():
+            params = _without_retired(name, params)
             try:
                 out[name] = components.params(make_learner(name, params))
             except (ValueError, KeyError):
