@@ -35,7 +35,7 @@ from __future__ import annotations
 import abc
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
 import numpy as np
 
@@ -47,10 +47,23 @@ from corrections_sim.planning.planner import Plan
 from corrections_sim.registry import Registry
 from corrections_sim.scene.environments import Environment
 
-if TYPE_CHECKING:  # annotations only: a family imports this module, not the other way
-    from corrections_sim.learning.kalman.filter import SigmaPoints
+if TYPE_CHECKING:  # annotations only
     from corrections_sim.people.corrections import CorrectionModel
     from corrections_sim.plans.book import PlanBook
+
+
+class SigmaRule(Protocol):
+    """The study's unscented transform as a learner reads it; the Kalman family's
+    :class:`~corrections_sim.learning.kalman.filter.SigmaPoints` is the one studies build
+    (named here by its shape: families import this module, not the other way)."""
+
+    def points(self, mean: np.ndarray, cov: np.ndarray) -> np.ndarray:
+        """The 2k + 1 sigma points of N(``mean``, ``cov``), (2k + 1, k)."""
+        ...
+
+    def weights(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """The mean's and the covariance's weights, each (2k + 1,)."""
+        ...
 
 
 @dataclass(frozen=True, eq=False)
@@ -68,7 +81,7 @@ class LearnerContext:
         rng: the run's generator (shared with the user's noise: drawing from it changes the
             user's draws too).
         noise: the study's filter noise, M (process) and N (observation).
-        sigma: the study's unscented-transform sigma points.
+        sigma: the study's unscented transform (:class:`SigmaRule`).
         iteration: t, the correction being processed (0-based).
         corrected: the corrected trajectory ξ_h (T, 7) when the person showed one (a learner
             that judges whether a correction is explainable reads it), else None.
@@ -88,7 +101,7 @@ class LearnerContext:
     alphas: np.ndarray | None
     rng: np.random.Generator
     noise: KalmanNoise
-    sigma: SigmaPoints
+    sigma: SigmaRule
     iteration: int = 0
     corrected: np.ndarray | None = None
     declined: frozenset[int] = frozenset()
