@@ -60,7 +60,7 @@ def test_the_exact_learner_is_its_reference_on_the_atlas_grid(figure, learner, c
     """The reference tool, on a study with an atlas, reads the atlas's grid and plans: the
     exact learner's mean and covariance after every correction are the reference's."""
     assert cli.main(["reference", str(figure), "--learner", learner, "--runs", "1"]) == 0
-    reference = _rows(figure / f"reference-{learner}.csv")
+    reference = _rows(figure / f"reference-{learner}" / "records.csv")
     curves = _rows(figure / "curves.csv", learner)
     assert [int(r["iteration"]) for r in reference] == [1, 2]
     for r in reference:
@@ -261,8 +261,8 @@ def test_the_reference_without_refinement_is_another_posterior(figure):
     """The learners above refined their cells (else the reference's --resolution 0 would
     give the same numbers)."""
     argv = ["reference", str(figure), "--learner", "EX-C", "--runs", "1", "--resolution", "0"]
-    assert cli.main(argv) == 0
-    coarse = _rows(figure / "reference-EX-C.csv")
+    assert cli.main([*argv, "--force"]) == 0  # the reference above had other settings
+    coarse = _rows(figure / "reference-EX-C" / "records.csv")
     curves = _rows(figure / "curves.csv", "EX-C")
     gaps = [
         abs(float(curves[int(r["iteration"])]["cov_00"]) - float(r["ref_cov_00"]))

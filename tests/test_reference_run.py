@@ -38,7 +38,7 @@ def test_the_reference_of_a_run(figure, learner, capsys):
         cli.main(["reference", str(figure), "--learner", learner, "--runs", "1", "--points", "9"])
         == 0
     )
-    with open(figure / f"reference-{learner}.csv", newline="") as fh:
+    with open(figure / f"reference-{learner}" / "records.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
     assert [int(r["iteration"]) for r in rows] == [1, 2]
     for r in rows:
@@ -50,7 +50,7 @@ def test_the_reference_of_a_run(figure, learner, capsys):
     assert [r["environment"] for r in rows] == [c["environment"] for c in curves[1:]]
     assert summary["settings"]["learners"][learner] is not None
     assert "ref NEES" in capsys.readouterr().out
-    final = json.loads((figure / f"reference-{learner}.json").read_text())
+    final = json.loads((figure / f"reference-{learner}" / "summary.json").read_text())
     assert final["learner"] == learner and final["iteration"] == 2 and final["runs"] == 1
     assert final["ratio"] > 0 and np.isfinite(final["ref_kl"])
     if learner == "KF-CRP":  # its exact β̂ beside the learner's, per correction
@@ -58,6 +58,27 @@ def test_the_reference_of_a_run(figure, learner, capsys):
             assert 0.0 <= float(r["ref_relevance"]) <= 1.0 and float(r["relevance"]) > 0
             assert 0.0 < float(r["ref_relevance_rate"]) < 1.0
         assert "relevance_gap" in final
+
+
+def test_a_reference_of_other_settings_replaces_an_earlier_one_only_with_force(figure, capsys):
+    """``run reference`` writes ``<figure>/reference-<learner>/`` (its records, its summary
+    with the settings): run again with the same settings it is replaced (its runs resumed
+    from the cache), with other settings it is refused in one line and the earlier files
+    stay as they were."""
+    argv = ["reference", str(figure), "--learner", "KF-C", "--runs", "1", "--points", "9"]
+    assert cli.main([*argv, "--force"]) == 0
+    folder = figure / "reference-KF-C"
+    before = {p.name: p.read_bytes() for p in folder.iterdir()}
+    assert json.loads(before["summary.json"])["settings"]["points"] == 9
+    assert cli.main(argv) == 0  # the same settings: replaced, the same records
+    assert (folder / "records.csv").read_bytes() == before["records.csv"]
+    before = {p.name: p.read_bytes() for p in folder.iterdir()}
+    capsys.readouterr()
+    assert cli.main([*argv[:-1], "11"]) == 2
+    err = capsys.readouterr().err
+    assert "made with other settings" in err and "--force" in err and err.count("\n") == 1
+    assert (folder / "records.csv").read_bytes() == before["records.csv"]
+    assert (folder / "summary.json").read_bytes() == before["summary.json"]
 
 
 def test_a_learner_the_figure_did_not_run_is_one_line(figure, capsys):
@@ -71,8 +92,8 @@ def test_one_filter_step_from_the_reference(figure, capsys):
     first correction it starts from the prior, as the learner itself did, so it is the
     learner's own first step (up to the grid's moments of the prior)."""
     argv = [str(figure), "--learner", "KF-CR", "--runs", "1", "--points", "41", "--one-step"]
-    assert cli.main(["reference", *argv, "--restart", "0,1"]) == 0
-    with open(figure / "reference-KF-CR.csv", newline="") as fh:
+    assert cli.main(["reference", *argv, "--restart", "0,1", "--force"]) == 0
+    with open(figure / "reference-KF-CR" / "records.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
     first = rows[0]
     assert float(first["one_step_nees"]) == pytest.approx(float(first["nees"]), rel=0.05)
@@ -125,17 +146,17 @@ def test_the_particle_reference_at_k_3_and_against_the_grid_at_k_2(figure, tmp_p
     assert cli.main(["reference", str(three), "--learner", "KF-C", "--particles", "1"]) == 2
     assert "--particles 1: expected an integer >= 2" in capsys.readouterr().err
     assert cli.main(["reference", str(three), "--learner", "KF-C", "--particles", "40"]) == 0
-    final = json.loads((three / "reference-KF-C.json").read_text())
+    final = json.loads((three / "reference-KF-C" / "summary.json").read_text())
     assert [s["iteration"] for s in final["by_iteration"]] == [1, 2]
     assert "ref_kl" not in final and final["ref_kl_gaussian"] >= 0.0
     assert final["ratio"] > 0 and len(final["ratio_ci95"]) == 2
-    with open(three / "reference-KF-C.csv", newline="") as fh:
+    with open(three / "reference-KF-C" / "records.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
     assert all(float(r["ref_cov_22"]) > 0 for r in rows)
     # At k = 2, 300 particles against the grid on the same corrections.
     argv = [str(figure), "--learner", "KF-C", "--runs", "1", "--points", "31", "--particles", "300"]
-    assert cli.main(["reference", *argv]) == 0
-    final = json.loads((figure / "reference-KF-C.json").read_text())
+    assert cli.main(["reference", *argv, "--force"]) == 0  # KF-C's reference was on 9 points
+    final = json.loads((figure / "reference-KF-C" / "summary.json").read_text())
     assert final["particle_mean_gap"] < 0.3 and final["particle_var_gap"] < 0.3
     assert 0.0 <= final["particle_kl"] < 0.3
     assert "particles against the grid" in capsys.readouterr().out

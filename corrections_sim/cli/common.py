@@ -31,11 +31,18 @@ def out_dir(args: argparse.Namespace) -> Path:
 
 
 def check_replace(
-    args: argparse.Namespace, final: Path, figure: str, settings: dict, upgrade=None
+    args: argparse.Namespace,
+    final: Path,
+    figure: str,
+    settings: dict,
+    upgrade=None,
+    *,
+    preset: str | None = None,
 ) -> str:
     """Refuse (exit 2) to replace a figure folder made by other settings without --force;
-    otherwise the line to print, once the command is sure to start, saying what it replaces."""
-    preset = "quick" if args.quick else "paper"
+    otherwise the line to print, once the command is sure to start, saying what it replaces.
+    ``preset``: the folder's (default: ``--quick``'s)."""
+    preset = preset or ("quick" if args.quick else "paper")
     try:
         return output_folder.check_replace(final, figure, preset, settings, args.force, upgrade)
     except output_folder.FolderTaken as exc:

@@ -12,12 +12,13 @@ once per environment, grid and planner, and kept in a content-addressed file bes
 compiled planner. The process noise M (1e-4 I in the figures) is left out: over 12
 corrections it widens the posterior by less than 0.04 in θ, below the grid's spacing.
 
-Writes ``reference-<learner>.csv`` in the figure's folder (per run and iteration: the
-reference's mean and covariance, its NEES against θ*, the learner's NEES, and
-``ref_kl`` = KL(reference ‖ learner's N(θ̂, P)), and ``ref_kl_gaussian``, its part that a
-Gaussian with the reference's moments already has), prints the means over runs, and writes the
-last iteration's summary with 95% intervals over runs to ``reference-<learner>.json`` (NEES /
-reference NEES, ``ref_kl``; with ``--one-step`` and ``--restart``, where the gap enters).
+Its records, per run and iteration: the reference's mean and covariance, its NEES against θ*,
+the learner's NEES, ``ref_kl`` = KL(reference ‖ learner's N(θ̂, P)) and ``ref_kl_gaussian``,
+its part that a Gaussian with the reference's moments already has; and the summary at every
+iteration with 95% intervals over runs (NEES / reference NEES, ``ref_kl``; with
+``--one-step`` and ``--restart``, where the gap enters). The command
+(:mod:`corrections_sim.figures.reference_figure`) runs a :class:`ReferenceJob` run by run on
+its executor and writes them to ``<figure>/reference-<learner>/``.
 """
 
 from __future__ import annotations
@@ -126,6 +127,58 @@ def _belief(row: dict, k: int) -> Belief:
     return Belief(theta=theta, cov=cov)
 
 
+def check_reference(
+    settings: FigureSettings,
+    learner: str,
+    grid: ref.Grid | None,
+    *,
+    particles: int = 0,
+    one_step: bool = False,
+    restarts: tuple[int, ...] = (),
+    resolution: float | None = None,
+):
+    """What :func:`reference_run` checks before anything is solved, in one line naming what
+    does not fit (a random user, a learner without a covariance or a model, an option its
+    model or k cannot take); returns the learner, its likelihood, its grid model's class and
+    the particle engine (None without ``particles``)."""
+    study = settings.study
+    model = study.learners[learner]
+    if study.user.stochastic:
+        raise ValueError(
+            f"user {study.user_name}: draws random numbers; its corrections cannot be replayed"
+        )
+    if not model.has_covariance:
+        raise ValueError(f"learner {learner}: has no covariance to judge against a reference")
+    likelihood = model.likelihood()
+    if likelihood is None:
+        raise ValueError(f"learner {learner}: no reference for it (KF-type learners and BP)")
+    kind = GRID_MODELS[likelihood.kind]
+    engine = particle_reference(model, learner, particles) if particles else None
+    if grid is None and (engine is None or one_step or restarts):
+        raise ValueError(
+            f"k = {study.k}: no grid beyond k = 2 (--particles N is the reference there; "
+            "--one-step and --restart need the grid)"
+        )
+    if grid is not None:  # the learner's parameters, as its grid model reads them
+        thetas = grid.thetas()
+        kind(
+            learner, likelihood, model, study, thetas, ref.gaussian_log_prior(thetas, study.prior())
+        )
+    if (one_step or restarts) and not kind.filtered:
+        raise ValueError(
+            f"learner {learner}: --one-step and --restart need a Kalman learner with N fixed"
+        )
+    if resolution is not None and not (np.isfinite(resolution) and resolution >= 0):
+        raise ValueError(f"--resolution {resolution!r}: expected a number >= 0")
+    refinable = settings.atlas_spec() is not None and grid is not None and kind.refinable
+    if resolution is not None and resolution > 0 and not refinable:
+        raise ValueError(
+            f"--resolution {resolution:g}: refines only a KF/KF-C-type model's grid on a study "
+            "with a plan atlas"
+        )
+    return model, likelihood, kind, engine
+
+
 def reference_run(
     settings: FigureSettings,
     learner: str,
@@ -163,24 +216,11 @@ def reference_run(
     learners' default; 0: never), as an exact learner's is
     (:class:`~corrections_sim.learning.exact.bayes.Refinement`): every correction so far
     weighed again at the finer nodes, ξ*(θ, E) there from the atlas over ``grid``."""
+    model, likelihood, kind, engine = check_reference(
+        settings, learner, grid, particles=particles, one_step=one_step, restarts=restarts,
+        resolution=resolution,
+    )  # fmt: skip
     study = settings.study
-    model = study.learners[learner]
-    if study.user.stochastic:
-        raise ValueError(
-            f"user {study.user_name}: draws random numbers; its corrections cannot be replayed"
-        )
-    if not model.has_covariance:
-        raise ValueError(f"learner {learner}: has no covariance to judge against a reference")
-    likelihood = model.likelihood()
-    if likelihood is None:
-        raise ValueError(f"learner {learner}: no reference for it (KF-type learners and BP)")
-    kind = GRID_MODELS[likelihood.kind]
-    engine = particle_reference(model, learner, particles) if particles else None
-    if grid is None and (engine is None or one_step or restarts):
-        raise ValueError(
-            f"k = {study.k}: no grid beyond k = 2 (--particles N is the reference there; "
-            "--one-step and --restart need the grid)"
-        )
     k, names = study.k, planner.config.features
     envs = {e.name: e for e in settings.envs()}
     theta_star = np.array(study.theta_star)  # the learners' part, what NEES is against
@@ -189,12 +229,7 @@ def reference_run(
     thetas = grid.thetas() if grid is not None else np.zeros((1, k))
     log_p = ref.gaussian_log_prior(thetas, study.prior())
     out = []
-    # The learner's parameters checked before anything is solved.
     grid_model = None if grid is None else kind(learner, likelihood, model, study, thetas, log_p)
-    if (one_step or restarts) and not kind.filtered:
-        raise ValueError(
-            f"learner {learner}: --one-step and --restart need a Kalman learner with N fixed"
-        )
     # With the study's plan atlas, the robot's plans are replayed from it, as the run made
     # them, and ξ*(θ, E) at the grid's points is the atlas's over the grid (the study's own
     # where the grid is its atlas's, so an exact learner's posterior is this one).
@@ -206,13 +241,6 @@ def reference_run(
         box = AtlasGrid(grid.low, grid.high, (grid.points,) * k)
         at_nodes = dataclasses.replace(spec, grid=box).atlas()
     refinable = at_nodes is not None and kind.refinable
-    if resolution is not None and not (np.isfinite(resolution) and resolution >= 0):
-        raise ValueError(f"--resolution {resolution!r}: expected a number >= 0")
-    if resolution is not None and resolution > 0 and not refinable:
-        raise ValueError(
-            f"--resolution {resolution:g}: refines only a KF/KF-C-type model's grid on a study "
-            "with a plan atlas"
-        )
     cells, past = None, []  # a refinable grid's cells; the corrections so far, to weigh again
     if refinable:
         # The core to e^−13.8 = 1e-6 of the peak, not an exact learner's 1e-4.
@@ -325,10 +353,10 @@ def reference_run(
 
 @dataclass(frozen=True)
 class Judged:
-    """What :func:`judge_figure` found: every record, the summary at each iteration (the last
-    is the final one) and, with ``check_grid``, how much the first run's reference moves on
-    the halved grid (points per axis before and after, the largest move of a mean in its sd
-    and of a variance, relative)."""
+    """What a :class:`ReferenceJob` found (:func:`judged`): every record, the summary at each
+    iteration (the last is the final one) and, with ``check_grid``, how much the first run's
+    reference moves on the halved grid (points per axis before and after, the largest move of
+    a mean in its sd and of a variance, relative)."""
 
     learner: str
     records: list[dict]
@@ -349,7 +377,31 @@ def reference_grid(settings: FigureSettings, points: int | None) -> ref.Grid | N
     return ref.Grid((-3.0,) * k, (3.0,) * k, points or 61)
 
 
-def judge_figure(
+@dataclass(frozen=True)
+class ReferenceJob:
+    """The exact reference of some runs of a learner in a finished figure, ready to run one
+    run at a time (:func:`judge_run`, in any process) and to summarize (:func:`judged`).
+
+    Attributes:
+        figure: the finished figure's name (its ``summary.json``'s).
+        settings: its settings.
+        learner: whose runs.
+        rows: the recorded rows of each run judged (``curves.csv``), by run.
+        grid: the reference's grid (None beyond k = 2: the particles are the reference).
+        options: :func:`reference_run`'s keyword options (``seed`` is the first run's).
+        check_grid: whether the first run is judged again on the halved grid.
+    """
+
+    figure: str
+    settings: FigureSettings
+    learner: str
+    rows: dict[int, list[dict]]
+    grid: ref.Grid | None
+    options: dict
+    check_grid: bool = False
+
+
+def reference_job(
     folder: Path,
     learner: str,
     *,
@@ -361,22 +413,20 @@ def judge_figure(
     one_step: bool = False,
     resolution: float | None = None,
     check_grid: bool = False,
-    progress=None,
-) -> Judged:
-    """The exact reference of the first ``runs`` runs of ``learner`` in the finished figure
-    in ``folder`` (its ``summary.json`` and ``curves.csv``): see :func:`reference_run` for
-    the options; ``progress(run)`` after each run.
+) -> ReferenceJob:
+    """The reference of the first ``runs`` runs of ``learner`` in the finished figure in
+    ``folder`` (its ``summary.json`` and ``curves.csv``), checked before anything is solved:
+    see :func:`reference_run` for the options.
 
     Raises:
         ValueError: one line, naming what does not fit (a learner not in the figure, an
             option the learner's model or k cannot take).
     """
-    from corrections_sim.planning.planner import Planner
-    from corrections_sim.plans import interpolation
     from corrections_sim.study import schema
 
     summary = json.loads((folder / "summary.json").read_text())
-    settings = schema.parse_study(summary["settings"], name=summary.get("figure", ""))
+    figure = summary.get("figure", "")
+    settings = schema.parse_study(summary["settings"], name=figure)
     if learner not in settings.study.learners:
         known = ", ".join(settings.study.learners)
         raise ValueError(f"--learner {learner}: not in this figure ({known})")
@@ -386,66 +436,69 @@ def judge_figure(
     if check_grid and settings.study.k != 2:
         raise ValueError(f"--check-grid: the grid exists only for k = 2, not {settings.study.k}")
     grid = reference_grid(settings, points)
-    planner = Planner(settings.planner_config())
-    records = []
-    for run in sorted(recorded)[:runs]:
-        records += reference_run(
-            settings,
-            learner,
-            recorded[run],
-            grid,
-            planner,
-            one_step=one_step,
-            restarts=restarts,
-            particles=particles,
-            seed=seed + run,
-            resolution=resolution,
-        )
-        if progress is not None:
-            progress(run)
-        if settings.atlas() is not None:  # the plans solved between nodes, kept
-            settings.atlas().save()
-            interpolation.save_kept()  # and the particles' checked cells
-    by_t = [summary_at(records, t) for t in sorted({r["iteration"] for r in records})]
-    moved = None
-    if check_grid:
-        fine = grid.halved()
-        first = sorted(recorded)[0]
-        coarse = [r for r in records if r["run"] == first]
-        finer = reference_run(
-            settings, learner, recorded[first], fine, planner, resolution=resolution
-        )
-        pairs = list(zip(coarse, finer, strict=True))
-        k = settings.study.k
-        worst_mean = max(
-            abs(a[f"ref_theta_{i}"] - b[f"ref_theta_{i}"]) / np.sqrt(b[f"ref_cov_{i}{i}"])
-            for a, b in pairs
-            for i in range(k)
-        )
-        worst_cov = max(
-            abs(a[f"ref_cov_{i}{i}"] - b[f"ref_cov_{i}{i}"]) / b[f"ref_cov_{i}{i}"]
-            for a, b in pairs
-            for i in range(k)
-        )
-        moved = (grid.points, fine.points, worst_mean, worst_cov)
-    return Judged(learner, records, by_t, moved)
+    options = {
+        "one_step": one_step,
+        "restarts": tuple(restarts),
+        "particles": particles,
+        "seed": seed,
+        "resolution": resolution,
+    }
+    check_reference(
+        settings, learner, grid, particles=particles, one_step=one_step, restarts=restarts,
+        resolution=resolution,
+    )  # fmt: skip
+    rows = {run: recorded[run] for run in sorted(recorded)[:runs]}
+    return ReferenceJob(figure, settings, learner, rows, grid, options, check_grid)
 
 
-def write_judged(folder: Path, judged: Judged) -> list[Path]:
-    """``reference-<learner>.csv`` (every record) and ``.json`` (the final summary and every
-    iteration's) in ``folder``."""
-    from corrections_sim.figures.output import write_records
+def judge_run(job: ReferenceJob, run: int) -> list[dict]:
+    """The records of ``job``'s run ``run`` (safe in a worker process): the plans it solved
+    between the atlas's nodes and the particles' checked cells are kept for the next."""
+    from corrections_sim.planning.planner import shared_planner
+    from corrections_sim.plans import interpolation
 
-    csv_path = write_records(folder / f"reference-{judged.learner}.csv", judged.records)
-    json_path = folder / f"reference-{judged.learner}.json"
-    final = judged.by_iteration[-1]
-    json_path.write_text(
-        json.dumps(
-            {"learner": judged.learner, **final, "by_iteration": judged.by_iteration}, indent=1
-        )
-        + "\n"
+    settings = job.settings
+    planner = shared_planner(settings.planner_config())
+    options = {**job.options, "seed": job.options["seed"] + run}
+    records = reference_run(settings, job.learner, job.rows[run], job.grid, planner, **options)
+    if settings.atlas() is not None:  # the plans solved between nodes, kept
+        settings.atlas().save()
+        interpolation.save_kept()  # and the particles' checked cells
+    return records
+
+
+def grid_check(job: ReferenceJob, first: list[dict]) -> tuple[int, int, float, float]:
+    """How much the first run's reference (its records ``first``) moves on the halved grid:
+    points per axis before and after, the largest move of a mean in its sd and of a
+    variance, relative."""
+    from corrections_sim.planning.planner import shared_planner
+
+    settings, fine = job.settings, job.grid.halved()
+    planner = shared_planner(settings.planner_config())
+    rows = job.rows[min(job.rows)]
+    finer = reference_run(
+        settings, job.learner, rows, fine, planner, resolution=job.options["resolution"]
     )
-    return [csv_path, json_path]
+    pairs = list(zip(first, finer, strict=True))
+    k = settings.study.k
+    worst_mean = max(
+        abs(a[f"ref_theta_{i}"] - b[f"ref_theta_{i}"]) / np.sqrt(b[f"ref_cov_{i}{i}"])
+        for a, b in pairs
+        for i in range(k)
+    )
+    worst_cov = max(
+        abs(a[f"ref_cov_{i}{i}"] - b[f"ref_cov_{i}{i}"]) / b[f"ref_cov_{i}{i}"]
+        for a, b in pairs
+        for i in range(k)
+    )
+    return job.grid.points, fine.points, worst_mean, worst_cov
+
+
+def judged(job: ReferenceJob, by_run: dict[int, list[dict]], moved=None) -> Judged:
+    """What ``job`` found, from every run's records ``by_run`` (in run order)."""
+    records = [r for run in sorted(by_run) for r in by_run[run]]
+    by_t = [summary_at(records, t) for t in sorted({r["iteration"] for r in records})]
+    return Judged(job.learner, records, by_t, moved)
 
 
 def report_lines(judged: Judged, particles: int = 0) -> list[str]:

@@ -9,17 +9,21 @@ from pathlib import Path
 
 
 def calibration_figure(folder: Path) -> Path:
-    """The calibration figure from the reference summaries in ``folder`` (``<figure>-<learner>
-    .json``, as in ``results/reference_posterior``, each with its ``by_iteration``): per
-    figure, every learner's NEES / reference NEES and the Gaussian part of ``ref_kl``
-    against t. Writes ``calibration.png`` there."""
+    """The calibration figure from the reference summaries in ``folder``: a finished figure's
+    ``reference-<learner>/summary.json`` (``run reference``'s), or collected ones,
+    ``<figure>-<learner>.json`` as in ``results/reference_posterior``, each with its
+    ``by_iteration``: per figure, every learner's NEES / reference NEES and the Gaussian part
+    of ``ref_kl`` against t. Writes ``calibration.png`` there."""
 
     panels: dict[str, dict] = {}
-    for path in sorted(folder.glob("*.json")):
+    for path in sorted([*folder.glob("*.json"), *folder.glob("reference-*/summary.json")]):
         data = json.loads(path.read_text())
         if "by_iteration" not in data:
             continue
-        figure = path.stem.removesuffix(f"-{data['learner']}")
+        if path.name == "summary.json":  # a reference's folder: its settings name the figure
+            figure = data["settings"]["figure"]
+        else:
+            figure = path.stem.removesuffix(f"-{data['learner']}")
         panels.setdefault(figure, {})[data["learner"]] = data["by_iteration"]
     if not panels:
         raise ValueError(f"{folder}: no reference summaries with by_iteration in it")
@@ -66,6 +70,9 @@ def plot_reference_calibration(panels: dict, title: str, paths) -> None:
         for ax in (top, bottom):
             ax.grid(alpha=0.3)
         top.legend(fontsize=7)
-    fig.suptitle(title, fontsize=9)
+    import textwrap
+
+    # One column is narrower than the title: it wraps rather than runs off the page.
+    fig.suptitle(textwrap.fill(title, 60 * len(columns)), fontsize=9)
     fig.tight_layout()
     save_and_close(fig, paths, dpi=130)

@@ -35,6 +35,7 @@ BUILT_IN = (
     "corrections_sim.figures.physical",
     "corrections_sim.figures.relevance",
     "corrections_sim.figures.ferl",
+    "corrections_sim.figures.reference_figure",
 )
 
 #: Options every figure takes (the command line's own: where, how big, which executor).
@@ -85,7 +86,12 @@ class Figure(Protocol):
         ...
 
     # Optional: ``upgrade_recorded(old) -> dict``, settings recorded by an older version in
-    # today's form (the command line compares them with :meth:`recorded`'s).
+    # today's form (the command line compares them with :meth:`recorded`'s);
+    # ``default_out(settings) -> Path``, where its folder goes without ``--out`` (inside the
+    # figure a reference judges); ``lines(settings, result) -> list[str]``, what it prints
+    # once its files are written; ``file`` and ``option_help``, its FILE and its options'
+    # help where they differ from the catalogue's; a ``preset`` field on its settings, the
+    # preset its summary records (default: ``--quick``'s).
 
     def run(
         self, settings: Any, executor: Executor, progress: Progress, cache: Caches | None

@@ -49,6 +49,8 @@ def figure_commands() -> dict[str, Command]:
             run=lambda args: run_figure(args, figure),
             help=figure.help,
             options=(*COMMON_OPTIONS, *figure.options),
+            file=getattr(figure, "file", "FILE"),
+            option_help=getattr(figure, "option_help", {}),
         )
 
     return {name: command(name, figure) for name, figure in figures().items()}
@@ -133,11 +135,14 @@ def run_figure(args: argparse.Namespace, figure) -> list[Path]:
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     _check_executor_options(args)
-    out = out_dir(args)
+    beside = getattr(figure, "default_out", None)  # a figure that goes inside another's folder
+    out = beside(settings) if beside is not None and args.out is None else out_dir(args)
     name = figure.folder(settings)
     final = out / name
     recorded = figure.recorded(settings, quick=args.quick)
-    notice = check_replace(args, final, name, recorded, getattr(figure, "upgrade_recorded", None))
+    preset = getattr(settings, "preset", None) or ("quick" if args.quick else "paper")
+    upgrade = getattr(figure, "upgrade_recorded", None)
+    notice = check_replace(args, final, name, recorded, upgrade, preset=preset)
     t0 = time.perf_counter()
     with contextlib.ExitStack() as stack:
         # The cluster is reached (or the pool started) before anything is written.
@@ -183,7 +188,7 @@ def run_figure(args: argparse.Namespace, figure) -> list[Path]:
         fields = figure.write(settings, result, staging)
         summary = {
             "figure": name,
-            "preset": "quick" if args.quick else "paper",
+            "preset": preset,
             "settings": recorded,
             "executor": where,
             "versions": provenance.versions(),
@@ -195,4 +200,6 @@ def run_figure(args: argparse.Namespace, figure) -> list[Path]:
         summary.update(provenance.record(args.argv))
         (staging / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
         names = sorted(p.name for p in staging.iterdir())
+    for line in getattr(figure, "lines", lambda *_: [])(settings, result):
+        print(line)  # what the figure reports on the standard output (the reference's table)
     return [final / name for name in names]

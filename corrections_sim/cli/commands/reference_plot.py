@@ -1,5 +1,5 @@
 """``reference-plot``: the calibration figure of the exact references in a figure's folder
-(``reference-<learner>.json``, written by ``reference``).
+(its ``reference-<learner>/`` folders, written by ``reference``).
 
     python -m corrections_sim.run reference-plot results/fig4
 """
@@ -14,7 +14,8 @@ from corrections_sim.cli.errors import UsageError
 
 
 def run_reference_plot(args: argparse.Namespace) -> list[Path]:
-    """The calibration figure of every ``reference-*.json`` in the folder FILE."""
+    """The calibration figure of the references in the folder FILE (a figure's
+    ``reference-<learner>/`` folders, or collected ``<figure>-<learner>.json`` files)."""
     from corrections_sim.figures.reference_plot import calibration_figure
 
     if not args.study_file:
@@ -31,6 +32,9 @@ COMMAND = Command(
     help="the calibration figure of the references in a figure's folder",
     options=("study_file",),
     file="DIR",
-    option_help={"study_file": "a folder holding reference-<learner>.json files"},
+    option_help={
+        "study_file": "a figure's folder with reference-<learner>/ in it, or one of "
+        "collected <figure>-<learner>.json files (results/reference_posterior)"
+    },
     nothing_kept=wrote_nothing,
 )

@@ -1,0 +1,190 @@
+"""``reference`` as a registered figure: the exact reference of a finished figure's runs
+(:mod:`corrections_sim.figures.reference`) on the command line's executor, resumable run by
+run, written to a folder of its own inside the figure's, ``<figure>/reference-<learner>/``:
+
+    python -m corrections_sim.run reference results/quick/fig4 --learner KF-C --runs 2
+
+``records.csv`` (per run and iteration, see :func:`~.reference.reference_run`) and
+``summary.json`` (the settings, the last iteration's summary with 95% intervals over runs and
+every iteration's, under ``by_iteration``; the halved grid's check with ``--check-grid``). An
+earlier reference of other settings there is replaced only with ``--force``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Callable, Mapping
+from concurrent.futures import Executor, as_completed
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from corrections_sim.defaults import DEFAULTS
+from corrections_sim.figures import reference as judge
+from corrections_sim.figures.registry import Caches, register
+from corrections_sim.study.loop import RunResult
+
+
+@dataclass(frozen=True)
+class ReferenceSettings:
+    """A reference's settings: the finished figure's folder ``source`` and the job read from
+    it (:class:`~.reference.ReferenceJob`), with ``preset`` the figure's."""
+
+    source: Path
+    preset: str
+    job: judge.ReferenceJob
+
+    def as_dict(self) -> dict:
+        job = self.job
+        return {
+            "figure": job.figure,
+            "learner": job.learner,
+            "runs": sorted(job.rows),
+            "points": None if job.grid is None else job.grid.points,
+            **{k: list(v) if isinstance(v, tuple) else v for k, v in job.options.items()},
+            "check_grid": job.check_grid,
+        }
+
+
+class ReferenceFigure:
+    """The registered figure ``reference`` (module docstring)."""
+
+    name = "reference"
+    help = "the exact posterior beside a learner's Gaussian, for a finished figure's runs"
+    options = (
+        "study_file",
+        "learner",
+        "runs",
+        "points",
+        "resolution",
+        "one_step",
+        "restart",
+        "particles",
+        "seed",
+        "check_grid",
+    )
+    unit = "run"
+    in_all = False
+    file = "DIR"
+    option_help = {
+        "study_file": "a finished learning figure's folder (curves.csv, summary.json)",
+        "learner": f"whose runs to judge (default {DEFAULTS['reference'][0]})",
+        "runs": "how many runs (the first N; default 2)",
+        "seed": "the particle reference's seed (default 0; run r uses seed + r)",
+        "out": "where reference-<learner>/ goes (default: the figure's folder)",
+    }
+
+    def load(self, *, quick: bool, overrides: Mapping[str, Any]) -> ReferenceSettings:
+        if quick:
+            raise ValueError("--quick: a reference takes its preset from the figure's folder")
+        given = overrides.get("study_file")
+        if not given:
+            raise ValueError("reference: give a finished figure's folder, e.g. results/quick/fig4")
+        source = Path(given)
+        if not (source / "summary.json").is_file() or not (source / "curves.csv").is_file():
+            raise ValueError(f"{source}: not a finished learning figure's folder (no summary.json)")
+        restart = overrides.get("restart") or ""
+        try:
+            restarts = tuple(sorted({int(v) for v in restart.split(",") if v.strip()}))
+        except ValueError:
+            raise ValueError(f"--restart {restart}: expected iterations like 0,1,4") from None
+        try:
+            job = judge.reference_job(
+                source,
+                overrides.get("learner") or DEFAULTS["reference"][0],
+                runs=overrides.get("runs", 2),
+                points=overrides.get("points"),
+                restarts=restarts,
+                particles=overrides.get("particles") or 0,
+                seed=overrides.get("seed") or 0,
+                one_step=bool(overrides.get("one_step")),
+                resolution=overrides.get("resolution"),
+                check_grid=bool(overrides.get("check_grid")),
+            )
+            preset = json.loads((source / "summary.json").read_text()).get("preset", "paper")
+        except (OSError, KeyError) as exc:
+            raise ValueError(f"{source}: {exc}") from None
+        return ReferenceSettings(source, preset, job)
+
+    def default_out(self, settings: ReferenceSettings) -> Path:
+        """Where its folder goes without ``--out``: inside the figure's."""
+        return settings.source
+
+    def folder(self, settings: ReferenceSettings) -> str:
+        return f"reference-{settings.job.learner}"
+
+    def cache_keys(self, settings: ReferenceSettings) -> dict[str, dict]:
+        # A run's reference depends on the figure's settings and the learner's recorded rows
+        # (the code's fingerprint is added by the command line).
+        job = settings.job
+        rows = hashlib.sha256(json.dumps(job.rows, sort_keys=True).encode()).hexdigest()
+        recorded = {k: v for k, v in settings.as_dict().items() if k not in ("runs", "check_grid")}
+        return {"": {**recorded, "settings": job.settings.as_dict(), "rows": rows}}
+
+    def recorded(self, settings: ReferenceSettings, *, quick: bool) -> dict:
+        return settings.as_dict()
+
+    def run(
+        self,
+        settings: ReferenceSettings,
+        executor: Executor,
+        progress: Callable[[int, int], None] | None,
+        cache: Caches | None,
+    ) -> judge.Judged:
+        job = settings.job
+        store = (cache or {}).get("")
+        by_run: dict[int, list[dict]] = {}
+        if store is not None:
+            found = store.load_all()
+            by_run = {
+                r: list(found[(job.learner, r)].records)
+                for r in job.rows
+                if (job.learner, r) in found
+            }
+        total, done = len(job.rows), len(by_run)
+        if progress:
+            progress(done, total)
+        futures = {
+            executor.submit(judge.judge_run, job, run): run for run in job.rows if run not in by_run
+        }
+        for future in as_completed(futures):
+            run = futures[future]
+            by_run[run] = future.result()
+            if store is not None:
+                store.save(job.learner, run, RunResult(tuple(by_run[run]), np.zeros((0,)), 0))
+            done += 1
+            if progress:
+                progress(done, total)
+        moved = None
+        if job.check_grid:
+            first = min(by_run)
+            moved = executor.submit(judge.grid_check, job, by_run[first]).result()
+        return judge.judged(job, by_run, moved)
+
+    def write(self, settings: ReferenceSettings, result: judge.Judged, folder: Path) -> dict:
+        """``records.csv``; the summary's fields: the learner, the final iteration's summary,
+        every iteration's and the halved grid's check."""
+        from corrections_sim.figures.output import write_records
+
+        write_records(folder / "records.csv", result.records)
+        fields = {"learner": result.learner, **result.by_iteration[-1]}
+        fields["by_iteration"] = result.by_iteration
+        if result.grid_check is not None:
+            points, finer, mean, var = result.grid_check
+            fields["grid_check"] = {
+                "points": points,
+                "finer": finer,
+                "mean_moved_sd": mean,
+                "variance_moved": var,
+            }
+        return fields
+
+    def lines(self, settings: ReferenceSettings, result: judge.Judged) -> list[str]:
+        """The table of its means over runs, printed after the files are written."""
+        return judge.report_lines(result, settings.job.options["particles"])
+
+
+register(ReferenceFigure())
