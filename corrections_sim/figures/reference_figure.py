@@ -25,7 +25,135 @@ import numpy as np
 from corrections_sim.defaults import DEFAULTS
 from corrections_sim.figures import reference as judge
 from corrections_sim.figures.registry import Caches, register
+from corrections_sim.learning.exact.bayes import Grid
 from corrections_sim.study.loop import RunResult
+from corrections_sim.study.settings import FigureSettings
+
+
+@dataclass(frozen=True)
+class ReferenceJob:
+    """The exact reference of some runs of a learner in a finished figure, ready to run one
+    run at a time (:func:`judge_run`, in any process) and to summarize (:func:`judged`).
+
+    Attributes:
+        figure: the finished figure's name (its ``summary.json``'s).
+        settings: its settings.
+        learner: whose runs.
+        rows: the recorded rows of each run judged (``curves.csv``), by run.
+        grid: the reference's grid (None beyond k = 2: the particles are the reference).
+        options: :func:`~.reference.reference_run`'s keyword options (``seed`` is the first run's).
+        check_grid: whether the first run is judged again on the halved grid.
+    """
+
+    figure: str
+    settings: FigureSettings
+    learner: str
+    rows: dict[int, list[dict]]
+    grid: Grid | None
+    options: dict
+    check_grid: bool = False
+
+
+def reference_job(
+    folder: Path,
+    learner: str,
+    *,
+    runs: int = 2,
+    points: int | None = None,
+    restarts: tuple[int, ...] = (),
+    particles: int = 0,
+    seed: int = 0,
+    one_step: bool = False,
+    resolution: float | None = None,
+    check_grid: bool = False,
+) -> ReferenceJob:
+    """The reference of the first ``runs`` runs of ``learner`` in the finished figure in
+    ``folder`` (its ``summary.json`` and ``curves.csv``), checked before anything is solved:
+    see :func:`~.reference.reference_run` for the options.
+
+    Raises:
+        ValueError: one line, naming what does not fit (a learner not in the figure, an
+            option the learner's model or k cannot take).
+    """
+    from corrections_sim.study import schema
+
+    summary = json.loads((folder / "summary.json").read_text())
+    figure = summary.get("figure", "")
+    settings = schema.parse_study(summary["settings"], name=figure)
+    if learner not in settings.study.learners:
+        known = ", ".join(settings.study.learners)
+        raise ValueError(f"--learner {learner}: not in this figure ({known})")
+    recorded = judge.recorded_runs(folder, learner)
+    if any(s < 0 for s in restarts):
+        raise ValueError(f"--restart {','.join(map(str, restarts))}: iterations are >= 0")
+    if check_grid and settings.study.k != 2:
+        raise ValueError(f"--check-grid: the grid exists only for k = 2, not {settings.study.k}")
+    grid = judge.reference_grid(settings, points)
+    options = {
+        "one_step": one_step,
+        "restarts": tuple(restarts),
+        "particles": particles,
+        "seed": seed,
+        "resolution": resolution,
+    }
+    judge.check_reference(
+        settings, learner, grid, particles=particles, one_step=one_step, restarts=restarts,
+        resolution=resolution,
+    )  # fmt: skip
+    rows = {run: recorded[run] for run in sorted(recorded)[:runs]}
+    return ReferenceJob(figure, settings, learner, rows, grid, options, check_grid)
+
+
+def judge_run(job: ReferenceJob, run: int) -> list[dict]:
+    """The records of ``job``'s run ``run`` (safe in a worker process): the plans it solved
+    between the atlas's nodes and the particles' checked cells are kept for the next."""
+    from corrections_sim.planning.planner import shared_planner
+    from corrections_sim.plans import interpolation
+
+    settings = job.settings
+    planner = shared_planner(settings.planner_config())
+    options = {**job.options, "seed": job.options["seed"] + run}
+    records = judge.reference_run(
+        settings, job.learner, job.rows[run], job.grid, planner, **options
+    )
+    if settings.atlas() is not None:  # the plans solved between nodes, kept
+        settings.atlas().save()
+        interpolation.save_kept()  # and the particles' checked cells
+    return records
+
+
+def grid_check(job: ReferenceJob, first: list[dict]) -> tuple[int, int, float, float]:
+    """How much the first run's reference (its records ``first``) moves on the halved grid:
+    points per axis before and after, the largest move of a mean in its sd and of a
+    variance, relative."""
+    from corrections_sim.planning.planner import shared_planner
+
+    settings, fine = job.settings, job.grid.halved()
+    planner = shared_planner(settings.planner_config())
+    rows = job.rows[min(job.rows)]
+    finer = judge.reference_run(
+        settings, job.learner, rows, fine, planner, resolution=job.options["resolution"]
+    )
+    pairs = list(zip(first, finer, strict=True))
+    k = settings.study.k
+    worst_mean = max(
+        abs(a[f"ref_theta_{i}"] - b[f"ref_theta_{i}"]) / np.sqrt(b[f"ref_cov_{i}{i}"])
+        for a, b in pairs
+        for i in range(k)
+    )
+    worst_cov = max(
+        abs(a[f"ref_cov_{i}{i}"] - b[f"ref_cov_{i}{i}"]) / b[f"ref_cov_{i}{i}"]
+        for a, b in pairs
+        for i in range(k)
+    )
+    return job.grid.points, fine.points, worst_mean, worst_cov
+
+
+def judged(job: ReferenceJob, by_run: dict[int, list[dict]], moved=None) -> judge.Judged:
+    """What ``job`` found, from every run's records ``by_run`` (in run order)."""
+    records = [r for run in sorted(by_run) for r in by_run[run]]
+    by_t = [judge.summary_at(records, t) for t in sorted({r["iteration"] for r in records})]
+    return judge.Judged(job.learner, records, by_t, moved)
 
 
 @dataclass(frozen=True)
@@ -35,7 +163,7 @@ class ReferenceSettings:
 
     source: Path
     preset: str
-    job: judge.ReferenceJob
+    job: ReferenceJob
 
     def as_dict(self) -> dict:
         job = self.job
@@ -92,7 +220,7 @@ class ReferenceFigure:
         except ValueError:
             raise ValueError(f"--restart {restart}: expected iterations like 0,1,4") from None
         try:
-            job = judge.reference_job(
+            job = reference_job(
                 source,
                 overrides.get("learner") or DEFAULTS["reference"][0],
                 runs=overrides.get("runs", 2),
@@ -148,7 +276,7 @@ class ReferenceFigure:
         if progress:
             progress(done, total)
         futures = {
-            executor.submit(judge.judge_run, job, run): run for run in job.rows if run not in by_run
+            executor.submit(judge_run, job, run): run for run in job.rows if run not in by_run
         }
         for future in as_completed(futures):
             run = futures[future]
@@ -161,8 +289,8 @@ class ReferenceFigure:
         moved = None
         if job.check_grid:
             first = min(by_run)
-            moved = executor.submit(judge.grid_check, job, by_run[first]).result()
-        return judge.judged(job, by_run, moved)
+            moved = executor.submit(grid_check, job, by_run[first]).result()
+        return judged(job, by_run, moved)
 
     def write(self, settings: ReferenceSettings, result: judge.Judged, folder: Path) -> dict:
         """``records.csv``; the summary's fields: the learner, the final iteration's summary,
