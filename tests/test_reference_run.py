@@ -81,6 +81,22 @@ def test_a_reference_of_other_settings_replaces_an_earlier_one_only_with_force(f
     assert (folder / "summary.json").read_bytes() == before["summary.json"]
 
 
+def test_reference_plot_reads_a_figures_references_and_collected_ones(figure, tmp_path):
+    """``reference-plot`` reads a figure's ``reference-<learner>/summary.json`` (the panel
+    named by the figure its settings name) and collected ``<figure>-<learner>.json`` files."""
+    from corrections_sim.figures.reference_plot import reference_panels
+
+    argv = ["reference", str(figure), "--learner", "KF-C", "--runs", "1", "--points", "9"]
+    assert cli.main([*argv, "--force"]) == 0
+    summary = json.loads((figure / "reference-KF-C" / "summary.json").read_text())
+    panels = reference_panels(figure)
+    assert panels["tiny"]["KF-C"] == summary["by_iteration"]
+    (tmp_path / "fig9-KF-C.json").write_text(json.dumps(summary))
+    assert reference_panels(tmp_path) == {"fig9": {"KF-C": summary["by_iteration"]}}
+    assert cli.main(["reference-plot", str(figure)]) == 0
+    assert (figure / "calibration.png").stat().st_size > 10_000
+
+
 def test_a_learner_the_figure_did_not_run_is_one_line(figure, capsys):
     assert cli.main(["reference", str(figure), "--learner", "KF"]) == 2
     err = capsys.readouterr().err

@@ -15,6 +15,20 @@ def calibration_figure(folder: Path) -> Path:
     ``by_iteration``: per figure, every learner's NEES / reference NEES and the Gaussian part
     of ``ref_kl`` against t. Writes ``calibration.png`` there."""
 
+    panels = reference_panels(folder)
+    if not panels:
+        raise ValueError(f"{folder}: no reference summaries with by_iteration in it")
+    runs = sorted({rows[-1]["runs"] for learners in panels.values() for rows in learners.values()})
+    out = folder / "calibration.png"
+    title = "Each learner against exact Bayes under its own model (95% intervals over "
+    plot_reference_calibration(panels, f"{title}{'/'.join(map(str, runs))} runs)", [out])
+    return out
+
+
+def reference_panels(folder: Path) -> dict[str, dict[str, list[dict]]]:
+    """figure -> learner -> its reference's summaries by iteration, from ``folder``'s
+    ``reference-<learner>/summary.json`` (the figure named in their settings) and collected
+    ``<figure>-<learner>.json`` files."""
     panels: dict[str, dict] = {}
     for path in sorted([*folder.glob("*.json"), *folder.glob("reference-*/summary.json")]):
         data = json.loads(path.read_text())
@@ -25,13 +39,7 @@ def calibration_figure(folder: Path) -> Path:
         else:
             figure = path.stem.removesuffix(f"-{data['learner']}")
         panels.setdefault(figure, {})[data["learner"]] = data["by_iteration"]
-    if not panels:
-        raise ValueError(f"{folder}: no reference summaries with by_iteration in it")
-    runs = sorted({rows[-1]["runs"] for learners in panels.values() for rows in learners.values()})
-    out = folder / "calibration.png"
-    title = "Each learner against exact Bayes under its own model (95% intervals over "
-    plot_reference_calibration(panels, f"{title}{'/'.join(map(str, runs))} runs)", [out])
-    return out
+    return panels
 
 
 def plot_reference_calibration(panels: dict, title: str, paths) -> None:
