@@ -58,7 +58,10 @@ class WarmProblem:
 
 
 def capture(runs: int, seed: int, learners: Sequence[str] = LEARNERS) -> list[WarmProblem]:
-    """The warm problems of ``runs`` runs of fig. 4 (12 corrections, ``learners``)."""
+    """The warm problems of ``runs`` runs of fig. 4 (12 corrections, ``learners``), without
+    its plan atlas: a run's plan book warm-starts each plan from the nearest θ it solved (the
+    path of every study without an atlas, of sessions and of the quick presets); with the
+    atlas, fig. 4 asks the atlas and meets no warm problem."""
     from corrections_sim.figures import learning_study
     from corrections_sim.study import runner
 
@@ -77,7 +80,13 @@ def capture(runs: int, seed: int, learners: Sequence[str] = LEARNERS) -> list[Wa
             )
         return original(book, theta, env)
 
-    overrides = {"runs": runs, "iterations": 12, "seed": seed, "learners": list(learners)}
+    overrides = {
+        "runs": runs,
+        "iterations": 12,
+        "seed": seed,
+        "learners": list(learners),
+        "atlas": False,
+    }
     settings = learning_study.load_settings("fig4", quick=False, overrides=overrides)
     plans.PlanBook._solve = watched
     try:
@@ -85,6 +94,8 @@ def capture(runs: int, seed: int, learners: Sequence[str] = LEARNERS) -> list[Wa
             runner.run(settings, executor, mean_estimate=False)
     finally:
         plans.PlanBook._solve = original
+    if not found:
+        raise RuntimeError("capture: fig. 4's runs met no warm problem (is warm_start off?)")
     return found
 
 
