@@ -246,7 +246,7 @@ def reference_run(
         refine = ref.Refinement(2.0 if resolution is None else resolution, cut=13.8)
         # One level finer than an exact learner may go: at twice its resolution, it is at
         # half its finest spacing.
-        depth = getattr(model, "max_level", 4) + 1
+        depth = likelihood.max_level + 1
         cells = Cells.base(box.lows, box.highs, box.counts, depth)
         thetas = cells.thetas()
         log_p = ref.gaussian_log_prior(thetas, study.prior())

@@ -121,10 +121,13 @@ class Likelihood:
             N / β̂ with β̂ as the learner judged it; "relevance-person", θ with the
             person's rate and precision.
         correction: C in hₜ(θ) = Φ(C(ξᵗ, ξ*(θ, E))); None: h(θ) = Φ(ξ*(θ, E)) itself.
+        max_level: how many times the learner itself cuts an atlas cell in half (an exact
+            learner's ``max_level``; 4 for the others): a refined reference goes one finer.
     """
 
     kind: str
     correction: CorrectionModel | None = None
+    max_level: int = 4
 
 
 class Learner(abc.ABC):

@@ -20,13 +20,14 @@ refines the same way, at twice the resolution.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 
 from corrections_sim.belief import Belief, KalmanNoise, floored, symmetrize
 from corrections_sim.components import ParameterError
-from corrections_sim.learning.base import LearnerContext, Step
+from corrections_sim.learning.base import LearnerContext, Likelihood, Step
 from corrections_sim.learning.exact import bayes as ref
 from corrections_sim.learning.exact.cells import Cells
 from corrections_sim.learning.exact.state import ExactState, GridPosterior
@@ -70,6 +71,9 @@ class ExactCorrectionAware(CorrectionAwareKalman):
         require_count("max_level", self.max_level, 0)
         if not (isinstance(self.cut, int | float) and 0 < self.cut < np.inf):
             raise ParameterError("cut", f"must be a number > 0, got {self.cut!r}")
+
+    def likelihood(self) -> Likelihood:
+        return dataclasses.replace(super().likelihood(), max_level=self.max_level)
 
     def initial(self, belief: Belief, noise: KalmanNoise) -> Belief:
         prior = PriorEntry(belief.theta, belief.cov)  # what a refined grid weighs again
