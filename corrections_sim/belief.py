@@ -107,6 +107,12 @@ class FamilyState:
     What every consumer may ask of any state is here, with the answers of a family that
     keeps nothing."""
 
+    @classmethod
+    def of(cls, belief: Belief):
+        """This family's state in ``belief``, or a fresh one (its fields' defaults) for a
+        belief the family did not make (the study's prior)."""
+        return belief.state if isinstance(belief.state, cls) else cls()
+
     def check(self, k: int) -> None:
         """Raise ``ValueError``, naming the field, if it does not fit a belief over ``k``
         weights."""

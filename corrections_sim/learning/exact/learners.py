@@ -86,7 +86,7 @@ class ExactCorrectionAware(CorrectionAwareKalman):
         atlas = ctx.book.atlas
         if atlas is None:
             raise ValueError(f"{type(self).__name__}: needs the study's plan atlas (atlas = true)")
-        state = belief.state if isinstance(belief.state, ExactState) else ExactState()
+        state = ExactState.of(belief)
         history = state.history or (PriorEntry(belief.theta, belief.cov),)
         noise_prior = state.noise  # N's prior, kept as the run started (EX-CL)
         before = state.grid

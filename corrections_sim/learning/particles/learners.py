@@ -132,7 +132,7 @@ class ParticleCorrectionAware(CorrectionAwareKalman):
         self, ctx: LearnerContext, belief: Belief, env: Environment, plan: Plan, phi_h: np.ndarray
     ) -> Step:
         rng = ctx.rng.spawn(1)[0]
-        state = belief.state if isinstance(belief.state, ParticleState) else ParticleState()
+        state = ParticleState.of(belief)
         first = state.history[0] if state.history else PriorEntry(belief.theta, belief.cov)
         prior = Belief(theta=first.theta, cov=first.cov)
         cloud = state.particles or particles_draw(prior, self.particles, rng)

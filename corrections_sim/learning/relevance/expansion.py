@@ -110,7 +110,7 @@ class ExpandingRelevanceKalman(PersonRelevanceKalman):
         ``env``, learn the feature, and go on over k + 1 features: its weight
         N(0, ``expand_variance``) beside the belief so far; from then on the person's
         corrections are taken as relevant (see :meth:`update`)."""
-        state = self._state(belief)
+        state = RelevanceState.of(belief)
         if state.history and not state.asked and ctx.corrected is not None:
             shown = ShownEntry(env, plan.trajectory, np.asarray(ctx.corrected, float))
             history = (*state.history, shown)
@@ -129,7 +129,7 @@ class ExpandingRelevanceKalman(PersonRelevanceKalman):
     def wants_traces(self, belief: Belief, corrections: int) -> int:
         """How many feature traces it asks for after ``corrections`` corrections with
         ``belief`` (0: none; it asks once)."""
-        state = self._state(belief)
+        state = RelevanceState.of(belief)
         due = (
             self.expand_traces > 0
             and not state.asked
@@ -140,7 +140,7 @@ class ExpandingRelevanceKalman(PersonRelevanceKalman):
         return self.expand_traces if due else 0
 
     def declined(self, belief: Belief) -> Belief:
-        state = dataclasses.replace(self._state(belief), asked=True, history=())
+        state = dataclasses.replace(RelevanceState.of(belief), asked=True, history=())
         return dataclasses.replace(belief, state=state)
 
     def grow(
@@ -161,7 +161,7 @@ class ExpandingRelevanceKalman(PersonRelevanceKalman):
         start = time.process_time()
         learnt = learn(traces, env, rng, network=self.network())
         name = register_learnt(learnt)
-        first, *past = self._state(belief).history or (PriorEntry(belief.theta, belief.cov),)
+        first, *past = RelevanceState.of(belief).history or (PriorEntry(belief.theta, belief.cov),)
         theta0, cov0 = first.theta, first.cov
         k = len(theta0)
         cov = np.zeros((k + 1, k + 1))
@@ -229,7 +229,7 @@ def columns(belief, step: Step | None, learnt: dict, k: int) -> dict:
     expanded (and at which correction), the learnt feature's quality against the person's
     (Spearman ρ, R² of the best affine fit), its weight θ̂ and the weight the person's maps
     to through that fit (θ*·a), for every record after it expanded."""
-    asked = isinstance(belief.state, RelevanceState) and belief.state.asked
+    asked = RelevanceState.of(belief).asked
     if not (asked or (step is not None and step.expansion is not None)):
         return {}
     out: dict = {"asked": float(asked), "expanded": float(bool(belief.extra))}

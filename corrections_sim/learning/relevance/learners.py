@@ -181,7 +181,7 @@ class PersonRelevanceKalman(CorrectionAwareKalman):
     def update(
         self, ctx: LearnerContext, belief: Belief, env: Environment, plan: Plan, phi_h: np.ndarray
     ) -> Step:
-        state = self._state(belief)
+        state = RelevanceState.of(belief)
         person = state.person or self.person()
         prior = Belief(theta=belief.theta, cov=belief.cov)
         if ctx.corrected is None:  # nothing to judge: the prior rate
@@ -227,11 +227,6 @@ class PersonRelevanceKalman(CorrectionAwareKalman):
         there (None: nothing; KF-CRP learns no feature, KF-CRX does,
         :mod:`~corrections_sim.learning.relevance.expansion`)."""
         return belief, None
-
-    @staticmethod
-    def _state(belief: Belief) -> RelevanceState:
-        """Its own state in ``belief`` (a fresh one for a belief it did not make)."""
-        return belief.state if isinstance(belief.state, RelevanceState) else RelevanceState()
 
 
 @functools.lru_cache(maxsize=16)
