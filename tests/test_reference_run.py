@@ -81,6 +81,33 @@ def test_a_reference_of_other_settings_replaces_an_earlier_one_only_with_force(f
     assert (folder / "summary.json").read_bytes() == before["summary.json"]
 
 
+def test_a_kept_reference_run_is_not_reused_for_other_recorded_rows(figure, tmp_path):
+    """The reference's runs are kept under ``<figure>/.runs/`` keyed by the figure's
+    settings, the options, the code and the learner's recorded rows: a figure whose rows
+    changed (here θ̂ after the first correction, as another version of a learner would
+    record) gets its reference computed again, not the kept one."""
+    import shutil
+
+    copy = tmp_path / "tiny"
+    shutil.copytree(figure, copy, ignore=shutil.ignore_patterns("reference-*", ".runs"))
+    argv = ["reference", str(copy), "--learner", "KF-C", "--runs", "1", "--points", "9"]
+    assert cli.main(argv) == 0
+    first = (copy / "reference-KF-C" / "records.csv").read_text()
+    with open(copy / "curves.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    moved = next(r for r in rows if r["learner"] == "KF-C" and r["iteration"] == "1")
+    moved["theta_0"] = repr(float(moved["theta_0"]) + 0.5)  # the plan shown next moves
+    with open(copy / "curves.csv", "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    assert cli.main(argv) == 0
+    again = (copy / "reference-KF-C" / "records.csv").read_text()
+    assert again != first  # recomputed from the new rows, not loaded
+    keys = [d for d in (copy / ".runs" / "reference-KF-C").iterdir() if d.is_dir()]
+    assert len(keys) == 2  # one kept set of runs for each set of recorded rows
+
+
 def test_reference_plot_reads_a_figures_references_and_collected_ones(figure, tmp_path):
     """``reference-plot`` reads a figure's ``reference-<learner>/summary.json`` (the panel
     named by the figure its settings name) and collected ``<figure>-<learner>.json`` files."""
