@@ -124,3 +124,31 @@ def test_users_use_the_same_corrections():
         BiasedUser(waypoints=5).corrected_trajectory(robot, intended)  # 4 free waypoints
     with pytest.raises(ValueError, match="step: must lie in"):
         DeformingUser(step=2.0)
+
+
+@pytest.mark.parametrize(
+    "name, params",
+    [
+        ("waypoint", {}),
+        ("waypoint", {"step": 0.5, "waypoints": 3}),
+        ("deform", {}),
+        ("deform", {"step": 0.3}),
+        ("optimal", {}),
+    ],
+)
+def test_a_model_corrects_many_plans_at_once_with_the_same_bits(name, params):
+    """An exact learner weighs a correction at thousands of nodes through ``apply_many``; its
+    answer must be ``apply``'s on each, bit for bit (ties between waypoints included: plans
+    equal to the robot's, or moved alike), or a committed curve would move."""
+    rng = np.random.default_rng(7)
+    model = build(CORRECTIONS, name, params, where="model")
+    for _ in range(50):
+        robot = rng.normal(size=(12, 7))
+        scale = rng.choice([0.0, 1e-3, 1.0], size=(40, 1, 1))
+        plans = robot[None] + scale * rng.normal(size=(40, 12, 7))
+        plans[:, [0, -1]] = robot[[0, -1]]
+        many = model.apply_many(robot, plans)
+        assert many.shape == plans.shape
+        assert np.array_equal(many, np.stack([model.apply(robot, p) for p in plans]))
+    with pytest.raises(ValueError, match=r"\(m, T, n\)"):
+        model.apply_many(robot, plans[0])

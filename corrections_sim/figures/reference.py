@@ -103,7 +103,8 @@ def _filter_step(model, grid_model, study, book: PlanBook, env, robot, z, start,
 
 
 def grid_observations(plans: np.ndarray, robot: np.ndarray, correct, env, names) -> np.ndarray:
-    """h(θ) at every grid point (n, k): Φ of ``correct(robot, ξ*(θ))``, NaN where the grid
+    """h(θ) at every grid point (n, k): Φ of ``correct(robot, ξ*(θ)…)`` (every plan at once),
+    NaN where the grid
     has no plan (:func:`~corrections_sim.learning.observation.features_at_plans`)."""
     return features_at_plans(plans, robot, correct, env, names)
 
@@ -252,7 +253,7 @@ def reference_run(
         log_p = ref.gaussian_log_prior(thetas, study.prior())
         grid_model = kind(learner, likelihood, model, study, thetas, log_p)
     c = likelihood.correction
-    correct = c.apply if c is not None else (lambda r, x: x)
+    correct = c.apply_many if c is not None else (lambda r, x: np.asarray(x, float))
     restarted: dict[int, Belief] = {}
     if engine is not None:
         cloud = engine.initial(study.prior(), study.noise())

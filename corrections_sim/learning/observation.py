@@ -60,11 +60,15 @@ class Observation(abc.ABC):
         """h at given plans instead of a book's: ``plans`` (n, T, 7) stand for ξ*(θ, E) at n
         values of θ (a grid's, an atlas's), NaN where there is none; returns (n, k), NaN
         there. The features of every trajectory in one call."""
-        return features_at_plans(plans, robot, self.shown, env, names)
+        return features_at_plans(plans, robot, self.shown_many, env, names)
 
     def shown(self, robot: np.ndarray | None, plan: np.ndarray) -> np.ndarray:
         """The trajectory whose features h is, given the plan ξ*(θ, E) (the plan itself)."""
         return plan
+
+    def shown_many(self, robot: np.ndarray | None, plans: np.ndarray) -> np.ndarray:
+        """:meth:`shown` for many plans (n, T, 7) at once, the same bits."""
+        return np.asarray(plans, float)
 
     def at_waypoints(
         self,
@@ -108,6 +112,11 @@ class CorrectedPlanFeatures(Observation):
             raise ValueError("a correction model's observation needs the robot's trajectory")
         return self.model.apply(robot, plan)
 
+    def shown_many(self, robot, plans) -> np.ndarray:
+        if robot is None:
+            raise ValueError("a correction model's observation needs the robot's trajectory")
+        return self.model.apply_many(robot, plans)
+
     def at_waypoints(self, plans, features, robot, env, names) -> np.ndarray:
         if robot is None:
             raise ValueError("a correction model's observation needs the robot's trajectory")
@@ -134,15 +143,16 @@ class CorrectedPlanFeatures(Observation):
         return h
 
 
-def features_at_plans(plans: np.ndarray, robot, shown, env: Environment, names) -> np.ndarray:
-    """Φ(shown(robot, ξ)) for each of ``plans`` (n, T, 7), (n, k); NaN rows where a plan is
-    NaN. The features of every shown trajectory in one call."""
+def features_at_plans(plans: np.ndarray, robot, shown_many, env: Environment, names) -> np.ndarray:
+    """Φ(shown) for each of ``plans`` (n, T, 7), (n, k), the shown trajectories
+    ``shown_many(robot, plans)`` of every finite plan at once; NaN rows where a plan is NaN.
+    The features of every shown trajectory in one call."""
     plans = np.asarray(plans, float)
     n, T = plans.shape[:2]
     finite = np.all(np.isfinite(plans), axis=(1, 2))
     out = np.full((n, len(names)), np.nan)
     if finite.any():
-        stacked = np.stack([shown(robot, p) for p in plans[finite]])
+        stacked = shown_many(robot, plans[finite])
         per_waypoint = waypoint_features(stacked.reshape(-1, 7), env.params(), names)
         out[finite] = per_waypoint.reshape(-1, T, len(names)).sum(axis=1)
     return out

@@ -43,6 +43,29 @@ def _check_pair(robot, intended) -> tuple[np.ndarray, np.ndarray]:
     return robot, intended
 
 
+def _many(robot, intended) -> tuple[np.ndarray, np.ndarray]:
+    """One robot trajectory (T, n) and many intended ones (m, T, n), checked."""
+    robot = np.asarray(robot, dtype=float)
+    intended = np.asarray(intended, dtype=float)
+    if intended.ndim != 3 or intended.shape[1:] != robot.shape or robot.ndim != 2:
+        raise ValueError(
+            f"robot {robot.shape} and intended {intended.shape}: expected (T, n) and (m, T, n)"
+        )
+    _check_pair(robot, intended[0] if len(intended) else robot)
+    return robot, intended
+
+
+def _worst_mask(robot: np.ndarray, intended: np.ndarray, count: int) -> np.ndarray:
+    """(m, T) bool: the ``count`` free waypoints of each intended (m, T, n) farthest from the
+    robot's (T, n), ties to the lower index — :func:`worst_waypoints` for many at once."""
+    errors = np.linalg.norm(intended - robot[None], axis=2)
+    errors[:, 0] = errors[:, -1] = -np.inf  # start and goal are fixed
+    order = np.argsort(-errors, axis=1, kind="stable")[:, :count]
+    mask = np.zeros(errors.shape, bool)
+    np.put_along_axis(mask, order, True, axis=1)
+    return mask
+
+
 def _check_step(step: float) -> float:
     if isinstance(step, bool) or not (
         isinstance(step, int | float | np.number) and 0.0 < float(step) <= 1.0
@@ -179,6 +202,12 @@ class CorrectionModel(abc.ABC):
     def apply(self, robot: np.ndarray, intended: np.ndarray) -> np.ndarray:
         """ξ_h (T, n) for the robot's ξ (T, n) and the intended ξ* (T, n)."""
 
+    def apply_many(self, robot: np.ndarray, intended: np.ndarray) -> np.ndarray:
+        """ξ_h (n, T, n_j) for one robot's ξ (T, n_j) and many intended ξ* (n, T, n_j): what
+        an exact learner weighs at every node of its grid. By default :meth:`apply` on each;
+        a model may answer all at once, but with the same bits as :meth:`apply`'s."""
+        return np.stack([self.apply(robot, one) for one in np.asarray(intended, float)])
+
     def check(self, n_waypoints: int) -> None:
         """Refuse parameters that do not fit trajectories of ``n_waypoints`` waypoints
         (called once the planner's T is known, before anything runs)."""
@@ -240,17 +269,20 @@ class WaypointCorrection(CorrectionModel):
     def apply(self, robot: np.ndarray, intended: np.ndarray) -> np.ndarray:
         return waypoint_correction(robot, intended, self.step, self.waypoints)
 
+    def apply_many(self, robot: np.ndarray, intended: np.ndarray) -> np.ndarray:
+        """:func:`waypoint_correction` toward each of ``intended`` (n, T, n_j) at once, the
+        same operations element by element (so the same bits)."""
+        robot, intended = _many(robot, intended)
+        self.check(robot.shape[0])
+        mask = _worst_mask(robot, intended, self.waypoints)
+        return np.where(mask[:, :, None], robot[None] + self.step * (intended - robot[None]), robot)
+
     def taken(self, robot: np.ndarray, intended: np.ndarray) -> np.ndarray | None:
         """The worst ``waypoints`` of each ξ*, when the step is whole (ties to the lower
         index, as :func:`worst_waypoints`)."""
         if self.step != 1.0:
             return None
-        errors = np.linalg.norm(np.asarray(intended, float) - robot[None], axis=2)
-        errors[:, 0] = errors[:, -1] = -np.inf  # start and goal are fixed
-        order = np.argsort(-errors, axis=1, kind="stable")[:, : self.waypoints]
-        mask = np.zeros(errors.shape, bool)
-        np.put_along_axis(mask, order, True, axis=1)
-        return mask
+        return _worst_mask(np.asarray(robot, float), np.asarray(intended, float), self.waypoints)
 
 
 @register_correction("deform")
@@ -270,6 +302,16 @@ class DeformCorrection(CorrectionModel):
     def apply(self, robot: np.ndarray, intended: np.ndarray) -> np.ndarray:
         return deformation_correction(robot, intended, self.step)
 
+    def apply_many(self, robot: np.ndarray, intended: np.ndarray) -> np.ndarray:
+        """:func:`deformation_correction` toward each of ``intended`` (n, T, n_j) at once,
+        the same operations element by element (so the same bits)."""
+        robot, intended = _many(robot, intended)
+        worst = np.argmax(_worst_mask(robot, intended, 1), axis=1)
+        rows = np.arange(len(intended))
+        shape = deformation_shapes(robot.shape[0])[:, worst].T  # (n, T)
+        delta = intended[rows, worst] - robot[worst]  # (n, n_j)
+        return robot[None] + self.step * (shape[:, :, None] * delta[:, None, :])
+
 
 @register_correction("optimal")
 @dataclass(frozen=True)
@@ -278,6 +320,10 @@ class OptimalCorrection(CorrectionModel):
 
     def apply(self, robot: np.ndarray, intended: np.ndarray) -> np.ndarray:
         _check_pair(robot, intended)
+        return np.array(intended, dtype=float)
+
+    def apply_many(self, robot: np.ndarray, intended: np.ndarray) -> np.ndarray:
+        _many(robot, intended)
         return np.array(intended, dtype=float)
 
     def taken(self, robot: np.ndarray, intended: np.ndarray) -> np.ndarray | None:

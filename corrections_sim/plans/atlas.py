@@ -26,6 +26,7 @@ import functools
 import hashlib
 import itertools
 import json
+import math
 import os
 import tempfile
 import warnings
@@ -124,8 +125,10 @@ class AtlasGrid:
         return np.stack([m.ravel() for m in mesh], axis=1)
 
     def contains(self, theta: Sequence[float]) -> bool:
-        t = np.asarray(theta, float)
-        return bool(np.all(t >= self.lows) and np.all(t <= self.highs))
+        t = np.asarray(theta, float).tolist()
+        return len(t) == self.k and all(
+            lo <= x <= hi for x, lo, hi in zip(t, self.lows, self.highs, strict=True)
+        )
 
     def require(self, theta: Sequence[float], what: str = "the prior mean") -> None:
         """Refuse, in one line, a box that does not contain ``theta``."""
@@ -136,18 +139,19 @@ class AtlasGrid:
             raise ValueError(f"atlas grid {box} does not contain {what} {list(theta)}")
 
     def cell(self, theta: Sequence[float]) -> list[int]:
-        """The node indices of the corners of θ's cell (2^k, deduplicated; θ inside the box)."""
-        t = np.asarray(theta, float)
-        lower = []
-        for x, lo, hi, n in zip(t, self.lows, self.highs, self.counts, strict=True):
+        """The node indices of the corners of θ's cell (2^k, deduplicated; θ inside the box).
+        Plain Python arithmetic: an off-grid plan asks for it once a solve."""
+        lower, strides, stride = [], [], 1
+        for x, lo, hi, n in zip(
+            np.asarray(theta, float).tolist(), self.lows, self.highs, self.counts, strict=True
+        ):
             pos = (x - lo) / (hi - lo) * (n - 1)
-            lower.append(int(np.clip(np.floor(pos), 0, n - 2)))
+            lower.append(min(max(math.floor(pos), 0), n - 2))
+        for n in reversed(self.counts):  # C order: the last weight fastest
+            strides.insert(0, stride)
+            stride *= n
         corners = {
-            int(
-                np.ravel_multi_index(
-                    tuple(i + d for i, d in zip(lower, bits, strict=True)), self.counts
-                )
-            )
+            sum((i + d) * s for i, d, s in zip(lower, bits, strides, strict=True))
             for bits in itertools.product((0, 1), repeat=self.k)
         }
         return sorted(corners)
