@@ -152,3 +152,28 @@ def test_a_model_corrects_many_plans_at_once_with_the_same_bits(name, params):
         assert np.array_equal(many, np.stack([model.apply(robot, p) for p in plans]))
     with pytest.raises(ValueError, match=r"\(m, T, n\)"):
         model.apply_many(robot, plans[0])
+
+
+@pytest.mark.parametrize("name", ["waypoint", "deform", "optimal"])
+def test_features_at_many_plans_are_the_plain_sums_bit_for_bit(name):
+    """features_at_plans takes the robot's own waypoints' features where a correction leaves
+    them; the answer must be the plain one (every waypoint of every shown trajectory counted,
+    summed as waypoint_features lays them out), bit for bit, NaN plans kept NaN."""
+    from corrections_sim.learning.observation import features_at_plans
+    from corrections_sim.planning.features import waypoint_features
+    from corrections_sim.scene.environments import paper_environments
+
+    env = paper_environments()[3]
+    names = ("laptop", "table")
+    model = build(CORRECTIONS, name, {}, where="model")
+    rng = np.random.default_rng(3)
+    robot = 0.5 * rng.normal(size=(12, 7))
+    plans = robot[None] + 0.3 * rng.normal(size=(300, 12, 7))
+    plans[:, [0, -1]] = robot[[0, -1]]
+    plans[5] = np.nan
+    got = features_at_plans(plans, robot, model.apply_many, env, names)
+    shown = model.apply_many(robot, np.delete(plans, 5, axis=0))
+    plain = waypoint_features(shown.reshape(-1, 7), env.params(), names)
+    plain = plain.reshape(-1, 12, 2).sum(axis=1)
+    assert np.all(np.isnan(got[5]))
+    assert np.array_equal(np.delete(got, 5, axis=0), plain)

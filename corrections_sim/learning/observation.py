@@ -146,13 +146,29 @@ class CorrectedPlanFeatures(Observation):
 def features_at_plans(plans: np.ndarray, robot, shown_many, env: Environment, names) -> np.ndarray:
     """Φ(shown) for each of ``plans`` (n, T, 7), (n, k), the shown trajectories
     ``shown_many(robot, plans)`` of every finite plan at once; NaN rows where a plan is NaN.
-    The features of every shown trajectory in one call."""
+
+    A waypoint's features depend on that waypoint alone (the same bits in any batch, tested),
+    so the waypoints a correction leaves where the robot had them take the robot's own,
+    counted once: a one-waypoint correction costs the kinematics of one waypoint a plan, not
+    of T."""
     plans = np.asarray(plans, float)
     n, T = plans.shape[:2]
     finite = np.all(np.isfinite(plans), axis=(1, 2))
     out = np.full((n, len(names)), np.nan)
     if finite.any():
-        stacked = shown_many(robot, plans[finite])
-        per_waypoint = waypoint_features(stacked.reshape(-1, 7), env.params(), names)
-        out[finite] = per_waypoint.reshape(-1, T, len(names)).sum(axis=1)
+        stacked = shown_many(robot, plans[finite])  # (m, T, 7)
+        params = env.params()
+        if robot is None:
+            per_waypoint = waypoint_features(stacked.reshape(-1, 7), params, names)
+            per_waypoint = per_waypoint.reshape(-1, T, len(names))
+        else:
+            robot = np.asarray(robot, float)
+            same = np.all(stacked == robot[None], axis=2)  # (m, T): the robot's own waypoint
+            # Laid out as waypoint_features lays out its answer (weight-major): the sum over
+            # waypoints below then adds in the same order, so to the same bits, as before.
+            per_waypoint = np.empty((len(names), len(stacked) * T)).T.reshape(-1, T, len(names))
+            per_waypoint[same] = waypoint_features(robot, params, names)[np.nonzero(same)[1]]
+            if not same.all():
+                per_waypoint[~same] = waypoint_features(stacked[~same], params, names)
+        out[finite] = per_waypoint.sum(axis=1)
     return out
