@@ -10,6 +10,7 @@ differences. It prints a table with targets beside the measured values; it never
 from __future__ import annotations
 
 import argparse
+import tempfile
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -19,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.restarts import random_restarts, relative_gap
+from benchmarks.sizes import set_options, study_overrides
 from corrections_sim.planning.features import feature_counts
 from corrections_sim.planning.planner import (
     SOLVERS,
@@ -32,6 +34,48 @@ from corrections_sim.planning.planner import (
 )
 from corrections_sim.scene.environments import Environment, paper_environments
 from corrections_sim.scene.robot import N_ARM_JOINTS, joint_limits
+
+#: Every benchmark, by the name the command line gives it.
+SUBCOMMANDS = (
+    "planner",
+    "fig4",
+    "interact",
+    "warm",
+    "physical",
+    "relevance",
+    "learnt",
+    "confidence",
+    "study",
+    "questionnaire",
+    "catch",
+    "atlas",
+    "particles",
+    "exact",
+)
+
+#: A figure's study at a tiny size: its atlas at 3 points a weight (the paper's 31 would be
+#: built first on a fresh machine), its first 2 paper environments.
+SMALL = ("--grid", "3", "--study-envs", "2")
+
+#: Each benchmark at its smallest size (``--tiny``): what the tests run, so that none rots
+#: unnoticed; the numbers it prints mean nothing. A figure's plan atlas shrinks to 3 points a
+#: weight, the first 2 of its environments (:data:`SMALL`).
+TINY: dict[str, list[str]] = {
+    "planner": ["--problems", "1", "--restarts", "1", "--solvers", "fatrop"],
+    "fig4": ["--skip-full", "--slice-runs", "1", "--iterations", "1", *SMALL],
+    "interact": ["--corrections", "1", "--learners", "KF-C", *SMALL],
+    "warm": ["--problems", "2"],
+    "physical": ["--problems", "1"],
+    "relevance": ["--problems", "1", "--learners", "KF-C"],
+    "learnt": ["--problems", "2"],
+    "confidence": ["--problems", "1", "--learners", "KF-CI", "--iterations", "2", *SMALL],
+    "study": ["--problems", "1"],
+    "questionnaire": ["--problems", "1"],
+    "catch": ["--problems", "1"],
+    "atlas": ["--envs", "1", "--grid", "3", "--problems", "1", "--restarts", "1"],
+    "particles": ["--particles", "20", "--problems", "1", "--envs", "1", "--moves", "1", *SMALL],
+    "exact": ["--problems", "1", "--iterations", "2", *SMALL],
+}
 
 THETA_RANGE = (-1.5, 1.5)
 WARM_THETA_STEP = 0.05  # std of the θ perturbation a warm start comes from
@@ -388,31 +432,38 @@ def main(argv: Sequence[str] | None = None) -> None:
         "(--problems off-grid problems, default 200; --envs, --grid). 'particles': PF-C's "
         "likelihood read off fig. 4's atlas against solved plans (accuracy in --envs "
         "environments, default 4) and its CPU a correction (--problems runs, default 4; "
-        "--particles, default 2000; --bound in noise sd, default 0.02).",
+        "--particles, default 2000; --bound in noise sd, default 0.02). 'exact': EX-C's and "
+        "EX-CL's update on fig. 4's atlas, CPU s a correction (median, p90) in a fresh process "
+        "with an empty store of plans between the atlas's nodes and then a full one "
+        "(--problems runs, default 3; --iterations; --learners).",
     )
     parser.add_argument(
         "what",
-        choices=[
-            "planner",
-            "fig4",
-            "interact",
-            "warm",
-            "physical",
-            "relevance",
-            "learnt",
-            "confidence",
-            "study",
-            "questionnaire",
-            "catch",
-            "atlas",
-            "particles",
-        ],
+        choices=list(SUBCOMMANDS),
         help="which benchmark to run",
     )
     parser.add_argument(
         "--envs", type=int, default=48, help="atlas: the first N paper environments (default 48)"
     )
-    parser.add_argument("--grid", type=int, default=31, help="atlas: points a weight (default 31)")
+    parser.add_argument(
+        "--grid",
+        type=int,
+        help="atlas: points a weight (default 31); confidence, exact, particles, fig4, interact: "
+        "the study's plan atlas at N points a weight (default the study's own)",
+    )
+    parser.add_argument(
+        "--study-envs",
+        type=int,
+        help="confidence, exact, particles, fig4, interact: the study's first N paper "
+        "environments (default: its own)",
+    )
+    parser.add_argument(
+        "--tiny",
+        action="store_true",
+        help="the benchmark at its smallest size, every other option replaced by the tiny "
+        "size's (TINY): a check that it still runs, not a measurement (the tests run every "
+        "benchmark so)",
+    )
     parser.add_argument(
         "--particles", type=int, default=2000, help="particles: PF-C's count (default 2000)"
     )
@@ -429,7 +480,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         "--learners",
         help="interact: the learners, one session each (default KF-CL,KF-C,BP); relevance: "
         "the learners costed (default KF-C,KF-CR,KF-CRP); confidence: (default "
-        "KF-CI,PF-C,AL-C,AL-PF)",
+        "KF-CI,PF-C,AL-C,AL-PF); exact: (default EX-C,EX-CL)",
     )
     parser.add_argument(
         "--corrections", type=int, default=10, help="interact: corrections per session"
@@ -451,7 +502,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         help="fig4: runs of PP and KF in the slice for the speed-up and Dask (default 8)",
     )
     parser.add_argument(
-        "--iterations", type=int, help="fig4: corrections per run (default: the paper's 12)"
+        "--iterations",
+        type=int,
+        help="fig4, exact: corrections per run (default: the paper's 12)",
     )
     parser.add_argument(
         "--skip-full", action="store_true", help="fig4: only the slice, not the paper-scale run"
@@ -554,6 +607,14 @@ def main(argv: Sequence[str] | None = None) -> None:
         "also times the slice with solver (the reference path), side by side",
     )
     args = parser.parse_args(argv)
+    if args.tiny:
+        args = parser.parse_args([args.what, *TINY[args.what]])
+    if args.grid is not None and args.grid < 3:
+        parser.error("--grid: an atlas needs >= 3 points a weight")
+    if args.study_envs is not None and not 1 <= args.study_envs <= 48:
+        parser.error("--study-envs: 1 to 48 paper environments")
+    points = None if args.what == "atlas" else args.grid
+    smaller = study_overrides(points, args.study_envs)
     if args.what == "warm":
         from benchmarks.bench_warm import run_bench as run_warm
         from benchmarks.bench_warm import sample
@@ -591,11 +652,11 @@ def main(argv: Sequence[str] | None = None) -> None:
         from benchmarks.bench_atlas import run as run_atlas
 
         n = 200 if args.problems is None else args.problems
-        if n < 1 or not 1 <= args.envs <= 48 or args.grid < 3:
-            parser.error("atlas: --problems >= 1, --envs in [1, 48], --grid >= 3")
+        if n < 1 or not 1 <= args.envs <= 48:
+            parser.error("atlas: --problems >= 1, --envs in [1, 48]")
         bench = run_atlas(
             envs=args.envs,
-            count=args.grid,
+            count=31 if args.grid is None else args.grid,
             problems=n,
             restarts=args.restarts,
             theta_range=args.theta_range if args.theta_range != THETA_RANGE[1] else 2.0,
@@ -613,8 +674,17 @@ def main(argv: Sequence[str] | None = None) -> None:
         if args.moves < 0:
             parser.error("particles: --moves >= 0")
         seed = 0 if args.seed is None else args.seed
-        lines = run_particles(args.particles, runs, args.bound, envs, seed, args.moves)
+        lines = run_particles(args.particles, runs, args.bound, envs, seed, args.moves, smaller)
         print("\n".join(lines), flush=True)
+        return
+    if args.what == "exact":
+        from benchmarks.bench_exact import run_bench as run_exact
+
+        runs = 3 if args.problems is None else args.problems
+        if runs < 1 or (args.iterations is not None and args.iterations < 1):
+            parser.error("exact: --problems (runs) and --iterations must be >= 1")
+        names = tuple(n.strip() for n in (args.learners or "EX-C,EX-CL").split(",") if n.strip())
+        print("\n".join(run_exact(names, runs, args.iterations, smaller)), flush=True)
         return
     if args.what == "catch":
         from benchmarks.bench_catch import report as report_catch
@@ -649,9 +719,12 @@ def main(argv: Sequence[str] | None = None) -> None:
 
         names = (args.learners or "KF-CI,PF-C,AL-C,AL-PF").split(",")
         runs = 3 if args.problems is None else args.problems
-        if runs < 1:
-            parser.error("--problems: confidence takes the runs per learner, >= 1")
-        print("\n".join(run_confidence(tuple(n for n in names if n), runs)), flush=True)
+        if runs < 1 or (args.iterations is not None and args.iterations < 1):
+            parser.error("confidence: --problems (runs per learner) and --iterations >= 1")
+        lines = run_confidence(
+            tuple(n for n in names if n), runs, iterations=args.iterations, smaller=smaller
+        )
+        print("\n".join(lines), flush=True)
         if args.local_optima:
             from benchmarks.bench_confidence import local_optima
 
@@ -689,8 +762,13 @@ def main(argv: Sequence[str] | None = None) -> None:
             parser.error("--corrections must be >= 1")
         shot = Path(args.screenshot) if args.screenshot else None
         learners = [n.strip() for n in (args.learners or "KF-CL,KF-C,BP").split(",") if n.strip()]
-        db = Path(args.db or "results/interact/bench.sqlite")
-        print("\n".join(run_interact(learners, args.corrections, db, shot)))
+        if args.db:
+            db = Path(args.db)
+        elif args.tiny:  # a check, not a measurement: nothing of it is kept
+            db = Path(tempfile.mkdtemp(prefix="bench-interact-")) / "bench.sqlite"
+        else:
+            db = Path("results/interact/bench.sqlite")
+        print("\n".join(run_interact(learners, args.corrections, db, shot, smaller)))
         return
     if args.what == "fig4":
         from benchmarks.bench_batch import run_bench
@@ -702,6 +780,7 @@ def main(argv: Sequence[str] | None = None) -> None:
             full=not args.skip_full,
             slice_runs=args.slice_runs,
             iterations=args.iterations,
+            smaller=set_options(args.grid, args.study_envs),
             solver=args.solver or PlannerConfig().solver,
             warm=args.warm or PlannerConfig().warm,
         )

@@ -120,10 +120,12 @@ def run_bench(
     iterations: int | None,
     solver: str = "fatrop",
     warm: str = "newton",
+    smaller: Sequence[str] = (),
 ) -> list[str]:
     """Measure and return the report's lines (printed as they come, too); ``solver`` is the
     planner's solver of every run but the slice's IPOPT comparison, ``warm`` its warm mode
-    (with ``"newton"`` the slice also runs with ``"solver"``, side by side)."""
+    (with ``"newton"`` the slice also runs with ``"solver"``, side by side); ``smaller``: ``run``
+    options that shrink fig. 4's study (:func:`benchmarks.sizes.set_options`)."""
 
     def say(line: str) -> None:
         print(line, flush=True)
@@ -131,6 +133,7 @@ def run_bench(
     lines: list[str] = []
     rows: list[tuple[str, str, str]] = []
     common = ["--iterations", str(iterations)] if iterations else []
+    common += list(smaller)
     extra = [*common, "--solver", solver, "--set", f"planner.warm={warm}"]
 
     def report(m: Measurement, label: str) -> None:

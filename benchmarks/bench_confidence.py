@@ -21,16 +21,28 @@ from corrections_sim.figures.learning_study import load_settings
 from corrections_sim.study import runner
 
 
-def run_bench(learners: tuple[str, ...], runs: int, figures=("fig4", "fig5")) -> list[str]:
+def run_bench(
+    learners: tuple[str, ...],
+    runs: int,
+    figures=("fig4", "fig5"),
+    iterations: int | None = None,
+    smaller: dict | None = None,
+) -> list[str]:
+    """The table (module docstring); ``iterations``: corrections a run (None: the figure's),
+    ``smaller``: overrides that shrink the figure's study (:mod:`benchmarks.sizes`)."""
     names = tuple(dict.fromkeys(("PP", "KF-C", *learners)))
     lines = [
-        f"{runs} runs x 12 corrections per learner, one process; CPU s and planner solves "
+        f"{runs} runs x {iterations or 12} corrections per learner, one process; CPU s and "
+        "planner solves "
         "per correction",
         f"{'figure':6} {'learner':7} {'CPU s':>7} {'solves':>8} {'update solves':>14} "
         f"{'/ KF-C':>7}",
     ]
     for figure in figures:
         overrides = {"runs": runs, "learners": list(names), "learners.PP.fixed_alpha": 0.2}
+        if iterations is not None:
+            overrides["iterations"] = iterations
+        overrides.update(smaller or {})
         settings = load_settings(figure, quick=False, overrides=overrides)
         shared = runner.prepare(settings)
         study = settings.study

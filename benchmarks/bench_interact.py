@@ -76,8 +76,17 @@ def _correct(tab, page, session) -> tuple[bool, int]:
     return page.corrected is not None, missed
 
 
-def bench_learner(browser, log: StudyLog, learner: str, corrections: int, shot: Path | None):
-    settings = load_study(EXPERIMENTS_DIR / "fig4.toml", name="fig4", quick=False)
+def bench_learner(
+    browser,
+    log: StudyLog,
+    learner: str,
+    corrections: int,
+    shot: Path | None,
+    smaller: dict | None = None,
+):
+    overrides = dict(smaller or {})
+    path = EXPERIMENTS_DIR / "fig4.toml"
+    settings = load_study(path, name="fig4", quick=False, overrides=overrides)
     t0 = time.perf_counter()
     session = Session.start(settings, log, learner=learner, participant=f"bench-{learner}")
     ready = time.perf_counter() - t0
@@ -149,7 +158,15 @@ def bench_learner(browser, log: StudyLog, learner: str, corrections: int, shot: 
     }
 
 
-def run_bench(learners: list[str], corrections: int, db: Path, shot: Path | None) -> list[str]:
+def run_bench(
+    learners: list[str],
+    corrections: int,
+    db: Path,
+    shot: Path | None,
+    smaller: dict | None = None,
+) -> list[str]:
+    """The page's latency per learner (module docstring); ``smaller``: overrides that shrink
+    fig. 4's study (:mod:`benchmarks.sizes`)."""
     from playwright.sync_api import sync_playwright
 
     lines = [
@@ -161,7 +178,8 @@ def run_bench(learners: list[str], corrections: int, db: Path, shot: Path | None
     with StudyLog(db) as log, sync_playwright() as p:
         browser = drive.launch(p)
         for i, learner in enumerate(learners):
-            r = bench_learner(browser, log, learner, corrections, shot if i == 0 else None)
+            shown = shot if i == 0 else None
+            r = bench_learner(browser, log, learner, corrections, shown, smaller)
             b, s = np.array(r["browser_s"]), np.array(r["server_s"])
             polled = np.array(r["polled_s"])
             click, _, show = np.median(r["parts"], axis=0)

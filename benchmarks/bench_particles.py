@@ -41,7 +41,10 @@ def run_bench(
     envs: int = 4,
     seed: int = 0,
     moves: int = 2,
+    smaller: dict | None = None,
 ) -> list[str]:
+    """The report (module docstring); ``smaller``: overrides that shrink fig. 4's study
+    (:mod:`benchmarks.sizes`)."""
     overrides = {
         "runs": runs,
         "learners": ["PF-C"],
@@ -49,6 +52,7 @@ def run_bench(
         "learners.PF-C.interpolation": bound,
         "learners.PF-C.moves": moves,
     }
+    overrides.update(smaller or {})
     settings = load_settings("fig4", quick=False, overrides=overrides)
     shared = runner.prepare(settings)
     atlas = settings.atlas()

@@ -55,6 +55,7 @@ def pytest_collection_modifyitems(config, items):
 LONG = (
     "test_regression.py",
     "test_robustness.py",
+    "test_bench.py",
     "test_cli.py",
     "test_video.py",
     "test_reference_run.py",
@@ -98,7 +99,7 @@ def pytest_xdist_make_scheduler(config, log):
 
 #: Modules whose test classes go to workers of their own (each class's fixture is its own:
 #: fig. 4's and fig. 5's quick runs side by side).
-BY_CLASS = ("test_regression.py",)
+BY_CLASS = ("test_regression.py", "test_bench.py")
 
 #: The cores this suite may use, read before any test narrows them.
 CORES = sorted(os.sched_getaffinity(0))

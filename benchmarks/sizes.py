@@ -1,0 +1,34 @@
+"""A figure's study made smaller for a benchmark (``--grid``, ``--study-envs``; ``--tiny``
+gives both): its plan atlas at fewer points a weight, its first few paper environments."""
+
+from __future__ import annotations
+
+import json
+
+from corrections_sim.scene.environments import paper_environments
+
+
+def study_overrides(atlas_points: int | None = None, environments: int | None = None) -> dict:
+    """Overrides of a figure's study file (``load_settings(..., overrides=...)``): its atlas
+    at ``atlas_points`` points a weight, the first ``environments`` paper environments (None:
+    the study's own)."""
+    found: dict = {}
+    if atlas_points is not None:
+        found["atlas"] = {"points": int(atlas_points)}
+    if environments is not None:
+        if not 1 <= environments <= 48:
+            raise ValueError(f"--study-envs: 1 to 48 paper environments, got {environments}")
+        found["environments"] = [e.name for e in paper_environments()[:environments]]
+    return found
+
+
+def set_options(atlas_points: int | None = None, environments: int | None = None) -> list[str]:
+    """The same as ``run`` command-line options (``--set KEY=VALUE`` each)."""
+    out = []
+    for key, value in study_overrides(atlas_points, environments).items():
+        if isinstance(value, dict):
+            inner = ", ".join(f"{k} = {json.dumps(v)}" for k, v in value.items())
+            out += ["--set", f"{key} = {{ {inner} }}"]
+        else:
+            out += ["--set", f"{key} = {json.dumps(value)}"]
+    return out

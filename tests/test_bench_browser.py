@@ -1,0 +1,13 @@
+"""The benchmarks that drive chromium, at their tiny size (see ``test_bench.py``)."""
+
+from __future__ import annotations
+
+import pytest
+from bench_tiny import IN_A_BROWSER, run_tiny
+
+pytestmark = pytest.mark.browser
+
+
+@pytest.mark.parametrize("what", IN_A_BROWSER)
+def test_it_runs_at_its_tiny_size(what, tmp_path):
+    assert len(run_tiny(what, tmp_path).splitlines()) >= 2
