@@ -187,22 +187,57 @@ def test_a_corrupt_atlas_file_is_built_again_and_says_so(small_atlas, tmp_path):
     assert spec.missing([env]) == []
 
 
-def test_an_atlas_study_gives_the_same_bytes_on_one_or_two_workers_and_on_dask(figure, tmp_path):
+def test_an_atlas_study_gives_the_same_bytes_on_one_or_two_workers_and_on_dask(
+    figure, tmp_path, monkeypatch
+):
     """The study's curves (EX-C among them) with its atlas, made again on two worker
-    processes and on a Dask cluster: byte for byte those of the one-worker run."""
-    from distributed import LocalCluster
+    processes and on a Dask cluster whose two workers and client each keep a cache of their
+    own (as machines that share no files do): byte for byte those of the one-worker run, and
+    on the cluster each environment's atlas built once in all (the client keeps what a worker
+    built and hands it to every worker), every worker's cache holding every atlas after."""
+    from distributed import Client, Nanny, Scheduler, SpecCluster
+
+    from corrections_sim.planning.planner import cache_dir
+    from corrections_sim.study.schema import load_study
 
     study = figure.parent.parent / "tiny.toml"
     made = (figure / "curves.csv").read_bytes()
     argv = ["study", str(study), "--workers", "2", "--out", str(tmp_path / "two")]
     assert cli.main(argv) == 0
     assert (tmp_path / "two" / "tiny" / "curves.csv").read_bytes() == made
-    with LocalCluster(
-        n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None
-    ) as cluster:
+
+    caches = {}
+    for name in ("client", "a", "b"):  # the compiled solvers linked, no atlas
+        caches[name] = tmp_path / f"cache-{name}"
+        caches[name].mkdir()
+        for library in cache_dir().glob("*.so"):
+            (caches[name] / library.name).symlink_to(library)
+    workers = {
+        name: {
+            "cls": Nanny,
+            "options": {"nthreads": 1, "env": {"CORRECTIONS_SIM_CACHE": str(caches[name])}},
+        }
+        for name in ("a", "b")
+    }
+    scheduler = {"cls": Scheduler, "options": {"host": "127.0.0.1", "dashboard_address": None}}
+    monkeypatch.setenv("CORRECTIONS_SIM_CACHE", str(caches["client"]))
+    settings = load_study(study, name="tiny", quick=False)
+    spec = settings.atlas_spec()
+
+    def built() -> int:
+        return spec.atlas().built
+
+    before = built()  # this process may have built some for the fixture
+    with SpecCluster(workers=workers, scheduler=scheduler) as cluster, Client(cluster) as client:
         argv = ["study", str(study), "--scheduler", cluster.scheduler_address]
         assert cli.main([*argv, "--out", str(tmp_path / "dask")]) == 0
+        by_worker = client.run(built)
     assert (tmp_path / "dask" / "tiny" / "curves.csv").read_bytes() == made
+    envs = {e.key(): e for e in settings.envs()}.values()
+    assert sum(by_worker.values()) == len(envs), by_worker
+    assert built() == before  # the client kept what the workers built
+    for name in ("client", "a", "b"):
+        assert spec.missing(envs, A.AtlasStore(caches[name] / "atlas")) == []
 
 
 def test_an_atlas_session_replays_from_its_atlas_and_says_so(tmp_path):

@@ -21,6 +21,7 @@ import signal
 import threading
 from collections.abc import Iterator
 from concurrent.futures import Executor, ProcessPoolExecutor
+from functools import partial
 
 _SIGNALS = {signal.SIGINT, signal.SIGTERM}
 #: prctl(2) option: the signal a process gets when its parent dies (Linux).
@@ -206,7 +207,12 @@ def dask_executor(address: str, timeout_s: float) -> Iterator[tuple[Executor, in
         raise ConnectionError(message) from None
     try:
         n = len(client.scheduler_info(n_workers=-1).get("workers", {}))
-        yield client.get_executor(pure=False), n
+        executor = client.get_executor(pure=False)
+        # The cluster's workers may not share this machine's files (its plan atlases): the
+        # runner hands them what they need once each (scattered to every worker), a handle a
+        # task takes as an argument in its place.
+        executor.share = partial(client.scatter, broadcast=True, hash=False)
+        yield executor, n
     finally:
         # The cluster's workers belong to the cluster; closing the client releases this
         # command's tasks there, and no signal may leave the client half closed.

@@ -439,6 +439,8 @@ class Atlas:
             None if store is None else store.shards, planner.config.n_waypoints, grid.k
         )
         self._env_keys: dict[bytes, str] = {}
+        #: Environments whose atlas this process built (not read, not handed to it).
+        self.built = 0
         #: Problems answered outside the box (the planner's cold starts).
         self.outside = 0
 
@@ -459,6 +461,10 @@ class Atlas:
             raise ValueError("Atlas.hold: an atlas over another grid")
         self._atlases[env.key()] = built
 
+    def holds(self, env: Environment) -> bool:
+        """Whether this process holds E's atlas already (read, built or handed to it)."""
+        return env.key() in self._atlases
+
     def environment(self, env: Environment) -> EnvironmentAtlas:
         """E's atlas: in memory, else from the store, else built (and stored)."""
         found = self._atlases.get(env.key())
@@ -469,6 +475,7 @@ class Atlas:
                 found = self.store.load(key, self.grid, self.planner.config.n_waypoints)
             if found is None:
                 found = build(self.planner, env, self.grid, cold_stride=self.cold_stride)
+                self.built += 1
                 if self.store is not None:
                     self.store.save(key, found)
             self._atlases[env.key()] = found
@@ -579,7 +586,9 @@ def prepare(
 ) -> int:
     """Build into the store the atlases of ``envs`` it lacks (or holds only rejected files
     of), one task an environment on ``executor`` (None: here); ``progress(done, total)``
-    after each. Returns how many were built."""
+    after each. Each task hands its atlas back, and this process keeps it in its own store
+    too (a worker of a cluster may not share this machine's files). Returns how many were
+    built."""
     store = spec.store()
     todo = spec.missing(envs, store)
     for key, why in store.rejected:  # rebuilt below, never read
@@ -590,15 +599,57 @@ def prepare(
         done = (_build_into_store(spec, env) for env in todo)
     else:
         done = (f.result() for f in [executor.submit(_build_into_store, spec, e) for e in todo])
-    for i, _ in enumerate(done):
+    for i, (env, built) in enumerate(zip(todo, done, strict=True)):
+        _keep(spec, store, env, built)
         if progress is not None:
             progress(i + 1, len(todo))
     return len(todo)
 
 
-def _build_into_store(spec: AtlasSpec, env: Environment) -> None:
-    """E's atlas into the store (this process's copy if it holds one, else built)."""
+def _build_into_store(spec: AtlasSpec, env: Environment) -> EnvironmentAtlas:
+    """E's atlas into the store (this process's copy if it holds one, else built), and
+    back to the caller as plain arrays."""
     built = spec.atlas().environment(env)
-    store = spec.store()
+    _keep(spec, spec.store(), env, built)
+    return _plain(built)
+
+
+def _keep(spec: AtlasSpec, store: AtlasStore, env: Environment, built: EnvironmentAtlas) -> None:
+    """``built`` into ``store`` unless it holds E's atlas already."""
     if store.load(spec.key(env), spec.grid, spec.config.n_waypoints) is None:
         store.save(spec.key(env), built)
+
+
+def _plain(built: EnvironmentAtlas) -> EnvironmentAtlas:
+    """An atlas with its trajectories in memory (not a map of this machine's file)."""
+    return replace(built, trajectories=np.array(built.trajectories))
+
+
+@dataclass(frozen=True)
+class Carried:
+    """Atlases handed to a worker that may not share this machine's files (a Dask cluster's):
+    (environment, atlas) pairs, the atlases in memory."""
+
+    atlases: tuple[tuple[Environment, EnvironmentAtlas], ...]
+
+
+def carried(spec: AtlasSpec, envs: Sequence[Environment]) -> Carried:
+    """The atlases of ``envs`` from this process's store (after :func:`prepare`), to hand to
+    workers (:func:`receive`)."""
+    mine = spec.atlas()
+    distinct = {env.key(): env for env in envs}
+    return Carried(tuple((env, _plain(mine.environment(env))) for env in distinct.values()))
+
+
+def receive(spec: AtlasSpec, handed: Carried | None) -> int:
+    """In a worker: hold each atlas of ``handed`` for this process (so it builds none of them)
+    and keep it in this machine's store if the store lacks it; how many were new here."""
+    if handed is None:
+        return 0
+    mine, store, new = spec.atlas(), spec.store(), 0
+    for env, built in handed.atlases:
+        if not mine.holds(env):
+            mine.hold(env, built)
+            _keep(spec, store, env, built)
+            new += 1
+    return new

@@ -63,9 +63,11 @@ class Shared:
     solves: int
 
 
-def prepare(settings: FigureSettings) -> Shared:
-    """Solve the shared plans; a task for a worker (the caller needs no planner)."""
+def prepare(settings: FigureSettings, handed: atlas.Carried | None = None) -> Shared:
+    """Solve the shared plans; a task for a worker (the caller needs no planner). ``handed``:
+    the study's atlases, to a worker that may not share the caller's files."""
     load_plugins(settings.plugins)
+    _receive(settings, handed)
     s = settings.study
     planner = shared_planner(settings.planner_config())
     envs = settings.envs()
@@ -75,6 +77,12 @@ def prepare(settings: FigureSettings) -> Shared:
     return Shared(target=target, prior=book.entries(), solves=len(envs) + book.solves)
 
 
+def _receive(settings: FigureSettings, handed: atlas.Carried | None) -> None:
+    spec = settings.atlas_spec()
+    if spec is not None:
+        atlas.receive(spec, handed)
+
+
 def run_one(
     settings: FigureSettings,
     shared: Shared,
@@ -82,10 +90,12 @@ def run_one(
     run: int,
     alphas=None,
     plan_book: type[PlanBook] = PlanBook,
+    handed: atlas.Carried | None = None,
 ) -> RunResult:
     """One (learner, run); safe to call in a worker process. ``plan_book``: see
-    :func:`~corrections_sim.study.loop.run_learner`."""
+    :func:`~corrections_sim.study.loop.run_learner`; ``handed``: as :func:`prepare`'s."""
     load_plugins(settings.plugins)
+    _receive(settings, handed)
     s = settings.study
     seq = np.random.SeedSequence([s.seed, LEARNERS[learner].stream, run])
     atlas = settings.atlas()
@@ -115,15 +125,20 @@ SAVE_AT_LEAST = 200
 
 
 def mean_estimate_chain(
-    settings: FigureSettings, shared: Shared, thetas: tuple[tuple[float, ...], ...]
+    settings: FigureSettings,
+    shared: Shared,
+    thetas: tuple[tuple[float, ...], ...],
+    handed: atlas.Carried | None = None,
 ) -> list[tuple[float, float, int, int]]:
     """(regret, paper regret, failed environments, solves) of each θ, in order; a worker task.
 
     One book for the whole chain (one learner's mean θ̂ᵗ, t = 0, 1, ...), seeded with the
     prior's plans: with the study's ``warm_start`` each θ's plans start from the nearest θ
     solved before in the chain, as a run evaluates its own θ̂ᵗ; without, every plan is cold.
+    ``handed``: as :func:`prepare`'s.
     """
     load_plugins(settings.plugins)
+    _receive(settings, handed)
     planner = shared_planner(settings.planner_config())
     book = PlanBook(
         planner, shared.prior, warm_start=settings.study.warm_start, atlas=settings.atlas()
@@ -223,12 +238,16 @@ def run(
         results.update((k, v) for k, v in cache.load_all().items() if k in wanted)
     resumed = len(results)
     spec = settings.atlas_spec()
+    handed = None
     if spec is not None:  # the mean estimate plans from it even when every run is cached
         phase = getattr(progress, "phase", None)
         atlas.prepare(
             spec, settings.envs(), executor, phase("atlas", "environment") if phase else None
         )
-    shared = executor.submit(prepare, settings).result()
+        share = getattr(executor, "share", None)
+        if share is not None:  # workers that may not share this machine's files: hand it
+            handed = share(atlas.carried(spec, settings.envs()))
+    shared = executor.submit(prepare, settings, handed).result()
     total = len(keys)
     done = resumed
     if progress:
@@ -241,7 +260,8 @@ def run(
             if (learner, r) in results:
                 continue
             rates = (alphas or {}).get(learner)
-            futures[executor.submit(run_one, settings, shared, learner, r, rates)] = (learner, r)
+            future = executor.submit(run_one, settings, shared, learner, r, rates, PlanBook, handed)
+            futures[future] = (learner, r)
         for fut in as_completed(futures):
             key = futures[fut]
             results[key] = fut.result()
@@ -272,6 +292,7 @@ def run(
             [settings] * len(chains),
             [shared] * len(chains),
             [tuple(thetas) for thetas in chains.values()],
+            [handed] * len(chains),
         )
         for value in chain
     ]
