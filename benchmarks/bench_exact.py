@@ -100,14 +100,14 @@ def run_bench(
     """The table of ``bench exact`` (module docstring); ``smaller``: overrides that shrink
     the figure's study (:mod:`benchmarks.sizes`)."""
     from corrections_sim.figures.learning_study import load_settings
-    from corrections_sim.plans import atlas as atlas_module
+    from corrections_sim.plans import spread
 
     smaller = dict(smaller or {})
     settings = load_settings(figure, quick=False, overrides=_overrides(1, None, smaller))
     spec = settings.atlas_spec()
     if spec is None:
         return [f"{figure} has no plan atlas: no exact learner to time"]
-    built = atlas_module.prepare(spec, settings.envs())  # the machine's, before any timing
+    built = spread.prepare(spec, settings.envs())  # the machine's, before any timing
     lines = [
         f"{figure}, {runs} run(s) x {iterations or settings.study.iterations} corrections per "
         f"learner; the learner's update alone, CPU s a correction"

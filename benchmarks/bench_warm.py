@@ -240,7 +240,7 @@ def run_breakdown(
     from corrections_sim.figures import learning_study
     from corrections_sim.learning.roster import LEARNERS
     from corrections_sim.planning import planner as planner_module
-    from corrections_sim.plans.atlas import prepare as prepare_atlas
+    from corrections_sim.plans.spread import prepare as prepare_atlas
     from corrections_sim.study import runner
 
     lines = [

@@ -16,6 +16,7 @@ from corrections_sim.learning.exact import bayes as ref
 from corrections_sim.learning.exact.cells import Cells
 from corrections_sim.planning.planner import PlannerConfig, shared_planner
 from corrections_sim.plans import atlas as A
+from corrections_sim.plans import spread
 from corrections_sim.plans.book import PlanBook, Target
 from corrections_sim.scene.environments import paper_environments
 from corrections_sim.study import schema
@@ -111,7 +112,7 @@ def test_the_run_key_names_the_atlas_only_when_there_is_one():
 def small_atlas(tmp_path_factory):
     config = PlannerConfig(n_starts=2)
     grid = A.AtlasGrid.around([0.0, 0.0], [1.0, 1.0], width=3.0, count=7)
-    spec = A.AtlasSpec(config, grid, cold_stride=3, root=str(tmp_path_factory.mktemp("atlas")))
+    spec = spread.AtlasSpec(config, grid, cold_stride=3, root=str(tmp_path_factory.mktemp("atlas")))
     return spec
 
 
@@ -179,11 +180,11 @@ def test_a_corrupt_atlas_file_is_built_again_and_says_so(small_atlas, tmp_path):
 
     spec = dataclasses.replace(small_atlas, root=str(tmp_path / "store"))
     env = paper_environments()[3]
-    assert A.prepare(spec, [env]) == 1 and A.prepare(spec, [env]) == 0
+    assert spread.prepare(spec, [env]) == 1 and spread.prepare(spec, [env]) == 0
     data = tmp_path / "store" / f"{spec.key(env)}.npy"
     data.write_bytes(data.read_bytes()[:-64])
     with pytest.warns(UserWarning, match="not trusted, built again: its data does not match"):
-        assert A.prepare(spec, [env]) == 1
+        assert spread.prepare(spec, [env]) == 1
     assert spec.missing([env]) == []
 
 

@@ -427,7 +427,7 @@ def test_every_learner_runs_reproducibly_and_moves_toward_theta_star(name, small
     alphas = np.full(3, 0.2) if LEARNERS[name].needs_rates() else None
     atlas = None
     if s.atlas is not None:
-        from corrections_sim.plans.atlas import AtlasSpec
+        from corrections_sim.plans.spread import AtlasSpec
 
         grid = s.atlas.grid(s.theta0, s.cov0)
         atlas = AtlasSpec(planner.config, grid, s.atlas.cold_stride).atlas()

@@ -27,7 +27,7 @@ from corrections_sim import components
 from corrections_sim.learning import learning_rate_schedule
 from corrections_sim.learning.base import LEARNERS, make_learner
 from corrections_sim.planning.planner import shared_planner
-from corrections_sim.plans import atlas, interpolation
+from corrections_sim.plans import interpolation, spread
 from corrections_sim.plans.book import PlanBook, PlanEntries, Target, evaluate
 from corrections_sim.study.loop import RunResult, run_learner
 from corrections_sim.study.plugins import load_plugins
@@ -63,7 +63,7 @@ class Shared:
     solves: int
 
 
-def prepare(settings: FigureSettings, handed: atlas.Carried | None = None) -> Shared:
+def prepare(settings: FigureSettings, handed: spread.Carried | None = None) -> Shared:
     """Solve the shared plans; a task for a worker (the caller needs no planner). ``handed``:
     the study's atlases, to a worker that may not share the caller's files."""
     load_plugins(settings.plugins)
@@ -77,10 +77,10 @@ def prepare(settings: FigureSettings, handed: atlas.Carried | None = None) -> Sh
     return Shared(target=target, prior=book.entries(), solves=len(envs) + book.solves)
 
 
-def _receive(settings: FigureSettings, handed: atlas.Carried | None) -> None:
+def _receive(settings: FigureSettings, handed: spread.Carried | None) -> None:
     spec = settings.atlas_spec()
     if spec is not None:
-        atlas.receive(spec, handed)
+        spread.receive(spec, handed)
 
 
 def run_one(
@@ -90,7 +90,7 @@ def run_one(
     run: int,
     alphas=None,
     plan_book: type[PlanBook] = PlanBook,
-    handed: atlas.Carried | None = None,
+    handed: spread.Carried | None = None,
 ) -> RunResult:
     """One (learner, run); safe to call in a worker process. ``plan_book``: see
     :func:`~corrections_sim.study.loop.run_learner`; ``handed``: as :func:`prepare`'s."""
@@ -128,7 +128,7 @@ def mean_estimate_chain(
     settings: FigureSettings,
     shared: Shared,
     thetas: tuple[tuple[float, ...], ...],
-    handed: atlas.Carried | None = None,
+    handed: spread.Carried | None = None,
 ) -> list[tuple[float, float, int, int]]:
     """(regret, paper regret, failed environments, solves) of each θ, in order; a worker task.
 
@@ -241,12 +241,12 @@ def run(
     handed = None
     if spec is not None:  # the mean estimate plans from it even when every run is cached
         phase = getattr(progress, "phase", None)
-        atlas.prepare(
+        spread.prepare(
             spec, settings.envs(), executor, phase("atlas", "environment") if phase else None
         )
         share = getattr(executor, "share", None)
         if share is not None:  # workers that may not share this machine's files: hand it
-            handed = share(atlas.carried(spec, settings.envs()))
+            handed = share(spread.carried(spec, settings.envs()))
     shared = executor.submit(prepare, settings, handed).result()
     total = len(keys)
     done = resumed

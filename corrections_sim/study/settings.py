@@ -25,8 +25,9 @@ from corrections_sim.learning.kalman.filter import SigmaPoints
 from corrections_sim.people.teacher import Teacher
 from corrections_sim.people.users import USERS, BiasedUser, User
 from corrections_sim.planning.planner import PlannerConfig, shared_planner
-from corrections_sim.plans.atlas import AtlasGrid, AtlasSpec
+from corrections_sim.plans.atlas import AtlasGrid
 from corrections_sim.plans.book import Target
+from corrections_sim.plans.spread import AtlasSpec
 from corrections_sim.scene.environments import Environment
 from corrections_sim.study import environments
 
