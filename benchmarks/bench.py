@@ -74,7 +74,7 @@ TINY: dict[str, list[str]] = {
     "catch": ["--problems", "1"],
     "atlas": ["--envs", "1", "--grid", "3", "--problems", "1", "--restarts", "1"],
     "particles": ["--particles", "20", "--problems", "1", "--envs", "1", "--moves", "1", *SMALL],
-    "exact": ["--problems", "1", "--iterations", "2", *SMALL],
+    "exact": ["--problems", "1", "--iterations", "2", "--learners", "EX-C", *SMALL],
 }
 
 THETA_RANGE = (-1.5, 1.5)
