@@ -247,7 +247,9 @@ def run(
         share = getattr(executor, "share", None)
         if share is not None:  # workers that may not share this machine's files: hand it
             handed = share(spread.carried(spec, settings.envs()))
-    shared = executor.submit(prepare, settings, handed).result()
+    # Only a cluster's tasks are handed the atlases: a process pool's are called as ever.
+    extra = {} if handed is None else {"handed": handed}
+    shared = executor.submit(prepare, settings, **extra).result()
     total = len(keys)
     done = resumed
     if progress:
@@ -260,7 +262,7 @@ def run(
             if (learner, r) in results:
                 continue
             rates = (alphas or {}).get(learner)
-            future = executor.submit(run_one, settings, shared, learner, r, rates, PlanBook, handed)
+            future = executor.submit(run_one, settings, shared, learner, r, rates, **extra)
             futures[future] = (learner, r)
         for fut in as_completed(futures):
             key = futures[fut]
@@ -292,7 +294,7 @@ def run(
             [settings] * len(chains),
             [shared] * len(chains),
             [tuple(thetas) for thetas in chains.values()],
-            [handed] * len(chains),
+            *([[handed] * len(chains)] if handed is not None else []),
         )
         for value in chain
     ]
