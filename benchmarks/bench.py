@@ -64,7 +64,7 @@ TINY: dict[str, list[str]] = {
     "planner": ["--problems", "1", "--restarts", "1", "--solvers", "fatrop"],
     "fig4": ["--skip-full", "--slice-runs", "1", "--iterations", "1", *SMALL],
     "interact": ["--corrections", "1", "--learners", "KF-C", *SMALL],
-    "warm": ["--problems", "2"],
+    "warm": ["--problems", "2", "--iterations", "2"],
     "physical": ["--problems", "1"],
     "relevance": ["--problems", "1", "--learners", "KF-C"],
     "learnt": ["--problems", "2"],
@@ -504,7 +504,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument(
         "--iterations",
         type=int,
-        help="fig4, exact: corrections per run (default: the paper's 12)",
+        help="fig4, exact, confidence, warm (the captured runs): corrections per run (default: "
+        "the paper's 12)",
     )
     parser.add_argument(
         "--skip-full", action="store_true", help="fig4: only the slice, not the paper-scale run"
@@ -631,7 +632,9 @@ def main(argv: Sequence[str] | None = None) -> None:
 
             print("\n".join(run_breakdown(args.slice_runs, 0 if args.seed is None else args.seed)))
             return
-        problems = sample(n, seed=7 if args.seed is None else args.seed)
+        problems = sample(
+            n, seed=7 if args.seed is None else args.seed, iterations=args.iterations or 12
+        )
         if args.small_step:
             from benchmarks.bench_warm import run_small_step
 

@@ -57,11 +57,13 @@ class WarmProblem:
     start: np.ndarray
 
 
-def capture(runs: int, seed: int, learners: Sequence[str] = LEARNERS) -> list[WarmProblem]:
-    """The warm problems of ``runs`` runs of fig. 4 (12 corrections, ``learners``), without
-    its plan atlas: a run's plan book warm-starts each plan from the nearest θ it solved (the
-    path of every study without an atlas, of sessions and of the quick presets); with the
-    atlas, fig. 4 asks the atlas and meets no warm problem."""
+def capture(
+    runs: int, seed: int, learners: Sequence[str] = LEARNERS, iterations: int = 12
+) -> list[WarmProblem]:
+    """The warm problems of ``runs`` runs of fig. 4 (``iterations`` corrections, ``learners``),
+    without its plan atlas: a run's plan book warm-starts each plan from the nearest θ it
+    solved (the path of every study without an atlas, of sessions and of the quick presets);
+    with the atlas, fig. 4 asks the atlas and meets no warm problem."""
     from corrections_sim.figures import learning_study
     from corrections_sim.study import runner
 
@@ -82,7 +84,7 @@ def capture(runs: int, seed: int, learners: Sequence[str] = LEARNERS) -> list[Wa
 
     overrides = {
         "runs": runs,
-        "iterations": 12,
+        "iterations": iterations,
         "seed": seed,
         "learners": list(learners),
         "atlas": False,
@@ -99,10 +101,10 @@ def capture(runs: int, seed: int, learners: Sequence[str] = LEARNERS) -> list[Wa
     return found
 
 
-def sample(n: int, runs: int = 2, seed: int = 7) -> list[WarmProblem]:
-    """``n`` of the warm problems of :func:`capture` (``runs``, ``seed``), drawn with
-    ``seed``, in the order they were met."""
-    found = capture(runs, seed)
+def sample(n: int, runs: int = 2, seed: int = 7, iterations: int = 12) -> list[WarmProblem]:
+    """``n`` of the warm problems of :func:`capture` (``runs``, ``seed``, ``iterations``),
+    drawn with ``seed``, in the order they were met."""
+    found = capture(runs, seed, iterations=iterations)
     rng = np.random.default_rng(seed)
     return [found[i] for i in sorted(rng.choice(len(found), min(n, len(found)), replace=False))]
 
