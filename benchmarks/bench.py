@@ -608,8 +608,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         "also times the slice with solver (the reference path), side by side",
     )
     args = parser.parse_args(argv)
-    if args.tiny:
-        args = parser.parse_args([args.what, *TINY[args.what]])
+    if args.tiny:  # every other option the tiny size's; the flag itself kept
+        args = parser.parse_args([args.what, *TINY[args.what], "--tiny"])
     if args.grid is not None and args.grid < 3:
         parser.error("--grid: an atlas needs >= 3 points a weight")
     if args.study_envs is not None and not 1 <= args.study_envs <= 48:
@@ -632,6 +632,8 @@ def main(argv: Sequence[str] | None = None) -> None:
 
             print("\n".join(run_breakdown(args.slice_runs, 0 if args.seed is None else args.seed)))
             return
+        if args.iterations is not None and args.iterations < 1:
+            parser.error("warm: --iterations must be >= 1")
         problems = sample(
             n, seed=7 if args.seed is None else args.seed, iterations=args.iterations or 12
         )

@@ -103,9 +103,9 @@ def _filter_step(model, grid_model, study, book: PlanBook, env, robot, z, start,
 
 
 def grid_observations(plans: np.ndarray, robot: np.ndarray, correct, env, names) -> np.ndarray:
-    """h(θ) at every grid point (n, k): Φ of ``correct(robot, ξ*(θ)…)`` (every plan at once),
-    NaN where the grid
-    has no plan (:func:`~corrections_sim.learning.observation.features_at_plans`)."""
+    """h(θ) at every grid point (n, k): Φ of ``correct(robot, plans)`` (every plan at once),
+    NaN where the grid has no plan
+    (:func:`~corrections_sim.learning.observation.features_at_plans`)."""
     return features_at_plans(plans, robot, correct, env, names)
 
 

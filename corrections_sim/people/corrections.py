@@ -55,14 +55,19 @@ def _many(robot, intended) -> tuple[np.ndarray, np.ndarray]:
     return robot, intended
 
 
-def _worst_mask(robot: np.ndarray, intended: np.ndarray, count: int) -> np.ndarray:
-    """(m, T) bool: the ``count`` free waypoints of each intended (m, T, n) farthest from the
-    robot's (T, n), ties to the lower index — :func:`worst_waypoints` for many at once."""
+def _worst(robot: np.ndarray, intended: np.ndarray, count: int) -> np.ndarray:
+    """(m, count): the ``count`` free waypoints of each intended (m, T, n) farthest from the
+    robot's (T, n), worst first, ties to the lower index — :func:`worst_waypoints` for many
+    at once."""
     errors = np.linalg.norm(intended - robot[None], axis=2)
     errors[:, 0] = errors[:, -1] = -np.inf  # start and goal are fixed
-    order = np.argsort(-errors, axis=1, kind="stable")[:, :count]
-    mask = np.zeros(errors.shape, bool)
-    np.put_along_axis(mask, order, True, axis=1)
+    return np.argsort(-errors, axis=1, kind="stable")[:, :count]
+
+
+def _worst_mask(robot: np.ndarray, intended: np.ndarray, count: int) -> np.ndarray:
+    """(m, T) bool: :func:`_worst`'s waypoints."""
+    mask = np.zeros(intended.shape[:2], bool)
+    np.put_along_axis(mask, _worst(robot, intended, count), True, axis=1)
     return mask
 
 
@@ -306,7 +311,7 @@ class DeformCorrection(CorrectionModel):
         """:func:`deformation_correction` toward each of ``intended`` (n, T, n_j) at once,
         the same operations element by element (so the same bits)."""
         robot, intended = _many(robot, intended)
-        worst = np.argmax(_worst_mask(robot, intended, 1), axis=1)
+        worst = _worst(robot, intended, 1)[:, 0]
         rows = np.arange(len(intended))
         shape = deformation_shapes(robot.shape[0])[:, worst].T  # (n, T)
         delta = intended[rows, worst] - robot[worst]  # (n, n_j)

@@ -399,7 +399,8 @@ def _num(v: float) -> float | str:
 
 class Atlas:
     """One planner's atlas over one grid, environment by environment: read from the store,
-    or built there on first use (:meth:`environment`), or ahead, in parallel (:meth:`prepare`).
+    or built there on first use (:meth:`environment`), or ahead, in parallel
+    (:func:`~corrections_sim.plans.spread.prepare`).
 
     :meth:`solve` answers ξ*(θ, E) from the atlas alone, so the answer depends on (θ, E) and
     never on what was asked before: inside the box, warm from the plan at the corner of θ's

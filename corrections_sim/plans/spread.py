@@ -131,15 +131,11 @@ def carried(spec: AtlasSpec, envs: Sequence[Environment]) -> Carried:
     return Carried(tuple((env, _plain(mine.environment(env))) for env in distinct.values()))
 
 
-def receive(spec: AtlasSpec, handed: Carried | None) -> int:
+def receive(spec: AtlasSpec, handed: Carried) -> None:
     """In a worker: hold each atlas of ``handed`` for this process (so it builds none of them)
-    and keep it in this machine's store if the store lacks it; how many were new here."""
-    if handed is None:
-        return 0
-    mine, store, new = spec.atlas(), spec.store(), 0
+    and keep it in this machine's store if the store lacks it."""
+    mine, store = spec.atlas(), spec.store()
     for env, built in handed.atlases:
         if not mine.holds(env):
             mine.hold(env, built)
             _keep(spec, store, env, built)
-            new += 1
-    return new

@@ -78,9 +78,9 @@ def prepare(settings: FigureSettings, handed: spread.Carried | None = None) -> S
 
 
 def _receive(settings: FigureSettings, handed: spread.Carried | None) -> None:
-    spec = settings.atlas_spec()
-    if spec is not None:
-        spread.receive(spec, handed)
+    """Hold the atlases handed to this worker (a cluster's; None on a process pool)."""
+    if handed is not None:
+        spread.receive(settings.atlas_spec(), handed)
 
 
 def run_one(
