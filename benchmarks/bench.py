@@ -69,7 +69,7 @@ TINY: dict[str, list[str]] = {
     "relevance": ["--problems", "1", "--learners", "KF-C"],
     "learnt": ["--problems", "2"],
     "confidence": ["--problems", "1", "--learners", "KF-CI", "--iterations", "2", *SMALL],
-    "study": ["--problems", "1"],
+    "study": ["--problems", "1", *SMALL],
     "questionnaire": ["--problems", "1"],
     "catch": ["--problems", "1"],
     "atlas": ["--envs", "1", "--grid", "3", "--problems", "1", "--restarts", "1"],
@@ -448,13 +448,14 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument(
         "--grid",
         type=int,
-        help="atlas: points a weight (default 31); confidence, exact, particles, fig4, interact: "
+        help="atlas: points a weight (default 31); confidence, exact, particles, fig4, interact, "
+        "study: "
         "the study's plan atlas at N points a weight (default the study's own)",
     )
     parser.add_argument(
         "--study-envs",
         type=int,
-        help="confidence, exact, particles, fig4, interact: the study's first N paper "
+        help="confidence, exact, particles, fig4, interact, study: the study's first N paper "
         "environments (default: its own)",
     )
     parser.add_argument(
@@ -717,7 +718,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         corrections = 6 if args.problems is None else args.problems
         if corrections < 1:
             parser.error("--problems: study takes the corrections per participant, >= 1")
-        print("\n".join(report(run(4, corrections, learner, chromium=args.browser))), flush=True)
+        result = run(4, corrections, learner, chromium=args.browser, smaller=smaller)
+        print("\n".join(report(result)), flush=True)
         return
     if args.what == "confidence":
         from benchmarks.bench_confidence import run_bench as run_confidence

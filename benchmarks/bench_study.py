@@ -30,6 +30,7 @@ from pathlib import Path
 import msgspec
 import numpy as np
 
+from benchmarks.sizes import toml_value
 from corrections_sim.pages.server import open_server
 from corrections_sim.pages.study import StudyServer
 from corrections_sim.scene.robot import cup_pose
@@ -44,7 +45,7 @@ welcome = "Bench."
 [[conditions]]
 name = "CL"
 learner = "{learner}"
-"""
+{set}"""
 
 
 def _port() -> int:
@@ -223,13 +224,21 @@ def _browser_participant(study, code, link, corrections, barrier, out, errors, b
 
 
 def run(
-    participants: int = 4, corrections: int = 6, learner: str = "KF-CL", *, chromium: bool = False
+    participants: int = 4,
+    corrections: int = 6,
+    learner: str = "KF-CL",
+    *,
+    chromium: bool = False,
+    smaller: dict | None = None,
 ) -> dict:
-    """``chromium``: the last participant is a chromium tab driven with the mouse."""
+    """``chromium``: the last participant is a chromium tab driven with the mouse;
+    ``smaller``: the study made smaller (:func:`~benchmarks.sizes.study_overrides`), as the
+    condition's ``set``."""
     folder = Path(tempfile.mkdtemp(prefix="bench-study-"))
     protocol = folder / "protocol.toml"
+    changed = "".join(f"set.{k} = {toml_value(v)}\n" for k, v in (smaller or {}).items())
     protocol.write_text(
-        PROTOCOL.format(n=participants, corrections=corrections + 20, learner=learner)
+        PROTOCOL.format(n=participants, corrections=corrections + 20, learner=learner, set=changed)
     )
     run_ = open_run(protocol, folder / "study.sqlite")
     server = open_server("127.0.0.1", _port())
@@ -278,14 +287,26 @@ def run(
         "isolated": isolated,
         "learner": learner,
         "participants": participants,
+        "smaller": dict(smaller or {}),
     }
+
+
+def _smaller(smaller: dict | None) -> str:
+    """What a smaller study changed, in words (nothing for the paper's settings)."""
+    said = []
+    if smaller and "atlas" in smaller:
+        said.append(f"the atlas at {smaller['atlas']['points']} points a weight")
+    if smaller and "environments" in smaller:
+        said.append(f"{len(smaller['environments'])} environments")
+    return f" ({', '.join(said)})" if said else ""
 
 
 def report(result: dict) -> list[str]:
     spans = np.array(result["spans"])
     lines = [
         f"{result['participants']} participants at once, {result['learner']} drag, "
-        f"fig. 4 settings, submits together (a barrier); {len(spans)} corrections, "
+        f"fig. 4 settings{_smaller(result.get('smaller'))}, submits together (a barrier); "
+        f"{len(spans)} corrections, "
         f"{result['wall']:.0f} s",
     ]
     if len(spans):

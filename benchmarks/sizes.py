@@ -22,13 +22,17 @@ def study_overrides(atlas_points: int | None = None, environments: int | None = 
     return found
 
 
+def toml_value(value) -> str:
+    """A value of :func:`study_overrides` as TOML: a table inline, the rest as JSON spells it
+    (numbers, strings and lists of them read the same in TOML)."""
+    if isinstance(value, dict):
+        return "{ " + ", ".join(f"{k} = {toml_value(v)}" for k, v in value.items()) + " }"
+    return json.dumps(value)
+
+
 def set_options(atlas_points: int | None = None, environments: int | None = None) -> list[str]:
     """The same as ``run`` command-line options (``--set KEY=VALUE`` each)."""
     out = []
     for key, value in study_overrides(atlas_points, environments).items():
-        if isinstance(value, dict):
-            inner = ", ".join(f"{k} = {json.dumps(v)}" for k, v in value.items())
-            out += ["--set", f"{key} = {{ {inner} }}"]
-        else:
-            out += ["--set", f"{key} = {json.dumps(value)}"]
+        out += ["--set", f"{key} = {toml_value(value)}"]
     return out

@@ -69,7 +69,7 @@ def open_page(browser, url: str, *, viewport: dict | None = None, physical: bool
     tab.get_by_text(ready).wait_for(timeout=120_000)
     tab.locator("canvas").first.wait_for(timeout=120_000)
     if not physical:
-        wait_for(lambda: cup_position(tab), "the cup's position on the page")
+        wait_for(lambda: cup_position(tab), "the cup's position on the page", timeout=120.0)
     return tab
 
 

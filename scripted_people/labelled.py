@@ -217,23 +217,36 @@ def skip(tab, page, session, physical: bool) -> None:
 
 
 def run(
-    db: Path, mode: str, corrections: int, seed: int, speed: float, port: int, *, browser=None
+    db: Path,
+    mode: str,
+    corrections: int,
+    seed: int,
+    speed: float,
+    port: int,
+    *,
+    browser=None,
+    overrides: dict | None = None,
 ) -> int:
     """Make ``corrections`` labelled corrections in a new session of ``db``; its id. With no
-    ``browser`` (a Playwright chromium), one is launched for the session."""
+    ``browser`` (a Playwright chromium), one is launched for the session; ``overrides``:
+    changes to fig. 4's study (``load_study``'s, e.g. a smaller plan atlas)."""
     if browser is None:
         from playwright.sync_api import sync_playwright
 
         with sync_playwright() as p:
             browser = drive.launch(p)
             try:
-                return run(db, mode, corrections, seed, speed, port, browser=browser)
+                return run(
+                    db, mode, corrections, seed, speed, port, browser=browser, overrides=overrides
+                )
             finally:
                 browser.close()
     from corrections_sim.figures.presets import EXPERIMENTS_DIR
     from corrections_sim.study import schema
 
-    settings = schema.load_study(EXPERIMENTS_DIR / "fig4.toml", name="fig4", quick=False)
+    settings = schema.load_study(
+        EXPERIMENTS_DIR / "fig4.toml", name="fig4", quick=False, overrides=overrides
+    )
     physical = mode == "physical"
     rng = np.random.default_rng([seed, 0 if physical else 1])
     with StudyLog(db) as log:

@@ -250,10 +250,12 @@ def run(
     browser=None,
     hurried: bool = False,
     shots: Path | None = None,
+    overrides: dict | None = None,
 ) -> int:
     """A session of ``db`` corrected and taught through the page; its id. ``params`` are
     KF-CRX's (e.g. fewer traces); ``most`` corrections at most before it must have asked;
-    ``hurried``: see the module; ``shots``: a folder for a screenshot of every step."""
+    ``hurried``: see the module; ``shots``: a folder for a screenshot of every step;
+    ``overrides``: changes to fig. 4's study (``load_study``'s, e.g. a smaller plan atlas)."""
     if browser is None:
         from playwright.sync_api import sync_playwright
 
@@ -262,14 +264,16 @@ def run(
             try:
                 return run(
                     db, after=after, seed=seed, port=port, params=params, most=most,
-                    browser=browser, hurried=hurried, shots=shots,
+                    browser=browser, hurried=hurried, shots=shots, overrides=overrides,
                 )  # fmt: skip
             finally:
                 browser.close()
     from corrections_sim.figures.presets import EXPERIMENTS_DIR
     from corrections_sim.study import schema
 
-    settings = schema.load_study(EXPERIMENTS_DIR / "fig4.toml", name="fig4", quick=False)
+    settings = schema.load_study(
+        EXPERIMENTS_DIR / "fig4.toml", name="fig4", quick=False, overrides=overrides
+    )
     rng = np.random.default_rng([seed, 2])
     with StudyLog(db) as log:
         session = Session.start(

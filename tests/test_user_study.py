@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from corrections_sim.figures.presets import EXPERIMENTS_DIR
 from corrections_sim.session.log import StudyError, StudyLog
 from corrections_sim.userstudy import statistics
 from corrections_sim.userstudy.cohort import open_run, power_table, simulate_cohort
@@ -29,7 +30,7 @@ from corrections_sim.userstudy.report import analyze, protocol_of, tidy
 #: A short protocol: a practice of one correction, two conditions of two corrections each.
 SHORT = """
 description = "two robots, briefly"
-study = "fig4"
+study = "fig4-small.toml"
 seed = 3
 corrections = 2
 primary = "mean_regret"
@@ -64,8 +65,21 @@ slope = -0.5
 """
 
 
+def write_study(folder: Path) -> Path:
+    """Fig. 4's study file with its plan atlas at 3 points a weight, as ``fig4-small.toml`` in
+    ``folder``: the protocol's mechanics are under test here, not the atlas (at the preset's
+    31 points a new machine builds one per environment a participant meets, 10-20 s each: a
+    cohort of five took five minutes of the suite)."""
+    text = (EXPERIMENTS_DIR / "fig4.toml").read_text()
+    assert "\natlas = true\n" in text, "fig4.toml no longer says atlas = true"
+    path = folder / "fig4-small.toml"
+    path.write_text(text.replace("\natlas = true\n", "\natlas = { points = 3 }\n", 1))
+    return path
+
+
 @pytest.fixture
 def short(tmp_path):
+    write_study(tmp_path)
     path = tmp_path / "protocol.toml"
     path.write_text(SHORT)
     return path
@@ -171,10 +185,9 @@ def test_a_bad_protocol_is_one_line_naming_the_key(change, message):
 
 
 def test_the_example_protocol_parses_and_its_study_keys_are_checked(tmp_path):
-    from corrections_sim.figures.presets import EXPERIMENTS_DIR
-
     protocol = load_protocol(EXPERIMENTS_DIR / "protocol.toml")
     assert protocol.names == ("C", "CL") and protocol.simulation is not None
+    write_study(tmp_path)
     bad = tmp_path / "bad.toml"
     bad.write_text(SHORT.replace('name = "CL"', 'name = "CL"\nset = { runz = 3 }'))
     with pytest.raises(ValueError, match=r"conditions\[1\]\.set: runz: unknown key"):
@@ -531,9 +544,10 @@ def test_an_aborted_trial_starts_over_and_its_session_leaves_the_analysis(short,
 def test_a_simulated_participant_pushes_in_a_physical_condition_and_drags_in_the_other(
     tmp_path,
 ):
+    write_study(tmp_path)
     path = tmp_path / "protocol.toml"
     path.write_text(
-        'study = "fig4"\nseed = 1\ncorrections = 1\n'
+        'study = "fig4-small.toml"\nseed = 1\ncorrections = 1\n'
         '[[conditions]]\nname = "P"\nlearner = "KF-C"\nmode = "physical"\n'
         '[[conditions]]\nname = "D"\nlearner = "KF-C"\n'
         "[simulation]\nmean = [1.0, -1.0]\n"
