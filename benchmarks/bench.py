@@ -72,7 +72,7 @@ TINY: dict[str, list[str]] = {
     "study": ["--problems", "1", *SMALL],
     "questionnaire": ["--problems", "1"],
     "catch": ["--problems", "1"],
-    "atlas": ["--envs", "1", "--grid", "3", "--problems", "1", "--restarts", "1"],
+    "atlas": ["--envs", "1", "--grid", "5", "--problems", "1", "--restarts", "1", "--lazy"],
     "particles": ["--particles", "20", "--problems", "1", "--envs", "1", "--moves", "1", *SMALL],
     "exact": ["--problems", "1", "--iterations", "2", "--learners", "EX-C", *SMALL],
 }
@@ -459,6 +459,12 @@ def main(argv: Sequence[str] | None = None) -> None:
         "environments (default: its own)",
     )
     parser.add_argument(
+        "--lazy",
+        action="store_true",
+        help="atlas: the same problems also through a coarse-to-fine construction (every other "
+        "node built in full, the others from their parents, where a problem asks; docs/atlas.md)",
+    )
+    parser.add_argument(
         "--tiny",
         action="store_true",
         help="the benchmark at its smallest size, every other option replaced by the tiny "
@@ -660,13 +666,19 @@ def main(argv: Sequence[str] | None = None) -> None:
         n = 200 if args.problems is None else args.problems
         if n < 1 or not 1 <= args.envs <= 48:
             parser.error("atlas: --problems >= 1, --envs in [1, 48]")
+        grid = 31 if args.grid is None else args.grid
+        if args.lazy and (grid < 5 or grid % 2 == 0):
+            parser.error(
+                "atlas --lazy: --grid must be odd and >= 5 (the coarse grid is every other node)"
+            )
         bench = run_atlas(
             envs=args.envs,
-            count=31 if args.grid is None else args.grid,
+            count=grid,
             problems=n,
             restarts=args.restarts,
             theta_range=args.theta_range if args.theta_range != THETA_RANGE[1] else 2.0,
             seed=0 if args.seed is None else args.seed,
+            lazy=args.lazy,
         )
         print("\n".join(report_atlas(bench)), flush=True)
         return

@@ -12,6 +12,13 @@ those) and compares, against the best of ``restarts`` random restarts:
 
 Prints the build's wall and CPU time, solves, size on disk and in memory, and the fraction of
 problems within 1% of the restarts' best; it never asserts.
+
+With ``lazy``, the same problems are also answered by a coarse-to-fine construction (what a
+lazily built atlas could be; docs/atlas.md, "Toward a lazy atlas"): a grid of every other
+node, (count + 1) / 2 points a weight, built in full as today; each node of the full grid
+between its nodes solved once, warm from its parent cell's corner best at its θ (the next if
+that fails), only where a problem's cell asks for it; the problem then answered from those
+nodes as ``Atlas.solve`` answers.
 """
 
 from __future__ import annotations
@@ -55,6 +62,74 @@ class AtlasBench:
     answer_ms: float
     nodes_below: int
     nodes_sampled: int
+    gaps_lazy: np.ndarray | None = None
+    lazy_build_cpu: float = 0.0
+    lazy_nodes: int = 0
+    lazy_node_cpu: float = 0.0
+    lazy_builds: int = 0
+
+
+class CoarseToFine:
+    """The coarse-to-fine construction of the module docstring, for one planner and grid."""
+
+    def __init__(self, planner, grid: A.AtlasGrid, cold_stride: int) -> None:
+        if any(n % 2 == 0 or n < 5 for n in grid.counts):
+            raise ValueError("--lazy needs an odd number of points a weight, >= 5")
+        self.planner, self.grid, self.cold_stride = planner, grid, cold_stride
+        self.coarse = A.AtlasGrid(grid.lows, grid.highs, tuple((n + 1) // 2 for n in grid.counts))
+        self.built: dict[int, A.EnvironmentAtlas] = {}
+        self.nodes: dict[tuple[int, int], tuple | None] = {}
+        self.build_cpu = self.node_cpu = 0.0
+
+    def _node(self, index: int, env, node: int):
+        """(trajectory, Φ, S) of a full-grid node, or None where no start converged."""
+        key = (index, node)
+        if key not in self.nodes:
+            t0 = time.process_time()
+            coarse = self.built[index]
+            at = np.unravel_index(node, self.grid.counts)
+            found = None
+            if all(i % 2 == 0 for i in at):
+                c = int(np.ravel_multi_index(tuple(i // 2 for i in at), self.coarse.counts))
+                if coarse.found[c]:
+                    found = (coarse.trajectories[c], coarse.features[c], coarse.smoothness[c])
+            else:
+                theta = self.grid.thetas()[node]
+                lam = self.planner.config.smoothness
+                for start in A.iter_cell_starts(coarse, theta, lam):
+                    try:
+                        plan = self.planner.solve(theta, env, inits=[start])
+                    except PlanningError:
+                        continue
+                    found = (plan.trajectory, plan.features, A.smoothness_cost(plan.trajectory))
+                    break
+            self.nodes[key] = found
+            self.node_cpu += time.process_time() - t0
+        return self.nodes[key]
+
+    def solve(self, theta: np.ndarray, index: int, env) -> float:
+        """The reward of θ's answer (−inf where nothing converges)."""
+        if index not in self.built:
+            t0 = time.process_time()
+            self.built[index] = A.build(
+                self.planner, env, self.coarse, cold_stride=self.cold_stride
+            )
+            self.build_cpu += time.process_time() - t0
+        lam = self.planner.config.smoothness
+        corners = []
+        for c in self.grid.cell(theta):
+            found = self._node(index, env, c)
+            if found is not None:
+                corners.append((-(theta @ found[1] - lam * found[2]), c, found[0]))
+        for _, _, start in sorted(corners, key=lambda item: item[:2]):
+            try:
+                return self.planner.solve(theta, env, inits=[start]).reward
+            except PlanningError:
+                continue
+        try:
+            return self.planner.solve(theta, env).reward
+        except PlanningError:
+            return -np.inf
 
 
 def run(
@@ -67,6 +142,7 @@ def run(
     cold_stride: int = 10,
     workers: int = 2,
     seed: int = 0,
+    lazy: bool = False,
 ) -> AtlasBench:
     grid = A.AtlasGrid.around([0.0, 0.0], [1.0, 1.0], width=width, count=count)
     indices = list(range(envs))
@@ -80,6 +156,8 @@ def run(
     rng = np.random.default_rng(seed)
     gaps_planner, gaps_atlas, used, gaps_answer, answer_cpu = [], [], [], [], 0.0
     answering = A.Atlas(planner, grid, cold_stride=cold_stride)
+    fine = CoarseToFine(planner, grid, cold_stride) if lazy else None
+    gaps_lazy = []
     for i, built_atlas in atlases.items():
         answering.hold(all_envs[i], built_atlas)
     for _ in range(problems):
@@ -110,6 +188,8 @@ def run(
             answer = -np.inf
         answer_cpu += time.process_time() - t1
         gaps_answer.append(relative_gap(best, answer))
+        if fine is not None:
+            gaps_lazy.append(relative_gap(best, fine.solve(theta, i, env)))
         gaps_planner.append(relative_gap(best, own))
         gaps_atlas.append(relative_gap(best, max(rewards, default=-np.inf)))
     # Global at its nodes? Sampled nodes against the planner's own cold starts there.
@@ -141,6 +221,11 @@ def run(
         1000 * answer_cpu / max(len(gaps_answer), 1),
         below,
         sampled,
+        np.array(gaps_lazy) if fine is not None else None,
+        fine.build_cpu if fine is not None else 0.0,
+        len(fine.nodes) if fine is not None else 0,
+        fine.node_cpu if fine is not None else 0.0,
+        len(fine.built) if fine is not None else 0,
     )
 
 
@@ -166,4 +251,18 @@ def report(b: AtlasBench) -> list[str]:
         f"on {within(b.gaps_atlas)}, worst gap {worst(b.gaps_atlas)}",
         f"  nodes below the planner's own cold starts there: {b.nodes_below} of "
         f"{b.nodes_sampled} sampled",
+        *_lazy_lines(b, within, worst),
+    ]
+
+
+def _lazy_lines(b: AtlasBench, within, worst) -> list[str]:
+    if b.gaps_lazy is None:
+        return []
+    coarse = " × ".join(str((n + 1) // 2) for n in b.grid.counts)
+    return [
+        f"  coarse to fine ({coarse} built in full, finer nodes from their parents): within 1% "
+        f"on {within(b.gaps_lazy)}, worst gap {worst(b.gaps_lazy)}",
+        f"    its coarse builds {b.lazy_build_cpu / max(b.lazy_builds, 1):.2f} s CPU an "
+        f"environment ({b.lazy_builds}); {b.lazy_nodes} nodes of the full grid "
+        f"asked for, {1000 * b.lazy_node_cpu / max(b.lazy_nodes, 1):.1f} ms CPU each",
     ]
