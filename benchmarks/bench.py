@@ -666,20 +666,18 @@ def main(argv: Sequence[str] | None = None) -> None:
         n = 200 if args.problems is None else args.problems
         if n < 1 or not 1 <= args.envs <= 48:
             parser.error("atlas: --problems >= 1, --envs in [1, 48]")
-        grid = 31 if args.grid is None else args.grid
-        if args.lazy and (grid < 5 or grid % 2 == 0):
-            parser.error(
-                "atlas --lazy: --grid must be odd and >= 5 (the coarse grid is every other node)"
+        try:
+            bench = run_atlas(
+                envs=args.envs,
+                count=31 if args.grid is None else args.grid,
+                problems=n,
+                restarts=args.restarts,
+                theta_range=args.theta_range if args.theta_range != THETA_RANGE[1] else 2.0,
+                seed=0 if args.seed is None else args.seed,
+                lazy=args.lazy,
             )
-        bench = run_atlas(
-            envs=args.envs,
-            count=grid,
-            problems=n,
-            restarts=args.restarts,
-            theta_range=args.theta_range if args.theta_range != THETA_RANGE[1] else 2.0,
-            seed=0 if args.seed is None else args.seed,
-            lazy=args.lazy,
-        )
+        except ValueError as exc:  # a grid --lazy cannot halve, refused before any build
+            parser.error(str(exc).splitlines()[0])
         print("\n".join(report_atlas(bench)), flush=True)
         return
     if args.what == "particles":

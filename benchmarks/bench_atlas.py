@@ -70,66 +70,93 @@ class AtlasBench:
 
 
 class CoarseToFine:
-    """The coarse-to-fine construction of the module docstring, for one planner and grid."""
+    """The coarse-to-fine construction of the module docstring, for one planner and grid: the
+    coarse grid is an :class:`~corrections_sim.plans.atlas.Atlas` of its own (built in memory
+    on first use); the full grid's nodes are filled in as problems ask for them, each the
+    coarse atlas's answer there (:meth:`Atlas.solve`), and a problem is answered by
+    :meth:`Atlas.solve` over those nodes.
+
+    Raises:
+        ValueError: a grid whose every other node is not a grid (an even count, or < 5).
+    """
 
     def __init__(self, planner, grid: A.AtlasGrid, cold_stride: int) -> None:
         if any(n % 2 == 0 or n < 5 for n in grid.counts):
-            raise ValueError("--lazy needs an odd number of points a weight, >= 5")
-        self.planner, self.grid, self.cold_stride = planner, grid, cold_stride
-        self.coarse = A.AtlasGrid(grid.lows, grid.highs, tuple((n + 1) // 2 for n in grid.counts))
-        self.built: dict[int, A.EnvironmentAtlas] = {}
-        self.nodes: dict[tuple[int, int], tuple | None] = {}
+            raise ValueError(
+                f"--lazy: --grid must be odd and >= 5 (the coarse grid is every other node), "
+                f"got {grid.counts[0]}"
+            )
+        counts = tuple((n + 1) // 2 for n in grid.counts)
+        self.coarse = A.Atlas(
+            planner, A.AtlasGrid(grid.lows, grid.highs, counts), cold_stride=cold_stride
+        )
+        self.fine = A.Atlas(planner, grid, cold_stride=cold_stride)
+        self.thetas = grid.thetas()
+        self.asked: dict[bytes, set[int]] = {}  # per environment, the full grid's nodes filled
         self.build_cpu = self.node_cpu = 0.0
 
-    def _node(self, index: int, env, node: int):
-        """(trajectory, Φ, S) of a full-grid node, or None where no start converged."""
-        key = (index, node)
-        if key not in self.nodes:
-            t0 = time.process_time()
-            coarse = self.built[index]
-            at = np.unravel_index(node, self.grid.counts)
-            found = None
-            if all(i % 2 == 0 for i in at):
-                c = int(np.ravel_multi_index(tuple(i // 2 for i in at), self.coarse.counts))
-                if coarse.found[c]:
-                    found = (coarse.trajectories[c], coarse.features[c], coarse.smoothness[c])
-            else:
-                theta = self.grid.thetas()[node]
-                lam = self.planner.config.smoothness
-                for start in A.iter_cell_starts(coarse, theta, lam):
-                    try:
-                        plan = self.planner.solve(theta, env, inits=[start])
-                    except PlanningError:
-                        continue
-                    found = (plan.trajectory, plan.features, A.smoothness_cost(plan.trajectory))
-                    break
-            self.nodes[key] = found
-            self.node_cpu += time.process_time() - t0
-        return self.nodes[key]
-
-    def solve(self, theta: np.ndarray, index: int, env) -> float:
-        """The reward of θ's answer (−inf where nothing converges)."""
-        if index not in self.built:
-            t0 = time.process_time()
-            self.built[index] = A.build(
-                self.planner, env, self.coarse, cold_stride=self.cold_stride
+    def _fill(self, env, node: int) -> None:
+        """The full grid's ``node`` in ``env``: a coarse node's own plan, else the coarse
+        atlas's answer there (left NaN where no start converges)."""
+        held = self.fine.environment(env)
+        coarse = self.coarse.environment(env)
+        at = np.unravel_index(node, self.fine.grid.counts)
+        if all(i % 2 == 0 for i in at):
+            c = int(np.ravel_multi_index(tuple(i // 2 for i in at), self.coarse.grid.counts))
+            trajectory, phi, smooth = (
+                coarse.trajectories[c],
+                coarse.features[c],
+                coarse.smoothness[c],
             )
-            self.build_cpu += time.process_time() - t0
-        lam = self.planner.config.smoothness
-        corners = []
-        for c in self.grid.cell(theta):
-            found = self._node(index, env, c)
-            if found is not None:
-                corners.append((-(theta @ found[1] - lam * found[2]), c, found[0]))
-        for _, _, start in sorted(corners, key=lambda item: item[:2]):
+            reward = coarse.rewards[c]
+        else:
             try:
-                return self.planner.solve(theta, env, inits=[start]).reward
+                plan = self.coarse.solve(self.thetas[node], env)
             except PlanningError:
-                continue
+                return
+            trajectory, phi, reward = plan.trajectory, plan.features, plan.reward
+            smooth = A.smoothness_cost(trajectory)
+        held.trajectories[node], held.features[node] = trajectory, phi
+        held.smoothness[node], held.rewards[node] = smooth, reward
+
+    def solve(self, theta: np.ndarray, env) -> float:
+        """The reward of θ's answer (−inf where nothing converges)."""
+        asked = self.asked.get(env.key())
+        if asked is None:
+            t0 = time.process_time()
+            self.coarse.environment(env)  # the coarse grid, built in full
+            self.build_cpu += time.process_time() - t0
+            n, k, T = self.fine.grid.size, self.fine.grid.k, self.fine.planner.config.n_waypoints
+            empty = A.EnvironmentAtlas(
+                self.fine.grid,
+                np.full((n, T, 7), np.nan),
+                np.full((n, k), np.nan),
+                np.full(n, np.nan),
+                np.full(n, -np.inf),
+                0,
+            )
+            self.fine.hold(env, empty)
+            asked = self.asked[env.key()] = set()
+        if self.fine.grid.contains(theta):
+            t0 = time.process_time()
+            for node in self.fine.grid.cell(theta):
+                if node not in asked:
+                    asked.add(node)
+                    self._fill(env, node)
+            self.node_cpu += time.process_time() - t0
         try:
-            return self.planner.solve(theta, env).reward
+            return self.fine.solve(theta, env).reward
         except PlanningError:
             return -np.inf
+
+    @property
+    def nodes(self) -> int:
+        """Full-grid nodes filled in, over every environment."""
+        return sum(len(a) for a in self.asked.values())
+
+    @property
+    def builds(self) -> int:
+        return len(self.asked)
 
 
 def run(
@@ -145,18 +172,18 @@ def run(
     lazy: bool = False,
 ) -> AtlasBench:
     grid = A.AtlasGrid.around([0.0, 0.0], [1.0, 1.0], width=width, count=count)
+    planner = shared_planner(CONFIG)
+    fine = CoarseToFine(planner, grid, cold_stride) if lazy else None  # bad input before work
     indices = list(range(envs))
     t0 = time.perf_counter()
     with ProcessPoolExecutor(max_workers=workers) as pool:
         built = sorted(pool.map(_build_one, [(i, grid, cold_stride) for i in indices]))
     wall = time.perf_counter() - t0
     atlases = {i: a for i, a, _ in built}
-    planner = shared_planner(CONFIG)
     all_envs = paper_environments()
     rng = np.random.default_rng(seed)
     gaps_planner, gaps_atlas, used, gaps_answer, answer_cpu = [], [], [], [], 0.0
     answering = A.Atlas(planner, grid, cold_stride=cold_stride)
-    fine = CoarseToFine(planner, grid, cold_stride) if lazy else None
     gaps_lazy = []
     for i, built_atlas in atlases.items():
         answering.hold(all_envs[i], built_atlas)
@@ -189,7 +216,7 @@ def run(
         answer_cpu += time.process_time() - t1
         gaps_answer.append(relative_gap(best, answer))
         if fine is not None:
-            gaps_lazy.append(relative_gap(best, fine.solve(theta, i, env)))
+            gaps_lazy.append(relative_gap(best, fine.solve(theta, env)))
         gaps_planner.append(relative_gap(best, own))
         gaps_atlas.append(relative_gap(best, max(rewards, default=-np.inf)))
     # Global at its nodes? Sampled nodes against the planner's own cold starts there.
@@ -223,9 +250,9 @@ def run(
         sampled,
         np.array(gaps_lazy) if fine is not None else None,
         fine.build_cpu if fine is not None else 0.0,
-        len(fine.nodes) if fine is not None else 0,
+        fine.nodes if fine is not None else 0,
         fine.node_cpu if fine is not None else 0.0,
-        len(fine.built) if fine is not None else 0,
+        fine.builds if fine is not None else 0,
     )
 
 

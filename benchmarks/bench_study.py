@@ -305,7 +305,7 @@ def report(result: dict) -> list[str]:
     spans = np.array(result["spans"])
     lines = [
         f"{result['participants']} participants at once, {result['learner']} drag, "
-        f"fig. 4 settings{_smaller(result.get('smaller'))}, submits together (a barrier); "
+        f"fig. 4 settings{_smaller(result['smaller'])}, submits together (a barrier); "
         f"{len(spans)} corrections, "
         f"{result['wall']:.0f} s",
     ]
