@@ -31,7 +31,8 @@ environments = ["s0-t0-l1", "s1-t1-l2"]
 atlas = { points = 9 }
 
 # The reference tool's own refinement (twice the learners' default resolution, its core to
-# 1e-6 of the peak), so that on the same cells the learners are the reference.
+# 1e-6 of the peak), so that on the same cells the learners are the reference; EX-CL cuts
+# its cells along the narrow axes only, and the reference cuts its own as EX-CL does.
 [learners.KF-C]
 [learners.EX-C]
 resolution = 2.0
@@ -39,6 +40,7 @@ cut = 13.8
 [learners.EX-CL]
 resolution = 2.0
 cut = 13.8
+axes = "narrow"
 """
 
 
@@ -352,12 +354,49 @@ def test_refinement_resolves_a_posterior_narrower_than_the_grid():
     assert ref.Refinement(resolution=0.0).finer(cells, _gaussian(cells, mean, cov)) is None
 
 
+def test_a_cell_halved_along_one_axis_keeps_the_trapezoid_rule():
+    cells = Cells.base((0.0, 0.0, 0.0), (2.0, 2.0, 2.0), (3, 3, 3), depth=2)
+    which = np.zeros(len(cells.leaves), bool)
+    which[0] = True
+    finer = cells.cut(which, np.array([False, True, False]))
+    # Two children, each half as wide along axis 1 only; the new nodes are the midpoints of
+    # the leaf's four edges along axis 1.
+    assert len(finer.leaves) == len(cells.leaves) + 1
+    assert len(finer.coords) == len(cells.coords) + 4
+    assert sorted(finer.levels[-2:].tolist()) == [[0, 1, 0], [0, 1, 0]]
+    assert finer.coefficients.sum() == pytest.approx(8.0)
+    f = 2.0 + finer.thetas() @ np.array([0.5, -1.0, 0.25])
+    assert finer.coefficients @ f == pytest.approx(8.0 * (2.0 + 0.5 - 1.0 + 0.25))
+    with pytest.raises(ValueError, match="at least one"):
+        cells.cut(which, np.zeros(3, bool))
+
+
+def test_narrow_cuts_resolve_a_posterior_narrow_along_one_axis_with_few_nodes():
+    """A Gaussian of sd 0.15 / 0.5 / 0.85 at k = 3 on cells 1.67 wide: cut along the axes
+    that need it, its moments are as right as with every cell cut in eight, on a sixth of
+    the nodes (measured: 1,873 against 32,107)."""
+    mean, cov = np.array([1.0, -1.0, -1.0]), np.diag([0.15, 0.5, 0.85]) ** 2
+    found = {}
+    for axes in ref.REFINED_AXES:
+        cells = Cells.base((-5.0,) * 3, (5.0,) * 3, (7, 7, 7), depth=4)
+        refine = ref.Refinement(resolution=1.0, axes=axes)
+        while (finer := refine.finer(cells, _gaussian(cells, mean, cov))) is not None:
+            cells = finer
+        w = ref.posterior(_gaussian(cells, mean, cov), cells.coefficients)
+        got_mean, got_cov = ref.moments(cells.thetas(), w)
+        assert np.abs(got_mean - mean).max() < 1e-3
+        assert np.abs(np.diag(got_cov) / np.diag(cov) - 1).max() < 2e-3
+        found[axes] = len(cells.coords)
+    assert found["narrow"] * 6 < found["all"]
+
+
 @pytest.mark.parametrize(
     ("param", "value", "message"),
     [
         ("resolution", -1.0, "learners.EX-C.resolution: must be a number >= 0"),
         ("cut", 0.0, "learners.EX-C.cut: must be a number > 0"),
         ("max_level", -1, "learners.EX-C.max_level"),
+        ("axes", '"diagonal"', 'learners.EX-C.axes: must be "all" or "narrow"'),
     ],
 )
 def test_a_bad_refinement_is_one_line(tmp_path, capsys, param, value, message):

@@ -243,8 +243,10 @@ def reference_run(
     refinable = at_nodes is not None and kind.refinable
     cells, past = None, []  # a refinable grid's cells; the corrections so far, to weigh again
     if refinable:
-        # The core to e^−13.8 = 1e-6 of the peak, not an exact learner's 1e-4.
-        refine = ref.Refinement(2.0 if resolution is None else resolution, cut=13.8)
+        # The core to e^−13.8 = 1e-6 of the peak, not an exact learner's 1e-4; its cells cut
+        # as the learner cuts its own.
+        resolution = 2.0 if resolution is None else resolution
+        refine = ref.Refinement(resolution, cut=13.8, axes=likelihood.axes)
         # One level finer than an exact learner may go: at twice its resolution, it is at
         # half its finest spacing.
         depth = likelihood.max_level + 1

@@ -123,11 +123,14 @@ class Likelihood:
         correction: C in hₜ(θ) = Φ(C(ξᵗ, ξ*(θ, E))); None: h(θ) = Φ(ξ*(θ, E)) itself.
         max_level: how many times the learner itself cuts an atlas cell in half (an exact
             learner's ``max_level``; 4 for the others): a refined reference goes one finer.
+        axes: how the learner cuts a cell ("all" or "narrow", an exact learner's ``axes``):
+            a refined reference cuts its cells the same way.
     """
 
     kind: str
     correction: CorrectionModel | None = None
     max_level: int = 4
+    axes: str = "all"
 
 
 class Learner(abc.ABC):

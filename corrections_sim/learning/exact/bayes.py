@@ -78,28 +78,36 @@ class Refinement:
     """Where to cut a grid posterior's cells (:class:`~.cells.Cells`) finer.
 
     The leaves with a corner where the density is within ``cut`` of its peak are the
-    posterior's core; while the core's coarsest level ℓ leaves the posterior's narrowest sd
-    (its covariance's, in ℓ's spacing in every direction) under ``resolution`` nodes, the
-    core's leaves at ℓ are cut in 2^k, up to the cells' ``depth``. The rest stays on coarser
-    cells: nothing is dropped, but there a density below e^−cut of the peak is integrated
-    coarsely. (A density with a floor far out — bounded features make the likelihood level
-    off — holds more mass there than its peak's neighbourhood suggests, yet varies slowly.)
+    posterior's core; while the core's coarsest cells leave the posterior's narrowest sd
+    (its covariance's, in those cells' widths in every direction) under ``resolution``
+    nodes, the core's coarsest leaves are cut, up to the cells' ``depth``: with ``axes =
+    "all"`` in 2^k (every axis halved), with ``axes = "narrow"`` along one axis at a time,
+    the one whose halving widens that narrowest sd most (a posterior narrow in one direction
+    gets fine cells across it only: at k = 3 several times fewer nodes). The rest stays on
+    coarser cells: nothing is dropped, but there a density below e^−cut of the peak is
+    integrated coarsely. (A density with a floor far out — bounded features make the
+    likelihood level off — holds more mass there than its peak's neighbourhood suggests, yet
+    varies slowly.)
 
     Attributes:
         resolution: grid nodes a posterior sd needs (0: never cut). The trapezoid rule's
             error on a Gaussian's moments is about 2 exp(−2π² r²) at r nodes an sd (5e-9 at
             r = 1): r = 1 resolves a smooth posterior; the reference tool takes r = 2.
         cut: the core's edge, in log density below the peak (9.2: 1e-4 of it).
+        axes: "all" or "narrow" (above).
     """
 
     resolution: float = 1.0
     cut: float = 9.2
+    axes: str = "all"
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.resolution) and self.resolution >= 0):
             raise ValueError(f"resolution = {self.resolution!r}: expected a number >= 0")
         if not (np.isfinite(self.cut) and self.cut > 0):
             raise ValueError(f"cut = {self.cut!r}: expected a number > 0")
+        if self.axes not in REFINED_AXES:
+            raise ValueError(f"axes = {self.axes!r}: expected one of {', '.join(REFINED_AXES)}")
 
     def finer(self, cells: Cells, log_density: np.ndarray) -> Cells | None:
         """``cells`` cut once more where the posterior (``log_density`` at their nodes) needs
@@ -110,18 +118,43 @@ class Refinement:
             density = np.exp(np.asarray(log_density, float) - np.max(log_density))
         density = np.where(np.isfinite(density), density, 0.0)
         core = np.flatnonzero(density[cells.corners].max(axis=1) >= np.exp(-self.cut))
-        level = int(cells.leaves[core, 0].min())
-        if level >= cells.depth:
-            return None
+        levels = cells.levels[core]
+        coarsest = levels.min(axis=0)  # per axis
         weights = cells.coefficients * density
         _, cov = moments(cells.thetas(), weights / weights.sum())
-        scale = 1.0 / cells.spacing(level)
-        narrowest = float(np.linalg.eigvalsh(scale[:, None] * cov * scale[None, :])[0])
-        if narrowest >= self.resolution**2:
+        if self.axes == "all":
+            level = int(coarsest.min())
+            if level >= cells.depth:
+                return None
+            if _narrowest(cov, cells.spacing(level)) >= self.resolution**2:
+                return None
+            which = np.zeros(len(cells.leaves), bool)
+            which[core[levels[:, 0] == level]] = True
+            return cells.cut(which)
+        widths = cells.unit() * 2.0 ** (cells.depth - coarsest)
+        if _narrowest(cov, widths) >= self.resolution**2:
+            return None
+        best, axis = -np.inf, -1
+        for a in np.flatnonzero(coarsest < cells.depth).tolist():  # the lowest axis on a tie
+            halved = widths.copy()
+            halved[a] /= 2
+            if (gain := _narrowest(cov, halved)) > best:
+                best, axis = gain, a
+        if axis < 0:
             return None
         which = np.zeros(len(cells.leaves), bool)
-        which[core[cells.leaves[core, 0] == level]] = True
-        return cells.cut(which)
+        which[core[levels[:, axis] == coarsest[axis]]] = True
+        return cells.cut(which, np.arange(cells.k) == axis)
+
+
+#: How :class:`Refinement` cuts a cell.
+REFINED_AXES = ("all", "narrow")
+
+
+def _narrowest(cov: np.ndarray, widths: np.ndarray) -> float:
+    """The smallest variance of ``cov`` in units of the cells' ``widths`` (k,) per axis."""
+    scale = 1.0 / widths
+    return float(np.linalg.eigvalsh(scale[:, None] * cov * scale[None, :])[0])
 
 
 def gaussian_log_prior(thetas: np.ndarray, prior: Belief) -> np.ndarray:

@@ -14,8 +14,9 @@ import numpy as np
 @dataclass(frozen=True, eq=False)
 class Cells:
     """The cells of a grid over θ, refined where needed: a box cut into ``counts[i] − 1``
-    cells a weight (level 0, corners at a plan atlas's nodes), each of which may be cut in
-    2^k children (level ℓ + 1, half as wide), down to level ``depth``. Integrals over θ are
+    cells a weight (level 0, corners at a plan atlas's nodes), each of which may be halved
+    along every axis (2^k children) or along some (:meth:`cut`'s ``axes``); a cell's level
+    along an axis is how often it was halved there, down to ``depth``. Integrals over θ are
     the trapezoid rule's on every leaf cell (its volume times the mean of its 2^k corners),
     so a node weighs :attr:`coefficients` (the volumes / 2^k of the leaves it is a corner
     of); a node shared by cells of several levels is one node.
@@ -26,7 +27,8 @@ class Cells:
         coords: every node's position in units of the finest spacing (n, k), level 0's nodes
             first in C order, every refinement's new nodes after them (sorted): a node keeps
             its index when cells are cut.
-        leaves: the leaf cells (m, 1 + k): their level, then their lower corner's coords.
+        leaves: the leaf cells (m, 2k): their level along each axis, then their lower
+            corner's coords.
     """
 
     lows: tuple[float, ...]
@@ -45,7 +47,7 @@ class Cells:
             np.meshgrid(*[np.arange(n) for n in counts], indexing="ij"), axis=-1
         ).reshape(-1, k)
         lower = index[np.all(index < np.array(counts) - 1, axis=1)]
-        leaves = np.concatenate([np.zeros((len(lower), 1), np.int64), lower * 2**depth], axis=1)
+        leaves = np.concatenate([np.zeros((len(lower), k), np.int64), lower * 2**depth], axis=1)
         return cls(
             tuple(float(v) for v in lows),
             tuple(float(v) for v in highs),
@@ -58,6 +60,11 @@ class Cells:
     @property
     def k(self) -> int:
         return len(self.counts)
+
+    @property
+    def levels(self) -> np.ndarray:
+        """Each leaf's level along each axis (m, k)."""
+        return self.leaves[:, : self.k]
 
     def unit(self) -> np.ndarray:
         """The finest spacing (k,): level 0's / 2^depth."""
@@ -82,10 +89,10 @@ class Cells:
         read-only)."""
         keys = self._keys(self.coords)
         order = np.argsort(keys)
-        width = 2 ** (self.depth - self.leaves[:, 0])
+        width = 2 ** (self.depth - self.levels)
         out = []
         for bits in itertools.product((0, 1), repeat=self.k):
-            at = self.leaves[:, 1:] + np.outer(width, bits)
+            at = self.leaves[:, self.k :] + width * np.array(bits)
             out.append(order[np.searchsorted(keys, self._keys(at), sorter=order)])
         corners = np.stack(out, axis=1)
         corners.setflags(write=False)
@@ -95,27 +102,35 @@ class Cells:
     def coefficients(self) -> np.ndarray:
         """Each node's trapezoid weight (n,): the volumes / 2^k of the leaves it is a
         corner of (computed once, read-only)."""
-        volume = np.prod(self.unit()) * (2.0 ** (self.depth - self.leaves[:, 0])) ** self.k
+        # Widths are powers of two, so the product is exact in any order.
+        volume = np.prod(self.unit()) * np.prod(2.0 ** (self.depth - self.levels), axis=1)
         out = np.zeros(len(self.coords))
         for column in self.corners.T:
             np.add.at(out, column, volume / 2**self.k)
         out.setflags(write=False)
         return out
 
-    def cut(self, which: np.ndarray) -> Cells:
-        """The leaves ``which`` (m,) bool cut in 2^k children each; their new corner nodes
-        appended to :attr:`coords` (sorted), the old keeping their indices."""
+    def cut(self, which: np.ndarray, axes: np.ndarray | None = None) -> Cells:
+        """The leaves ``which`` (m,) bool halved along ``axes`` (k,) bool (None: every axis,
+        2^k children each); their new corner nodes appended to :attr:`coords` (sorted), the
+        old keeping their indices."""
         which = np.asarray(which, bool)
+        halve = np.ones(self.k, bool) if axes is None else np.asarray(axes, bool)
+        if halve.shape != (self.k,) or not halve.any():
+            raise ValueError(f"Cells.cut: axes must name at least one of {self.k} axes")
         chosen = self.leaves[which]
-        if np.any(chosen[:, 0] >= self.depth):
+        levels, lower = chosen[:, : self.k], chosen[:, self.k :]
+        if np.any(levels[:, halve] >= self.depth):
             raise ValueError(f"Cells.cut: a leaf is already at the finest level {self.depth}")
-        half = 2 ** (self.depth - chosen[:, 0] - 1)
+        half = 2 ** (self.depth - levels - halve)  # a halved axis's new width, else the width
         children, nodes = [], []
         for bits in itertools.product((0, 1), repeat=self.k):
-            lower = chosen[:, 1:] + np.outer(half, bits)
-            children.append(np.concatenate([chosen[:, :1] + 1, lower], axis=1))
+            if all(h or not b for h, b in zip(halve, bits, strict=True)):
+                children.append(np.concatenate([levels + halve, lower + half * bits], axis=1))
         for bits in itertools.product((0, 1, 2), repeat=self.k):
-            nodes.append(chosen[:, 1:] + np.outer(half, bits))
+            if all(h or b != 1 for h, b in zip(halve, bits, strict=True)):
+                step = np.where(halve, bits, np.array(bits) // 2)  # an unhalved axis: 0, 1
+                nodes.append(lower + half * step)
         candidates = np.unique(np.concatenate(nodes), axis=0)
         known = np.isin(self._keys(candidates), self._keys(self.coords))
         coords = np.concatenate([self.coords, candidates[~known]])

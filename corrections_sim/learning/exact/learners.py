@@ -52,6 +52,8 @@ class ExactCorrectionAware(CorrectionAwareKalman):
         cut: the posterior's core, whose cells are refined: where its density is within
             ``cut`` (in log) of its peak (9.2: 1e-4 of it).
         max_level: the finest refinement, the atlas's spacing / 2^max_level.
+        axes: how a cell is cut: "all" (in 2^k) or "narrow" (along the axis across which the
+            posterior is narrowest; :class:`~corrections_sim.learning.exact.bayes.Refinement`).
     """
 
     label = "Exact posterior, KF-C's model (EX-C)"
@@ -61,6 +63,7 @@ class ExactCorrectionAware(CorrectionAwareKalman):
     resolution: float = 1.0
     cut: float = 9.2
     max_level: int = 4
+    axes: str = "all"
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -71,9 +74,12 @@ class ExactCorrectionAware(CorrectionAwareKalman):
         require_count("max_level", self.max_level, 0)
         if not (isinstance(self.cut, int | float) and 0 < self.cut < np.inf):
             raise ParameterError("cut", f"must be a number > 0, got {self.cut!r}")
+        if self.axes not in ref.REFINED_AXES:
+            choices = " or ".join(f'"{a}"' for a in ref.REFINED_AXES)
+            raise ParameterError("axes", f"must be {choices}, got {self.axes!r}")
 
     def likelihood(self) -> Likelihood:
-        return dataclasses.replace(super().likelihood(), max_level=self.max_level)
+        return dataclasses.replace(super().likelihood(), max_level=self.max_level, axes=self.axes)
 
     def initial(self, belief: Belief, noise: KalmanNoise) -> Belief:
         prior = PriorEntry(belief.theta, belief.cov)  # what a refined grid weighs again
@@ -134,7 +140,7 @@ class ExactCorrectionAware(CorrectionAwareKalman):
     ) -> GridPosterior:
         """``grid``, its cells cut finer while the posterior needs it (class docstring): at
         each new node, the prior and every correction in ``history``."""
-        refine = ref.Refinement(self.resolution, self.cut)
+        refine = ref.Refinement(self.resolution, self.cut, self.axes)
         while (
             cells := refine.finer(grid.cells, self._log_posterior(grid, noise_prior))
         ) is not None:
