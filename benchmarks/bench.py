@@ -433,9 +433,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         "likelihood read off fig. 4's atlas against solved plans (accuracy in --envs "
         "environments, default 4) and its CPU a correction (--problems runs, default 4; "
         "--particles, default 2000; --bound in noise sd, default 0.02). 'exact': EX-C's and "
-        "EX-CL's update on fig. 4's atlas, CPU s a correction (median, p90) in a fresh process "
-        "with an empty store of plans between the atlas's nodes and then a full one "
-        "(--problems runs, default 3; --iterations; --learners).",
+        "EX-CL's update on fig. 4's atlas (or --study FILE's), CPU s a correction (median, "
+        "p90) in a fresh process with an empty store of plans between the atlas's nodes and "
+        "then a full one (--problems runs, default 3; --iterations; --learners).",
     )
     parser.add_argument(
         "what",
@@ -451,6 +451,11 @@ def main(argv: Sequence[str] | None = None) -> None:
         help="atlas: points a weight (default 31); confidence, exact, particles, fig4, interact, "
         "study: "
         "the study's plan atlas at N points a weight (default the study's own)",
+    )
+    parser.add_argument(
+        "--study",
+        help="exact: a study file with a plan atlas to time instead of fig. 4 (e.g. "
+        "experiments/three_features.toml), its learners' parameters as it gives them",
     )
     parser.add_argument(
         "--study-envs",
@@ -619,6 +624,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         args = parser.parse_args([args.what, *TINY[args.what], "--tiny"])
     if args.grid is not None and args.grid < 3:
         parser.error("--grid: an atlas needs >= 3 points a weight")
+    if args.study is not None and args.what != "exact":
+        parser.error(f"--study: only exact takes a study file, not {args.what}")
     if args.study_envs is not None and not 1 <= args.study_envs <= 48:
         parser.error("--study-envs: 1 to 48 paper environments")
     points = None if args.what == "atlas" else args.grid
@@ -700,7 +707,15 @@ def main(argv: Sequence[str] | None = None) -> None:
         if runs < 1 or (args.iterations is not None and args.iterations < 1):
             parser.error("exact: --problems (runs) and --iterations must be >= 1")
         names = tuple(n.strip() for n in (args.learners or "EX-C,EX-CL").split(",") if n.strip())
-        print("\n".join(run_exact(names, runs, args.iterations, smaller)), flush=True)
+        figure = "fig4"
+        if args.study is not None:
+            if not args.study.endswith(".toml") or not Path(args.study).is_file():
+                parser.error(f"--study {args.study}: not a study file (a .toml that exists)")
+            if args.study_envs is not None:
+                parser.error("--study-envs: fig. 4's paper environments; a study file has its own")
+            figure = args.study
+        lines = run_exact(names, runs, args.iterations, smaller, figure)
+        print("\n".join(lines), flush=True)
         return
     if args.what == "catch":
         from benchmarks.bench_catch import report as report_catch

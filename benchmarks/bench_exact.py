@@ -1,5 +1,6 @@
 """What an exact learner's correction costs (``bench exact``): EX-C's and EX-CL's update, CPU
-seconds a correction (median and 90th percentile), at fig. 4's paper settings on its plan
+seconds a correction (median and 90th percentile), at fig. 4's paper settings (or a study
+file's, ``--study``, with the learner's parameters as that file gives them) on its plan
 atlas, in a fresh process whose store of plans between the atlas's nodes is
 
 - **empty** (a machine's first time: every node of the refined cells solved, in every
@@ -34,9 +35,20 @@ def _overrides(runs: int, iterations: int | None, smaller: dict) -> dict:
     return found
 
 
-def _measure(figure: str, learner: str, runs: int, iterations: int | None, smaller: dict) -> dict:
-    """In this process: ``runs`` runs of ``learner``, each update timed (CPU seconds)."""
+def _settings(figure: str, overrides: dict):
+    """The paper-scale settings of ``figure``: a figure's name, or a study file's path."""
     from corrections_sim.figures.learning_study import load_settings
+    from corrections_sim.study import schema
+
+    if figure.endswith(".toml"):
+        path = Path(figure)
+        return schema.load_study(path, name=path.stem, quick=False, overrides=overrides)
+    return load_settings(figure, quick=False, overrides=overrides)
+
+
+def _measure(figure: str, learner: str, runs: int, iterations: int | None, smaller: dict) -> dict:
+    """In this process: ``runs`` runs of ``learner`` with the parameters the study gives it,
+    each update timed (CPU seconds)."""
     from corrections_sim.learning.exact.learners import ExactCorrectionAware
     from corrections_sim.study import runner
 
@@ -51,8 +63,9 @@ def _measure(figure: str, learner: str, runs: int, iterations: int | None, small
             times.append(time.process_time() - start)
 
     ExactCorrectionAware.update = timed  # EX-CL's is EX-C's: both are timed
-    overrides = {**_overrides(runs, iterations, smaller), "learners": [learner]}
-    settings = load_settings(figure, quick=False, overrides=overrides)
+    overrides = _overrides(runs, iterations, smaller)
+    params = _settings(figure, overrides).study.learner_params().get(learner, {})
+    settings = _settings(figure, {**overrides, "learners": {learner: params}})
     shared = runner.prepare(settings)
     for run in range(runs):
         runner.run_one(settings, shared, learner, run)
@@ -98,12 +111,12 @@ def run_bench(
     figure: str = "fig4",
 ) -> list[str]:
     """The table of ``bench exact`` (module docstring); ``smaller``: overrides that shrink
-    the figure's study (:mod:`benchmarks.sizes`)."""
-    from corrections_sim.figures.learning_study import load_settings
+    the figure's study (:mod:`benchmarks.sizes`); ``figure``: a figure's name or a study
+    file's path."""
     from corrections_sim.plans import spread
 
     smaller = dict(smaller or {})
-    settings = load_settings(figure, quick=False, overrides=_overrides(1, None, smaller))
+    settings = _settings(figure, _overrides(1, None, smaller))
     spec = settings.atlas_spec()
     if spec is None:
         return [f"{figure} has no plan atlas: no exact learner to time"]

@@ -53,3 +53,24 @@ def test_exact_reports_an_empty_and_a_full_store_per_learner(tmp_path):
 def test_a_bad_tiny_request_is_one_line():
     with pytest.raises(SystemExit):
         bench.main(["nonsense", "--tiny"])
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["exact", "--study", "missing.toml"], "--study missing.toml: not a study file"),
+        (["atlas", "--study", "experiments/three_features.toml"], "only exact takes a study"),
+        (
+            ["exact", "--study", "experiments/three_features.toml", "--study-envs", "2"],
+            "a study file has its own",
+        ),
+    ],
+)
+def test_a_study_the_benchmark_cannot_take_is_one_line(argv, message, capsys):
+    """``--study`` names a study file for ``exact`` alone, with its own environments: anything
+    else is refused in one line before anything is built."""
+    with pytest.raises(SystemExit):
+        bench.main(argv)
+    err = capsys.readouterr().err.strip().splitlines()
+    errors = [line for line in err if line.startswith("python -m benchmarks.bench: error:")]
+    assert len(errors) == 1 and message in errors[0] and err[-1] == errors[0]
