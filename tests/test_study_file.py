@@ -89,6 +89,12 @@ def test_three_features_every_weight_moves_towards_the_truth(tmp_path):
         assert _mean(rows, learner, "regret", last) < 0.5 * _mean(rows, learner, "regret", 0)
     tilted = [e for e in summary["settings"]["environments"] if isinstance(e, dict)]
     assert len(tilted) == 12 and all(e["tilt"] == 0.9 for e in tilted)
+    # The exact posterior at k = 3 (on the quick preset's 3-point atlas, its cells cut along
+    # the narrow axes) learns every weight, and more than KF-C's filter of the same model.
+    for i, star in enumerate(theta_star):
+        assert abs(_mean(rows, "EX-C", f"theta_{i}", last) - star) < abs(star), i
+    errors = {n: _mean(rows, n, "estimate_error", last) for n in ("EX-C", "KF-C")}
+    assert errors["EX-C"] < errors["KF-C"], errors
 
 
 def test_a_study_with_its_own_plug_ins_runs_them_in_every_worker(tmp_path):
