@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import csv
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -203,3 +204,20 @@ def test_the_particle_reference_at_k_3_and_against_the_grid_at_k_2(figure, tmp_p
     assert final["particle_mean_gap"] < 0.3 and final["particle_var_gap"] < 0.3
     assert 0.0 <= final["particle_kl"] < 0.3
     assert "particles against the grid" in capsys.readouterr().out
+
+
+def test_with_a_plan_atlas_the_reference_has_a_grid_at_k_3():
+    """The three-feature study plans from an atlas: its reference's grid is the atlas's box
+    at k = 3 (refined as its exact learners refine theirs); without the atlas, no grid."""
+    from corrections_sim.figures import reference
+    from corrections_sim.study import schema
+
+    path = Path(__file__).resolve().parents[1] / "experiments" / "three_features.toml"
+    settings = schema.load_study(path, name="three_features", quick=False)
+    grid = reference.reference_grid(settings, None)
+    box = settings.atlas_spec().grid
+    assert grid is not None and grid.thetas().shape == (11**3, 3)
+    assert (grid.low, grid.high, grid.points) == (tuple(box.lows), tuple(box.highs), 11)
+    no_atlas = {"atlas": False, "learners": ["KF", "KF-C"]}
+    without = schema.load_study(path, name="three_features", quick=False, overrides=no_atlas)
+    assert reference.reference_grid(without, None) is None

@@ -156,8 +156,8 @@ def check_reference(
     engine = particle_reference(model, learner, particles) if particles else None
     if grid is None and (engine is None or one_step or restarts):
         raise ValueError(
-            f"k = {study.k}: no grid beyond k = 2 (--particles N is the reference there; "
-            "--one-step and --restart need the grid)"
+            f"k = {study.k}: no grid beyond k = 2 without a plan atlas (--particles N is the "
+            "reference there; --one-step and --restart need the grid)"
         )
     if grid is not None:  # the learner's parameters, as its grid model reads them
         thetas = grid.thetas()
@@ -200,8 +200,8 @@ def reference_run(
     judged against the grid (``particle_kl``, KL from the grid to the smoothed particles,
     :func:`~.learning.particles.cloud.against_grid`; ``particle_mean_gap``,
     the largest |Δ mean| in the grid's sd; ``particle_var_gap``, the largest relative
-    |Δ variance|); without a grid (k > 2) it *is* the reference (its moments; no ``ref_kl``,
-    only its Gaussian part ``ref_kl_gaussian``).
+    |Δ variance|); without a grid (k > 2 without a plan atlas) it *is* the reference (its
+    moments; no ``ref_kl``, only its Gaussian part ``ref_kl_gaussian``).
 
     With ``one_step`` (a Kalman learner with N fixed), also the learner's own update started
     from the reference before the correction (its moments), as ``one_step_nees`` and
@@ -367,12 +367,13 @@ class Judged:
 
 
 def reference_grid(settings: FigureSettings, points: int | None) -> ref.Grid | None:
-    """The reference's grid: on a study with a plan atlas its box, at its spacing unless
-    ``points`` is given; else [-3, 3]² with ``points`` (61) a side; None beyond k = 2."""
+    """The reference's grid: on a study with a plan atlas its box (at any k), at its spacing
+    unless ``points`` is given; else, at k = 2 only, [-3, 3]² with ``points`` (61) a side;
+    None beyond k = 2 without an atlas."""
     k = settings.study.k
-    if k != 2:
-        return None
     spec = settings.atlas_spec()
+    if spec is None and k != 2:
+        return None
     if spec is not None:
         box = spec.grid
         return ref.Grid(box.lows, box.highs, points or box.counts[0])
