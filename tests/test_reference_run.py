@@ -187,6 +187,9 @@ def test_the_particle_reference_at_k_3_and_against_the_grid_at_k_2(figure, tmp_p
     assert cli.main(["reference", str(three), "--learner", "KF-C"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: k = 3: no grid beyond k = 2") and err.count("\n") == 1
+    assert cli.main(["reference", str(three), "--learner", "KF-C", "--check-grid"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: --check-grid: only at k = 2, not 3") and err.count("\n") == 1
     assert cli.main(["reference", str(three), "--learner", "KF-C", "--particles", "1"]) == 2
     assert "--particles 1: expected an integer >= 2" in capsys.readouterr().err
     assert cli.main(["reference", str(three), "--learner", "KF-C", "--particles", "40"]) == 0

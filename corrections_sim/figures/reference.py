@@ -370,14 +370,11 @@ def reference_grid(settings: FigureSettings, points: int | None) -> ref.Grid | N
     """The reference's grid: on a study with a plan atlas its box (at any k), at its spacing
     unless ``points`` is given; else, at k = 2 only, [-3, 3]² with ``points`` (61) a side;
     None beyond k = 2 without an atlas."""
-    k = settings.study.k
-    spec = settings.atlas_spec()
-    if spec is None and k != 2:
-        return None
+    k, spec = settings.study.k, settings.atlas_spec()
     if spec is not None:
         box = spec.grid
         return ref.Grid(box.lows, box.highs, points or box.counts[0])
-    return ref.Grid((-3.0,) * k, (3.0,) * k, points or 61)
+    return ref.Grid((-3.0,) * k, (3.0,) * k, points or 61) if k == 2 else None
 
 
 def report_lines(judged: Judged, particles: int = 0) -> list[str]:

@@ -87,7 +87,10 @@ def reference_job(
     if any(s < 0 for s in restarts):
         raise ValueError(f"--restart {','.join(map(str, restarts))}: iterations are >= 0")
     if check_grid and settings.study.k != 2:
-        raise ValueError(f"--check-grid: the grid exists only for k = 2, not {settings.study.k}")
+        raise ValueError(
+            f"--check-grid: only at k = 2, not {settings.study.k} (beyond it the halved grid's "
+            "plan atlas would be built in full)"
+        )
     grid = judge.reference_grid(settings, points)
     options = {
         "one_step": one_step,

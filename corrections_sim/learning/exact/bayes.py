@@ -119,32 +119,28 @@ class Refinement:
         density = np.where(np.isfinite(density), density, 0.0)
         core = np.flatnonzero(density[cells.corners].max(axis=1) >= np.exp(-self.cut))
         levels = cells.levels[core]
-        coarsest = levels.min(axis=0)  # per axis
+        coarsest = levels.min(axis=0)  # per axis (with "all", the same on every axis)
+        if np.all(coarsest >= cells.depth):
+            return None
         weights = cells.coefficients * density
         _, cov = moments(cells.thetas(), weights / weights.sum())
-        if self.axes == "all":
-            level = int(coarsest.min())
-            if level >= cells.depth:
-                return None
-            if _narrowest(cov, cells.spacing(level)) >= self.resolution**2:
-                return None
-            which = np.zeros(len(cells.leaves), bool)
-            which[core[levels[:, 0] == level]] = True
-            return cells.cut(which)
         widths = cells.unit() * 2.0 ** (cells.depth - coarsest)
         if _narrowest(cov, widths) >= self.resolution**2:
             return None
-        best, axis = -np.inf, -1
-        for a in np.flatnonzero(coarsest < cells.depth).tolist():  # the lowest axis on a tie
-            halved = widths.copy()
-            halved[a] /= 2
-            if (gain := _narrowest(cov, halved)) > best:
-                best, axis = gain, a
-        if axis < 0:
-            return None
+        if self.axes == "all":
+            halve = np.ones(cells.k, bool)
+        else:  # the axis whose halving widens the narrowest sd most; the lowest on a tie
+            gains = [
+                _narrowest(cov, np.where(np.arange(cells.k) == a, widths / 2, widths))
+                if coarsest[a] < cells.depth
+                else -np.inf
+                for a in range(cells.k)
+            ]
+            halve = np.arange(cells.k) == int(np.argmax(gains))
+        axis = int(np.argmax(halve))
         which = np.zeros(len(cells.leaves), bool)
         which[core[levels[:, axis] == coarsest[axis]]] = True
-        return cells.cut(which, np.arange(cells.k) == axis)
+        return cells.cut(which, halve)
 
 
 #: How :class:`Refinement` cuts a cell.
