@@ -175,6 +175,35 @@ def test_the_person_plans_with_the_atlas_and_restarts_at_least_as_well(small_atl
         Target.solve(planner, theta, envs, restarts=-1)
 
 
+def test_plans_between_nodes_reach_a_process_that_shares_no_files_through_an_exchange(
+    small_atlas, tmp_path
+):
+    """What one process solved between the atlas's nodes, given to an exchange, is taken by
+    a process with a store of its own: it answers the same θ with the same bits and solves
+    none of them, and keeps them in its store; plans named for another atlas are refused,
+    and nothing is given twice."""
+    import dataclasses
+
+    env = paper_environments()[1]
+    one = small_atlas.atlas()
+    two = dataclasses.replace(small_atlas, root=str(tmp_path / "elsewhere"))
+    thetas = np.array([[0.37, -1.13], [-2.21, 0.71], [1.07, 0.43]])
+    exchange = spread.PlanExchange()
+    here, there = spread.Peer(exchange), spread.Peer(exchange)
+    solved = one.solved_between
+    here.give(one)  # what earlier tests solved here
+    mine = one.plans(thetas, env)
+    assert one.solved_between == solved + 3
+    assert here.give(one) == 3 and here.give(one) == 0
+    two.atlas().hold(env, one.environment(env))  # the atlas handed, as on a cluster
+    assert there.take(two.atlas()) >= 3 and there.take(two.atlas()) == 0
+    assert np.array_equal(two.atlas().plans(thetas, env), mine)
+    assert two.atlas().solved_between == 0
+    assert two.atlas().save() >= 3  # and kept on its machine
+    with pytest.raises(ValueError, match="not this process's atlas"):
+        two.atlas().merge(env, "another-atlas", thetas, mine)
+
+
 def test_a_corrupt_atlas_file_is_built_again_and_says_so(small_atlas, tmp_path):
     """A stored atlas whose data was truncated is not read: preparing the study's atlases
     warns in one line naming why, and builds it again."""
@@ -235,12 +264,56 @@ def test_an_atlas_study_gives_the_same_bytes_on_one_or_two_workers_and_on_dask(
         argv = ["study", str(study), "--scheduler", cluster.scheduler_address]
         assert cli.main([*argv, "--out", str(tmp_path / "dask")]) == 0
         by_worker = client.run(built)
+        _plans_between_nodes_are_solved_once_on_the_cluster(client, study)
     assert (tmp_path / "dask" / "tiny" / "curves.csv").read_bytes() == made
     envs = {e.key(): e for e in settings.envs()}.values()
     assert sum(by_worker.values()) == len(envs), by_worker
     assert built() == before  # the client kept what the workers built
     for name in ("client", "a", "b"):
         assert spec.missing(envs, A.AtlasStore(caches[name] / "atlas")) == []
+
+
+def _plans_between_nodes_are_solved_once_on_the_cluster(client, study) -> None:
+    """On the cluster above (two workers, a cache each): a run of EX-C on cells of its own
+    (resolution 3) on one worker, then the same run on the other: the second takes every plan
+    between the atlas's nodes the first solved from the cluster's exchange and solves none of
+    them again (only the few the first knew from the study run and so never solved), with
+    the same records."""
+    from corrections_sim.cli.executors import _exchange
+    from corrections_sim.study import runner
+    from corrections_sim.study.schema import load_study
+
+    finer = {"learners": {"EX-C": {"resolution": 3.0, "cut": 13.8}}}
+    settings = load_study(study, name="tiny", quick=False, overrides=finer)
+    shared = runner.prepare(settings)
+    held: list = []
+    exchange = _exchange(client, held)
+    a, b = sorted(client.scheduler_info(n_workers=-1)["workers"])
+
+    def solved() -> int:
+        return settings.atlas().solved_between
+
+    def run_on(worker: str):
+        before = client.run(solved, workers=[worker])[worker]
+        future = client.submit(
+            runner.run_one, settings, shared, "EX-C", 0, exchange=exchange, workers=[worker],
+            pure=False,
+        )  # fmt: skip
+        result = future.result()
+        return result, client.run(solved, workers=[worker])[worker] - before
+
+    def given(since: int) -> tuple[set, int]:
+        items, cursor = exchange.since(since).result()
+        return {(env.key(), t.tobytes()) for env, _, thetas, _ in items for t in thetas}, cursor
+
+    first, solved_first = run_on(a)
+    by_a, cursor = given(0)
+    second, solved_second = run_on(b)
+    by_b, _ = given(cursor)
+    # b solves only what a knew from the study run above and never had to solve here.
+    assert len(by_a) == solved_first > 0 and len(by_b) == solved_second
+    assert not by_a & by_b and solved_second < solved_first / 10, (solved_first, solved_second)
+    assert second.records == first.records
 
 
 def test_an_atlas_session_replays_from_its_atlas_and_says_so(tmp_path):

@@ -188,6 +188,19 @@ def _quiet_closed_connections() -> None:
         logger.addFilter(ClosedConnections())
 
 
+def _exchange(client, held: list | None = None):
+    """A :class:`~corrections_sim.plans.spread.PlanExchange` held on ``client``'s cluster
+    (a Dask actor), its handle. The actor lives while the future that made it does: kept in
+    ``held`` (the executor's, for the command's life), since the handle alone keeps it only
+    when ``client`` is the process's default client."""
+    from corrections_sim.plans.spread import PlanExchange
+
+    future = client.submit(PlanExchange, actor=True, pure=False)
+    if held is not None:
+        held.append(future)
+    return future.result()
+
+
 @contextlib.contextmanager
 def dask_executor(address: str, timeout_s: float) -> Iterator[tuple[Executor, int]]:
     """An executor on the Dask cluster at ``address`` and its number of workers.
@@ -212,6 +225,9 @@ def dask_executor(address: str, timeout_s: float) -> Iterator[tuple[Executor, in
         # runner hands them what they need once each (scattered to every worker), a handle a
         # task takes as an argument in its place.
         executor.share = partial(client.scatter, broadcast=True, hash=False)
+        # ... and hand each other the plans they solve between the atlas's nodes, through
+        # one exchange held on the cluster (an actor; its handle is a task's argument).
+        executor.exchange = partial(_exchange, client, [])
         yield executor, n
     finally:
         # The cluster's workers belong to the cluster; closing the client releases this

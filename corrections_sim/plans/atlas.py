@@ -397,6 +397,11 @@ def _num(v: float) -> float | str:
 # --- plans as a function of (θ, E) ---------------------------------------------------------
 
 
+#: Plans between nodes :meth:`Atlas.plans` must solve (or has solved and not handed on)
+#: before it asks its peer (a round trip costs a few solves).
+PEER_BATCH = 8
+
+
 class Atlas:
     """One planner's atlas over one grid, environment by environment: read from the store,
     or built there on first use (:meth:`environment`), or ahead, in parallel
@@ -438,16 +443,21 @@ class Atlas:
             None if store is None else store.shards, planner.config.n_waypoints, grid.k
         )
         self._env_keys: dict[bytes, str] = {}
+        self._envs: dict[bytes, Environment] = {}
         #: Environments whose atlas this process built (not read, not handed to it).
         self.built = 0
         #: Problems answered outside the box (the planner's cold starts).
         self.outside = 0
+        #: Other processes' plans between nodes (a cluster's exchange, ``take(atlas)`` and
+        #: ``give(atlas)``), consulted when :meth:`plans` has many to solve; None: none.
+        self.peer = None
 
     def key(self, env: Environment) -> str:
         found = self._env_keys.get(env.key())
         if found is None:
             found = atlas_key(self.planner.config, env, self.grid, cold_stride=self.cold_stride)
             self._env_keys[env.key()] = found
+            self._envs[env.key()] = env
         return found
 
     def between_key(self, env: Environment) -> str:
@@ -513,20 +523,55 @@ class Atlas:
             nodes = np.ravel_multi_index(tuple(index[on].astype(int).T), grid.counts)
             out[on] = built.trajectories[nodes]
         known = self._between.known(env.key(), self.between_key(env))
-        for i in np.flatnonzero(~on).tolist():
-            memo = thetas[i].tobytes()
-            if memo not in known:
+        missing = [i for i in np.flatnonzero(~on).tolist() if thetas[i].tobytes() not in known]
+        # With a peer, in chunks: before each, what others solved meanwhile; after, ours.
+        chunk = PEER_BATCH * 4 if self.peer is not None else max(len(missing), 1)
+        for start in range(0, len(missing), chunk):
+            todo = missing[start : start + chunk]
+            if self.peer is not None and len(todo) >= PEER_BATCH:
+                self.peer.take(self)
+            for i in todo:
+                memo = thetas[i].tobytes()
+                if memo in known:  # asked twice, or taken from the peer
+                    continue
                 try:
                     known[memo] = self.solve(thetas[i], env).trajectory
                 except PlanningError:
                     known[memo] = None
                 self._between.added(env.key(), memo)
-            plan = known[memo]
+            if self.peer is not None and self._between.pending() >= PEER_BATCH:
+                self.peer.give(self)
+        for i in np.flatnonzero(~on).tolist():
+            plan = known[thetas[i].tobytes()]
             if plan is not None:
                 out[i] = plan
         return out
 
     def save(self, at_least: int = 1) -> int:
-        """Store the plans between nodes solved here and not yet saved, of every environment
-        with at least ``at_least``, for the next process of the machine; how many."""
+        """Store the plans between nodes solved here (or received, :meth:`merge`) and not yet
+        saved, of every environment with at least ``at_least``, for the next process of the
+        machine; how many."""
         return self._between.save(at_least)
+
+    @property
+    def solved_between(self) -> int:
+        """Plans between nodes this process solved (not read from disk, not received)."""
+        return self._between.solved
+
+    def outgoing(self) -> list[tuple[Environment, str, np.ndarray, np.ndarray]]:
+        """The plans between nodes solved here since the last call, for processes that share
+        no files with this one (:class:`~corrections_sim.plans.spread.PlanExchange`): per
+        environment (E, the name of its plans on disk, θ (n, k), trajectories (n, T, 7))."""
+        return [
+            (self._envs[env_key], name, thetas, plans)
+            for env_key, name, thetas, plans in self._between.outgoing()
+        ]
+
+    def merge(self, env: Environment, name: str, thetas: np.ndarray, plans: np.ndarray) -> int:
+        """Plans between nodes another process solved (:meth:`outgoing`'s items), kept here
+        and saved with this process's own; how many were new. Plans named for another atlas
+        or other code than this process's (``name`` is not its :meth:`between_key` of E) are
+        refused: a plan is the answer of the atlas and the code it came from."""
+        if name != self.between_key(env):
+            raise ValueError(f"plans named {name}: not this process's atlas of {env.name}")
+        return self._between.merge(env.key(), name, thetas, plans)

@@ -108,6 +108,10 @@ class BetweenNodes:
         self._unsaved: dict[bytes, list[bytes]] = {}
         self._keys: dict[bytes, str] = {}
         self._kept = 0
+        #: Plans solved here not yet handed on (:meth:`outgoing`), per environment.
+        self._outgoing: dict[bytes, list[bytes]] = {}
+        #: Plans solved in this process (not read from disk, not received).
+        self.solved = 0
 
     def known(self, env_key: bytes, atlas_key: str) -> dict[bytes, np.ndarray | None]:
         """E's plans known here (θ's bytes -> trajectory or None), to read and add to (then
@@ -128,9 +132,51 @@ class BetweenNodes:
         return found
 
     def added(self, env_key: bytes, theta: bytes) -> None:
-        """A plan solved here for E at θ (its bytes), to be saved."""
+        """A plan solved here for E at θ (its bytes), to be saved and handed on."""
         self._unsaved.setdefault(env_key, []).append(theta)
+        self._outgoing.setdefault(env_key, []).append(theta)
         self._kept += 1
+        self.solved += 1
+
+    def pending(self) -> int:
+        """Plans solved here not yet handed on (:meth:`outgoing`)."""
+        return sum(len(thetas) for thetas in self._outgoing.values())
+
+    def outgoing(self) -> list[tuple[bytes, str, np.ndarray, np.ndarray]]:
+        """The plans solved here since the last call, to hand to other processes: per
+        environment (E's key, its atlas's name on disk, θ (n, k), trajectories (n, T, 7), NaN
+        where no start converged)."""
+        out = []
+        for env_key, thetas in self._outgoing.items():
+            known = self._known.get(env_key, {})
+            kept = [t for t in thetas if t in known]
+            if kept:
+                out.append((env_key, self._keys[env_key], *self._stack(known, kept)))
+        self._outgoing.clear()
+        return out
+
+    def merge(self, env_key: bytes, atlas_key: str, thetas: np.ndarray, plans: np.ndarray) -> int:
+        """Plans another process solved for E (its key; its atlas's name on disk ``atlas_key``),
+        kept here as if solved here — saved with this process's own, not handed on again;
+        how many were new here. A plan depends on (θ, E) alone, so a plan received is the
+        plan this process would have solved."""
+        known = self.known(env_key, atlas_key)
+        new = 0
+        for theta, plan in zip(np.asarray(thetas, float), np.asarray(plans, float), strict=True):
+            memo = theta.tobytes()
+            if memo not in known:
+                known[memo] = plan if np.all(np.isfinite(plan)) else None
+                self._unsaved.setdefault(env_key, []).append(memo)
+                self._kept += 1
+                new += 1
+        return new
+
+    def _stack(
+        self, known: dict[bytes, np.ndarray | None], thetas: list[bytes]
+    ) -> tuple[np.ndarray, np.ndarray]:
+        nan = np.full((self.T, 7), np.nan)
+        plans = np.array([nan if known[t] is None else known[t] for t in thetas])
+        return np.array([np.frombuffer(t) for t in thetas]), plans
 
     def save(self, at_least: int = 1) -> int:
         """The unsaved plans of every environment with at least ``at_least`` of them, a shard
@@ -144,10 +190,7 @@ class BetweenNodes:
             known = self._known.get(env_key, {})
             kept = [t for t in thetas if t in known]
             if kept:
-                nan = np.full((self.T, 7), np.nan)
-                plans = np.array([nan if known[t] is None else known[t] for t in kept])
-                stacked = np.array([np.frombuffer(t) for t in kept])
-                self.shards.save(self._keys[env_key], stacked, plans)
+                self.shards.save(self._keys[env_key], *self._stack(known, kept))
                 written += len(kept)
             thetas.clear()
         return written

@@ -139,3 +139,102 @@ def receive(spec: AtlasSpec, handed: Carried) -> None:
         if not mine.holds(env):
             mine.hold(env, built)
             _keep(spec, store, env, built)
+
+
+class PlanExchange:
+    """The plans between an atlas's nodes that a cluster's workers solved, for the others:
+    plain state, held on the cluster as one object that every worker calls (a Dask actor:
+    the executor makes it, ``executor.exchange()``, and the runner hands it to each run). A
+    worker hands on what it solved (:meth:`add`) and takes what others added since it last
+    asked (:meth:`since`); a plan depends on (θ, E) alone, so taking one changes no number,
+    only who solves it."""
+
+    def __init__(self) -> None:
+        self._items: list[tuple[Environment, str, np.ndarray, np.ndarray]] = []
+
+    def add(self, items: list[tuple[Environment, str, np.ndarray, np.ndarray]]) -> int:
+        """Keep ``items`` (:meth:`Atlas.outgoing`'s); how many the exchange holds."""
+        self._items.extend(items)
+        return len(self._items)
+
+    def since(self, cursor: int) -> tuple[list, int]:
+        """The items added after the first ``cursor``, and the cursor after them."""
+        return self._items[cursor:], len(self._items)
+
+
+class Peer:
+    """This process's side of a :class:`PlanExchange` (a handle on it), as an atlas's
+    :attr:`~corrections_sim.plans.atlas.Atlas.peer`: it takes what other processes added
+    since it last asked and gives what this one solved. An exchange that cannot be reached
+    is left alone (the plans are then solved here, the same bits), said once a process."""
+
+    def __init__(self, exchange) -> None:
+        self.exchange = exchange
+        self.identity = str(getattr(exchange, "key", id(exchange)))
+        self.cursor = 0
+        #: Plans taken from others that were new here, and plans given.
+        self.taken = 0
+        self.given = 0
+
+    def take(self, atlas: Atlas) -> int:
+        """Others' plans since the last call, kept by ``atlas``; how many were new."""
+        try:
+            items, self.cursor = _call(self.exchange.since(self.cursor))
+        except Exception as exc:  # noqa: BLE001 -- any failure to reach it: solve here
+            _unreachable(exc)
+            return 0
+        new = 0
+        for env, name, thetas, plans in items:
+            try:
+                new += atlas.merge(env, name, thetas, plans)
+            except ValueError:  # another atlas's or other code's plans: not ours to use
+                continue
+        self.taken += new
+        return new
+
+    def give(self, atlas: Atlas) -> int:
+        """The plans ``atlas`` solved since the last call, to the exchange; how many."""
+        items = atlas.outgoing()
+        if not items:
+            return 0
+        try:
+            _call(self.exchange.add(items))
+        except Exception as exc:  # noqa: BLE001 -- the others then solve these themselves
+            _unreachable(exc)
+            return 0
+        n = sum(len(thetas) for _, _, thetas, _ in items)
+        self.given += n
+        return n
+
+
+def connect(spec: AtlasSpec, exchange) -> Peer:
+    """In a worker: this process's atlas of ``spec`` takes and gives plans between nodes
+    through ``exchange`` (kept across the runs of one exchange, replaced by another's)."""
+    atlas = spec.atlas()
+    peer = atlas.peer
+    if peer is None or peer.identity != str(getattr(exchange, "key", id(exchange))):
+        peer = atlas.peer = Peer(exchange)
+    peer.take(atlas)
+    return peer
+
+
+def flush(spec: AtlasSpec) -> int:
+    """Give the exchange whatever this process's atlas solved and has not given yet."""
+    atlas = spec.atlas()
+    return 0 if atlas.peer is None else atlas.peer.give(atlas)
+
+
+def _call(value):
+    """A remote call's answer (an actor's method returns a future), or a local one's."""
+    return value.result() if hasattr(value, "result") else value
+
+
+_said: list[str] = []
+
+
+def _unreachable(exc: Exception) -> None:
+    if not _said:
+        _said.append(str(exc))
+        warnings.warn(
+            f"plan exchange unreachable, plans between nodes solved here: {exc}", stacklevel=3
+        )

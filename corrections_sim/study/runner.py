@@ -91,14 +91,22 @@ def run_one(
     alphas=None,
     plan_book: type[PlanBook] = PlanBook,
     handed: spread.Carried | None = None,
+    exchange=None,
 ) -> RunResult:
     """One (learner, run); safe to call in a worker process. ``plan_book``: see
-    :func:`~corrections_sim.study.loop.run_learner`; ``handed``: as :func:`prepare`'s."""
+    :func:`~corrections_sim.study.loop.run_learner`; ``handed``: as :func:`prepare`'s;
+    ``exchange``: a cluster's :class:`~corrections_sim.plans.spread.PlanExchange`, through
+    which the run takes the plans between the atlas's nodes other workers solved whenever it
+    has many to solve, and gives its own (workers that share no files then rarely solve one
+    twice; no number depends on it)."""
     load_plugins(settings.plugins)
     _receive(settings, handed)
     s = settings.study
     seq = np.random.SeedSequence([s.seed, LEARNERS[learner].stream, run])
     atlas = settings.atlas()
+    spec = settings.atlas_spec()
+    if exchange is not None and spec is not None:
+        spread.connect(spec, exchange)
     result = run_learner(
         learner,
         run,
@@ -114,6 +122,8 @@ def run_one(
         atlas=atlas,
     )
     if atlas is not None:  # the plans it solved between the nodes, for the next process
+        if exchange is not None and spec is not None:
+            spread.flush(spec)
         atlas.save(at_least=SAVE_AT_LEAST)
         interpolation.save_kept(at_least=SAVE_AT_LEAST)  # and the cells it checked
     return result
@@ -250,6 +260,10 @@ def run(
     # Only a cluster's tasks are handed the atlases: a process pool's are called as ever.
     extra = {} if handed is None else {"handed": handed}
     shared = executor.submit(prepare, settings, **extra).result()
+    # A cluster's runs also hand each other the plans they solve between the atlas's nodes.
+    make_exchange = getattr(executor, "exchange", None)
+    exchange = make_exchange() if spec is not None and make_exchange is not None else None
+    each_run = extra if exchange is None else {**extra, "exchange": exchange}
     total = len(keys)
     done = resumed
     if progress:
@@ -262,7 +276,7 @@ def run(
             if (learner, r) in results:
                 continue
             rates = (alphas or {}).get(learner)
-            future = executor.submit(run_one, settings, shared, learner, r, rates, **extra)
+            future = executor.submit(run_one, settings, shared, learner, r, rates, **each_run)
             futures[future] = (learner, r)
         for fut in as_completed(futures):
             key = futures[fut]
@@ -276,6 +290,9 @@ def run(
     execute([k for k in keys if not LEARNERS[k[0]].needs_rates()])
     alphas = learning_rates(settings, results)
     execute([k for k in keys if LEARNERS[k[0]].needs_rates()], alphas)
+    if exchange is not None:  # this machine keeps what the cluster solved between nodes too
+        spread.connect(spec, exchange)
+        spec.atlas().save()
 
     records = [
         rec
