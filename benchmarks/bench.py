@@ -458,6 +458,17 @@ def main(argv: Sequence[str] | None = None) -> None:
         "experiments/three_features.toml), its learners' parameters as it gives them",
     )
     parser.add_argument(
+        "--cluster",
+        action="store_true",
+        help="exact: the plans between the atlas's nodes two Dask workers with caches of their "
+        "own solve, without and with the plan exchange, instead of the update's CPU time",
+    )
+    parser.add_argument(
+        "--pool",
+        action="store_true",
+        help="exact: the same on a process pool of two workers sharing one store",
+    )
+    parser.add_argument(
         "--study-envs",
         type=int,
         help="confidence, exact, particles, fig4, interact, study: the study's first N paper "
@@ -624,6 +635,12 @@ def main(argv: Sequence[str] | None = None) -> None:
         args = parser.parse_args([args.what, *TINY[args.what], "--tiny"])
     if args.grid is not None and args.grid < 3:
         parser.error("--grid: an atlas needs >= 3 points a weight")
+    if args.cluster and args.what != "exact":
+        parser.error(f"--cluster: only exact runs on a cluster, not {args.what}")
+    if args.pool and args.what != "exact":
+        parser.error(f"--pool: only exact compares a pool's sharing, not {args.what}")
+    if args.pool and args.cluster:
+        parser.error("--pool and --cluster: one at a time")
     if args.study is not None and args.what != "exact":
         parser.error(f"--study: only exact takes a study file, not {args.what}")
     if args.study_envs is not None and not 1 <= args.study_envs <= 48:
@@ -714,7 +731,16 @@ def main(argv: Sequence[str] | None = None) -> None:
             if args.study_envs is not None:
                 parser.error("--study-envs: fig. 4's paper environments; a study file has its own")
             figure = args.study
-        lines = run_exact(names, runs, args.iterations, smaller, figure)
+        if args.cluster:
+            from benchmarks.bench_exact import run_cluster
+
+            lines = run_cluster(names, runs, args.iterations, smaller, figure)
+        elif args.pool:
+            from benchmarks.bench_exact import run_pool
+
+            lines = run_pool(names, runs, args.iterations, smaller, figure)
+        else:
+            lines = run_exact(names, runs, args.iterations, smaller, figure)
         print("\n".join(lines), flush=True)
         return
     if args.what == "catch":

@@ -144,6 +144,167 @@ def run_bench(
     return lines
 
 
+def run_cluster(
+    learners: tuple[str, ...] = ("EX-C", "EX-CL"),
+    runs: int = 3,
+    iterations: int | None = None,
+    smaller: dict | None = None,
+    figure: str = "fig4",
+) -> list[str]:
+    """``bench exact --cluster``: the study's runs of ``learners`` on a Dask cluster of two
+    workers whose caches are folders of their own (the compiled code linked, no atlas, no plan
+    between nodes: machines that share no files), once without the plan exchange and once
+    with it, each on a fresh cluster: the plans between the atlas's nodes the workers solved,
+    against the distinct plans the runs needed, the wall time, and whether the records agree."""
+    from distributed import Client, Nanny, Scheduler, SpecCluster
+
+    from corrections_sim.cli.executors import dask_executor
+    from corrections_sim.planning.planner import cache_dir
+    from corrections_sim.plans import spread
+    from corrections_sim.study import runner
+
+    overrides = _overrides(runs, iterations, dict(smaller or {}))
+    params = _settings(figure, overrides).study.learner_params()
+    chosen = {name: params.get(name, {}) for name in learners}
+    settings = _settings(figure, {**overrides, "learners": chosen})
+    spec = settings.atlas_spec()
+    if spec is None:
+        return [f"{figure} has no plan atlas: no exact learner to share plans for"]
+    spread.prepare(spec, settings.envs())  # this process hands the atlases to the workers
+
+    def solved() -> int:
+        return settings.atlas().solved_between
+
+    def once(exchange: bool, root: Path) -> tuple[int, int, float, tuple]:
+        workers = {}
+        for name in ("a", "b"):
+            cache = root / name
+            cache.mkdir(parents=True)
+            for path in cache_dir().glob("*.so"):
+                (cache / path.name).symlink_to(path)
+            env = {"CORRECTIONS_SIM_CACHE": str(cache)}
+            workers[name] = {"cls": Nanny, "options": {"nthreads": 1, "env": env}}
+        scheduler = {"cls": Scheduler, "options": {"host": "127.0.0.1", "dashboard_address": None}}
+        made: list = []
+        with SpecCluster(workers=workers, scheduler=scheduler, asynchronous=False) as cluster:
+            with dask_executor(cluster.scheduler_address, 30.0) as (executor, _):
+                if exchange:
+                    make = executor.exchange
+                    executor.exchange = lambda: made.append(make()) or made[-1]
+                else:
+                    del executor.exchange
+                start = time.perf_counter()
+                result = runner.run(settings, executor, mean_estimate=False)
+                wall = time.perf_counter() - start
+                distinct = 0
+                if made:
+                    items, _ = made[0].since(0).result()
+                    distinct = len({(e.key(), t.tobytes()) for e, _, th, _ in items for t in th})
+            with Client(cluster) as client:
+                total = sum(client.run(solved).values())
+        return total, distinct, wall, tuple(map(tuple, (r.items() for r in result.records)))
+
+    lines = [
+        f"{figure}, {', '.join(learners)}: {runs} run(s) each on a Dask cluster of 2 workers, "
+        "a cache folder each (no shared files), plans between the atlas's nodes solved:",
+        f"{'exchange':10} {'solved':>8} {'distinct':>9} {'per plan':>9} {'wall s':>7}",
+    ]
+    with tempfile.TemporaryDirectory(prefix="bench-cluster-") as scratch:
+        without = once(False, Path(scratch) / "without")
+        within = once(True, Path(scratch) / "with")
+    distinct = within[1]
+    for name, (total, _, wall, _) in (("without", without), ("with", within)):
+        per = f"{total / distinct:9.2f}" if distinct else f"{'-':>9}"
+        lines.append(f"{name:10} {total:8d} {distinct:9d} {per} {wall:7.1f}")
+    same = "the same" if without[3] == within[3] else "DIFFERENT"
+    lines.append(f"records with and without the exchange: {same}")
+    return lines
+
+
+POOL_CHILD = "--pool-child"
+
+
+def _pool_pass(figure: str, overrides: dict, exchange: bool) -> dict:
+    """In this process (a store of its own): the study's runs on a pool of 2 workers, with
+    the command's pool (its plan exchange) or a plain one; wall seconds and the plans between
+    nodes its workers saved (all, and distinct)."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    from corrections_sim.cli.executors import process_pool
+    from corrections_sim.planning.planner import cache_dir
+    from corrections_sim.study import runner
+
+    settings = _settings(figure, overrides)
+    start = time.perf_counter()
+    if exchange:
+        with process_pool(2) as pool:
+            runner.run(settings, pool, mean_estimate=False)
+    else:
+        with ProcessPoolExecutor(2) as pool:
+            runner.run(settings, pool, mean_estimate=False)
+    wall = time.perf_counter() - start
+    saved, distinct = 0, set()
+    for path in (cache_dir() / "atlas").glob("*.extra-*.npz"):
+        with np.load(path) as data:
+            saved += len(data["thetas"])
+            distinct |= {(path.name.split(".extra")[0], t.tobytes()) for t in data["thetas"]}
+    return {"wall": wall, "saved": saved, "distinct": len(distinct)}
+
+
+def run_pool(
+    learners: tuple[str, ...] = ("EX-C", "EX-CL"),
+    runs: int = 3,
+    iterations: int | None = None,
+    smaller: dict | None = None,
+    figure: str = "fig4",
+) -> list[str]:
+    """``bench exact --pool``: the study's runs of ``learners`` on a process pool of two
+    workers sharing one store that holds the atlas and no plan between its nodes, each pass
+    in a fresh process with a store of its own: without the plan exchange (each worker reads
+    the store's plans of an environment when it first asks about it) and with it. The plans
+    saved count every solve but those a worker solved and had not saved at the end."""
+    overrides = _overrides(runs, iterations, dict(smaller or {}))
+    params = _settings(figure, overrides).study.learner_params()
+    overrides["learners"] = {name: params.get(name, {}) for name in learners}
+    settings = _settings(figure, overrides)
+    if settings.atlas_spec() is None:
+        return [f"{figure} has no plan atlas: no exact learner to share plans for"]
+    from corrections_sim.plans import spread
+
+    spread.prepare(settings.atlas_spec(), settings.envs())
+    lines = [
+        f"{figure}, {', '.join(learners)}: {runs} run(s) each on a process pool of 2 workers, "
+        "one store with the atlas and no plan between its nodes:",
+        f"{'exchange':10} {'saved':>8} {'distinct':>9} {'per plan':>9} {'wall s':>7}",
+    ]
+    for exchange in (False, True):
+        with tempfile.TemporaryDirectory(prefix="bench-pool-") as scratch:
+            root = Path(scratch)
+            _store(root)
+            env = dict(os.environ, CORRECTIONS_SIM_CACHE=str(root))
+            args = [figure, json.dumps(overrides), str(int(exchange))]
+            done = subprocess.run(
+                [sys.executable, "-m", "benchmarks.bench_exact", POOL_CHILD, *args],
+                env=env,
+                capture_output=True,
+                text=True,
+                check=False,
+            )
+            if done.returncode != 0:
+                tail = (done.stderr.strip().splitlines() or ["no output"])[-1]
+                raise RuntimeError(f"bench exact --pool: the pass failed: {tail}")
+            found = json.loads(done.stdout.strip().splitlines()[-1])
+        per = found["saved"] / found["distinct"] if found["distinct"] else float("nan")
+        name = "with" if exchange else "without"
+        lines.append(
+            f"{name:10} {found['saved']:8d} {found['distinct']:9d} {per:9.2f} {found['wall']:7.1f}"
+        )
+    return lines
+
+
+if __name__ == "__main__" and len(sys.argv) == 5 and sys.argv[1] == POOL_CHILD:
+    print(json.dumps(_pool_pass(sys.argv[2], json.loads(sys.argv[3]), sys.argv[4] == "1")))
+
 if __name__ == "__main__" and len(sys.argv) == 7 and sys.argv[1] == CHILD:
     figure, learner = sys.argv[2], sys.argv[3]
     runs, iterations = int(sys.argv[4]), int(sys.argv[5])

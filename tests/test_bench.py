@@ -64,11 +64,15 @@ def test_a_bad_tiny_request_is_one_line():
             ["exact", "--study", "experiments/three_features.toml", "--study-envs", "2"],
             "a study file has its own",
         ),
+        (["atlas", "--cluster"], "only exact runs on a cluster"),
+        (["warm", "--pool"], "only exact compares a pool's sharing"),
+        (["exact", "--pool", "--cluster"], "one at a time"),
     ],
 )
 def test_a_study_the_benchmark_cannot_take_is_one_line(argv, message, capsys):
-    """``--study`` names a study file for ``exact`` alone, with its own environments: anything
-    else is refused in one line before anything is built."""
+    """``--study`` names a study file for ``exact`` alone, with its own environments, and
+    ``--cluster`` is ``exact``'s alone: anything else is refused in one line before anything
+    is built."""
     with pytest.raises(SystemExit):
         bench.main(argv)
     err = capsys.readouterr().err.strip().splitlines()

@@ -22,6 +22,7 @@ import threading
 from collections.abc import Iterator
 from concurrent.futures import Executor, ProcessPoolExecutor
 from functools import partial
+from multiprocessing.managers import BaseManager
 
 _SIGNALS = {signal.SIGINT, signal.SIGTERM}
 #: prctl(2) option: the signal a process gets when its parent dies (Linux).
@@ -129,20 +130,66 @@ def kill_workers(pool: ProcessPoolExecutor) -> None:
         process.join(timeout=1.0)
 
 
+class _ExchangeManager(BaseManager):
+    """Serves plan exchanges to a process pool's workers from a process of its own."""
+
+
+def _new_exchange():
+    from corrections_sim.plans.spread import PlanExchange
+
+    return PlanExchange(shared_files=True)  # a pool's workers share this machine's store
+
+
+_ExchangeManager.register("PlanExchange", _new_exchange)
+
+
+class _PoolExchanges:
+    """The plan exchanges of one process pool (``pool.exchange()``): each a handle on a
+    :class:`~corrections_sim.plans.spread.PlanExchange` held by one manager process, started
+    when the first is asked for, quiet like a worker (no Ctrl-C; it dies with the command)."""
+
+    def __init__(self) -> None:
+        self.manager: _ExchangeManager | None = None
+
+    def make(self):
+        if self.manager is None:
+            manager = _ExchangeManager()
+            previous = signal.pthread_sigmask(signal.SIG_BLOCK, _SIGNALS)
+            try:
+                manager.start(initializer=_worker_init, initargs=(os.getpid(),))
+            finally:
+                signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+            self.manager = manager
+        return self.manager.PlanExchange()
+
+    def close(self) -> None:
+        if self.manager is not None:
+            with contextlib.suppress(OSError, EOFError):
+                self.manager.shutdown()
+            self.manager = None
+
+
 @contextlib.contextmanager
 def process_pool(workers: int) -> Iterator[Executor]:
     """A local process pool that shuts down cleanly, or is killed on any exception.
 
     Leaving normally waits for the workers; leaving by an exception (an interrupt, a dead
-    worker, a failed run) kills them at once instead of waiting for queued tasks.
+    worker, a failed run) kills them at once instead of waiting for queued tasks. Its workers
+    hand each other the plans they solve between an atlas's nodes through an exchange
+    (``pool.exchange()``, a manager process's), as a cluster's do: the shared store alone
+    reaches a worker only when it first asks about an environment.
     """
     pool = _QuietPool(max_workers=workers, initializer=_worker_init, initargs=(os.getpid(),))
+    exchanges = _PoolExchanges()
+    pool.exchange = exchanges.make
     try:
         yield pool
         pool.shutdown(wait=True)
     except BaseException:
         kill_workers(pool)
         raise
+    finally:
+        exchanges.close()
 
 
 _ADDRESS = re.compile(r"(?:(?:tcp|tls|ws|wss|ucx)://)?(?:\[[0-9a-fA-F:.]+\]|[^\s:/\[\]]+):\d{1,5}")
@@ -198,7 +245,12 @@ def _exchange(client, held: list | None = None):
     future = client.submit(PlanExchange, actor=True, pure=False)
     if held is not None:
         held.append(future)
-    return future.result()
+    exchange = future.result()
+    # A handle binds to the client current at its first call, for good: this one (the command's
+    # client is not the process's default), so that this process can call it later too.
+    with client.as_current():
+        exchange.since(0).result()
+    return exchange
 
 
 @contextlib.contextmanager

@@ -567,11 +567,14 @@ class Atlas:
             for env_key, name, thetas, plans in self._between.outgoing()
         ]
 
-    def merge(self, env: Environment, name: str, thetas: np.ndarray, plans: np.ndarray) -> int:
+    def merge(
+        self, env: Environment, name: str, thetas: np.ndarray, plans: np.ndarray, save: bool = True
+    ) -> int:
         """Plans between nodes another process solved (:meth:`outgoing`'s items), kept here
-        and saved with this process's own; how many were new. Plans named for another atlas
-        or other code than this process's (``name`` is not its :meth:`between_key` of E) are
-        refused: a plan is the answer of the atlas and the code it came from."""
+        and (``save``) saved with this process's own; how many were new. Plans named for
+        another atlas or other code than this process's (``name`` is not its
+        :meth:`between_key` of E) are refused: a plan is the answer of the atlas and the code
+        it came from."""
         if name != self.between_key(env):
             raise ValueError(f"plans named {name}: not this process's atlas of {env.name}")
-        return self._between.merge(env.key(), name, thetas, plans)
+        return self._between.merge(env.key(), name, thetas, plans, save)

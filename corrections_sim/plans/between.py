@@ -155,10 +155,17 @@ class BetweenNodes:
         self._outgoing.clear()
         return out
 
-    def merge(self, env_key: bytes, atlas_key: str, thetas: np.ndarray, plans: np.ndarray) -> int:
+    def merge(
+        self,
+        env_key: bytes,
+        atlas_key: str,
+        thetas: np.ndarray,
+        plans: np.ndarray,
+        save: bool = True,
+    ) -> int:
         """Plans another process solved for E (its key; its atlas's name on disk ``atlas_key``),
-        kept here as if solved here — saved with this process's own, not handed on again;
-        how many were new here. A plan depends on (θ, E) alone, so a plan received is the
+        kept here as if solved here — (``save``) saved with this process's own, not handed on
+        again; how many were new here. A plan depends on (θ, E) alone, so a plan received is the
         plan this process would have solved."""
         known = self.known(env_key, atlas_key)
         new = 0
@@ -166,7 +173,8 @@ class BetweenNodes:
             memo = theta.tobytes()
             if memo not in known:
                 known[memo] = plan if np.all(np.isfinite(plan)) else None
-                self._unsaved.setdefault(env_key, []).append(memo)
+                if save:
+                    self._unsaved.setdefault(env_key, []).append(memo)
                 self._kept += 1
                 new += 1
         return new

@@ -10,6 +10,7 @@ The executor is the caller's; nothing here decides where work runs.
 from __future__ import annotations
 
 import functools
+import uuid
 import warnings
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import Executor
@@ -149,8 +150,19 @@ class PlanExchange:
     asked (:meth:`since`); a plan depends on (θ, E) alone, so taking one changes no number,
     only who solves it."""
 
-    def __init__(self) -> None:
+    def __init__(self, shared_files: bool = False) -> None:
         self._items: list[tuple[Environment, str, np.ndarray, np.ndarray]] = []
+        self._identity = uuid.uuid4().hex
+        self._shared_files = shared_files
+
+    def identity(self) -> str:
+        """A name of this exchange, the same through every handle on it."""
+        return self._identity
+
+    def shared_files(self) -> bool:
+        """Whether its processes share one store (a process pool's): then what one takes is
+        on disk already, saved by the one that solved it, and is not saved again."""
+        return self._shared_files
 
     def add(self, items: list[tuple[Environment, str, np.ndarray, np.ndarray]]) -> int:
         """Keep ``items`` (:meth:`Atlas.outgoing`'s); how many the exchange holds."""
@@ -170,7 +182,8 @@ class Peer:
 
     def __init__(self, exchange) -> None:
         self.exchange = exchange
-        self.identity = str(getattr(exchange, "key", id(exchange)))
+        self.identity = _call(exchange.identity())
+        self.keep = not _call(exchange.shared_files())
         self.cursor = 0
         #: Plans taken from others that were new here, and plans given.
         self.taken = 0
@@ -186,7 +199,7 @@ class Peer:
         new = 0
         for env, name, thetas, plans in items:
             try:
-                new += atlas.merge(env, name, thetas, plans)
+                new += atlas.merge(env, name, thetas, plans, save=self.keep)
             except ValueError:  # another atlas's or other code's plans: not ours to use
                 continue
         self.taken += new
@@ -207,15 +220,20 @@ class Peer:
         return n
 
 
-def connect(spec: AtlasSpec, exchange) -> Peer:
+def connect(spec: AtlasSpec, exchange) -> Peer | None:
     """In a worker: this process's atlas of ``spec`` takes and gives plans between nodes
-    through ``exchange`` (kept across the runs of one exchange, replaced by another's)."""
+    through ``exchange`` (kept across the runs of one exchange, replaced by another's); None
+    when the exchange cannot be reached (said once a process)."""
     atlas = spec.atlas()
-    peer = atlas.peer
-    if peer is None or peer.identity != str(getattr(exchange, "key", id(exchange))):
-        peer = atlas.peer = Peer(exchange)
-    peer.take(atlas)
-    return peer
+    try:
+        identity = _call(exchange.identity())
+    except Exception as exc:  # noqa: BLE001 -- any failure to reach it: solve here
+        _unreachable(exc)
+        return None
+    if atlas.peer is None or atlas.peer.identity != identity:
+        atlas.peer = Peer(exchange)
+    atlas.peer.take(atlas)
+    return atlas.peer
 
 
 def flush(spec: AtlasSpec) -> int:
