@@ -86,12 +86,12 @@ def _store(root: Path) -> None:
             (root / "atlas" / path.name).symlink_to(path)
 
 
-def _child(figure: str, learner: str, sizes: tuple, root: Path) -> list:
+def _in_child(args: list[str], root: Path, what: str) -> dict:
+    """``python -m benchmarks.bench_exact <args>`` in a fresh process whose store is
+    ``root``: the JSON of its last line; failing with its last error line, ``what`` said."""
     env = dict(os.environ, CORRECTIONS_SIM_CACHE=str(root))
-    runs, iterations, smaller = sizes
-    args = [figure, learner, str(runs), str(iterations or 0), json.dumps(smaller)]
     done = subprocess.run(
-        [sys.executable, "-m", "benchmarks.bench_exact", CHILD, *args],
+        [sys.executable, "-m", "benchmarks.bench_exact", *args],
         env=env,
         capture_output=True,
         text=True,
@@ -99,8 +99,14 @@ def _child(figure: str, learner: str, sizes: tuple, root: Path) -> list:
     )
     if done.returncode != 0:
         tail = (done.stderr.strip().splitlines() or ["no output"])[-1]
-        raise RuntimeError(f"bench exact: the {learner} process failed: {tail}")
-    return json.loads(done.stdout.strip().splitlines()[-1])["times"]
+        raise RuntimeError(f"bench exact: {what} failed: {tail}")
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def _child(figure: str, learner: str, sizes: tuple, root: Path) -> list:
+    runs, iterations, smaller = sizes
+    args = [CHILD, figure, learner, str(runs), str(iterations or 0), json.dumps(smaller)]
+    return _in_child(args, root, f"the {learner} process")["times"]
 
 
 def run_bench(
@@ -144,6 +150,16 @@ def run_bench(
     return lines
 
 
+def _with_learners(
+    figure: str, learners: tuple[str, ...], runs: int, iterations: int | None, smaller
+) -> dict:
+    """The overrides of ``runs`` runs of ``learners`` alone, each with the parameters the
+    study gives it."""
+    overrides = _overrides(runs, iterations, dict(smaller or {}))
+    params = _settings(figure, overrides).study.learner_params()
+    return {**overrides, "learners": {name: params.get(name, {}) for name in learners}}
+
+
 def run_cluster(
     learners: tuple[str, ...] = ("EX-C", "EX-CL"),
     runs: int = 3,
@@ -163,10 +179,7 @@ def run_cluster(
     from corrections_sim.plans import spread
     from corrections_sim.study import runner
 
-    overrides = _overrides(runs, iterations, dict(smaller or {}))
-    params = _settings(figure, overrides).study.learner_params()
-    chosen = {name: params.get(name, {}) for name in learners}
-    settings = _settings(figure, {**overrides, "learners": chosen})
+    settings = _settings(figure, _with_learners(figure, learners, runs, iterations, smaller))
     spec = settings.atlas_spec()
     if spec is None:
         return [f"{figure} has no plan atlas: no exact learner to share plans for"]
@@ -263,9 +276,7 @@ def run_pool(
     in a fresh process with a store of its own: without the plan exchange (each worker reads
     the store's plans of an environment when it first asks about it) and with it. The plans
     saved count every solve but those a worker solved and had not saved at the end."""
-    overrides = _overrides(runs, iterations, dict(smaller or {}))
-    params = _settings(figure, overrides).study.learner_params()
-    overrides["learners"] = {name: params.get(name, {}) for name in learners}
+    overrides = _with_learners(figure, learners, runs, iterations, smaller)
     settings = _settings(figure, overrides)
     if settings.atlas_spec() is None:
         return [f"{figure} has no plan atlas: no exact learner to share plans for"]
@@ -281,19 +292,8 @@ def run_pool(
         with tempfile.TemporaryDirectory(prefix="bench-pool-") as scratch:
             root = Path(scratch)
             _store(root)
-            env = dict(os.environ, CORRECTIONS_SIM_CACHE=str(root))
-            args = [figure, json.dumps(overrides), str(int(exchange))]
-            done = subprocess.run(
-                [sys.executable, "-m", "benchmarks.bench_exact", POOL_CHILD, *args],
-                env=env,
-                capture_output=True,
-                text=True,
-                check=False,
-            )
-            if done.returncode != 0:
-                tail = (done.stderr.strip().splitlines() or ["no output"])[-1]
-                raise RuntimeError(f"bench exact --pool: the pass failed: {tail}")
-            found = json.loads(done.stdout.strip().splitlines()[-1])
+            args = [POOL_CHILD, figure, json.dumps(overrides), str(int(exchange))]
+            found = _in_child(args, root, "the pool's pass")
         per = found["saved"] / found["distinct"] if found["distinct"] else float("nan")
         name = "with" if exchange else "without"
         lines.append(
