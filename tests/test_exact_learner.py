@@ -226,7 +226,8 @@ def test_an_atlas_study_gives_the_same_bytes_on_one_or_two_workers_and_on_dask(
     processes and on a Dask cluster whose two workers and client each keep a cache of their
     own (as machines that share no files do): byte for byte those of the one-worker run, and
     on the cluster each environment's atlas built once in all (the client keeps what a worker
-    built and hands it to every worker), every worker's cache holding every atlas after."""
+    built and hands it to every worker), every worker's cache holding every atlas after, and
+    the client's the plans the workers solved between the nodes."""
     from distributed import Client, Nanny, Scheduler, SpecCluster
 
     from corrections_sim.planning.planner import cache_dir
@@ -271,6 +272,8 @@ def test_an_atlas_study_gives_the_same_bytes_on_one_or_two_workers_and_on_dask(
     assert built() == before  # the client kept what the workers built
     for name in ("client", "a", "b"):
         assert spec.missing(envs, A.AtlasStore(caches[name] / "atlas")) == []
+    # ... and the plans the workers solved between the nodes, taken from the exchange
+    assert list((caches["client"] / "atlas").glob("*.extra-*.npz"))
 
 
 def _plans_between_nodes_are_solved_once_on_the_cluster(client, study) -> None:

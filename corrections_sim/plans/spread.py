@@ -236,6 +236,21 @@ def connect(spec: AtlasSpec, exchange) -> Peer | None:
     return atlas.peer
 
 
+def keep_all(spec: AtlasSpec, exchange) -> int:
+    """In the command's process, after the runs: every plan of ``exchange`` this process's
+    store lacks, saved there; how many. Nothing when its workers shared this store (a pool's:
+    each saved its own) or the exchange cannot be reached."""
+    try:
+        if _call(exchange.shared_files()):
+            return 0
+    except Exception as exc:  # noqa: BLE001 -- nothing to keep then
+        _unreachable(exc)
+        return 0
+    if connect(spec, exchange) is None:
+        return 0
+    return spec.atlas().save()
+
+
 def flush(spec: AtlasSpec) -> int:
     """Give the exchange whatever this process's atlas solved and has not given yet."""
     atlas = spec.atlas()

@@ -290,9 +290,8 @@ def run(
     execute([k for k in keys if not LEARNERS[k[0]].needs_rates()])
     alphas = learning_rates(settings, results)
     execute([k for k in keys if LEARNERS[k[0]].needs_rates()], alphas)
-    if exchange is not None:  # this machine keeps what the cluster solved between nodes too
-        spread.connect(spec, exchange)
-        spec.atlas().save()
+    if exchange is not None:  # this machine keeps what a cluster solved between nodes too
+        spread.keep_all(spec, exchange)
 
     records = [
         rec
