@@ -107,19 +107,26 @@ def reference_job(
     return ReferenceJob(figure, settings, learner, rows, grid, options, check_grid)
 
 
-def judge_run(job: ReferenceJob, run: int) -> list[dict]:
+def judge_run(job: ReferenceJob, run: int, exchange=None) -> list[dict]:
     """The records of ``job``'s run ``run`` (safe in a worker process): the plans it solved
-    between the atlas's nodes and the particles' checked cells are kept for the next."""
+    between the atlas's nodes and the particles' checked cells are kept for the next, and
+    with the command's ``exchange`` (:class:`~corrections_sim.plans.spread.PlanExchange`)
+    plans between nodes pass between its workers as a study's runs pass them."""
     from corrections_sim.planning.planner import shared_planner
-    from corrections_sim.plans import interpolation
+    from corrections_sim.plans import interpolation, spread
 
     settings = job.settings
+    spec = settings.atlas_spec()
+    if exchange is not None and spec is not None:
+        spread.connect(spec, exchange)
     planner = shared_planner(settings.planner_config())
     options = {**job.options, "seed": job.options["seed"] + run}
     records = judge.reference_run(
         settings, job.learner, job.rows[run], job.grid, planner, **options
     )
     if settings.atlas() is not None:  # the plans solved between nodes, kept
+        if exchange is not None and spec is not None:
+            spread.flush(spec)
         settings.atlas().save()
         interpolation.save_kept()  # and the particles' checked cells
     return records
@@ -278,9 +285,11 @@ class ReferenceFigure:
         total, done = len(job.rows), len(by_run)
         if progress:
             progress(done, total)
-        futures = {
-            executor.submit(judge_run, job, run): run for run in job.rows if run not in by_run
-        }
+        spec = job.settings.atlas_spec()
+        make_exchange = getattr(executor, "exchange", None)  # plans between nodes, shared
+        exchange = make_exchange() if spec is not None and make_exchange is not None else None
+        todo = [run for run in job.rows if run not in by_run]
+        futures = {executor.submit(judge_run, job, run, exchange): run for run in todo}
         for future in as_completed(futures):
             run = futures[future]
             by_run[run] = future.result()
@@ -289,6 +298,10 @@ class ReferenceFigure:
             done += 1
             if progress:
                 progress(done, total)
+        if exchange is not None:  # this machine keeps what a cluster solved between nodes
+            from corrections_sim.plans import spread
+
+            spread.keep_all(spec, exchange)
         moved = None
         if job.check_grid:
             first = min(by_run)
