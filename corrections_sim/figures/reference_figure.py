@@ -117,8 +117,11 @@ def judge_run(job: ReferenceJob, run: int, exchange=None) -> list[dict]:
 
     settings = job.settings
     spec = settings.atlas_spec()
-    if exchange is not None and spec is not None:
-        spread.connect(spec, exchange)
+    if spec is not None:  # an exchange's, or none (not an earlier command's)
+        if exchange is not None:
+            spread.connect(spec, exchange)
+        else:
+            spread.disconnect(spec)
     planner = shared_planner(settings.planner_config())
     options = {**job.options, "seed": job.options["seed"] + run}
     records = judge.reference_run(

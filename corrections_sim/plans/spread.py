@@ -248,7 +248,15 @@ def keep_all(spec: AtlasSpec, exchange) -> int:
         return 0
     if connect(spec, exchange) is None:
         return 0
-    return spec.atlas().save()
+    kept = spec.atlas().save()
+    disconnect(spec)  # the command is done with it; its handle must not outlive it here
+    return kept
+
+
+def disconnect(spec: AtlasSpec) -> None:
+    """This process's atlas of ``spec`` asks no exchange any more (one of a finished command
+    may be gone: asking it would only be said and skipped)."""
+    spec.atlas().peer = None
 
 
 def flush(spec: AtlasSpec) -> int:

@@ -105,8 +105,11 @@ def run_one(
     seq = np.random.SeedSequence([s.seed, LEARNERS[learner].stream, run])
     atlas = settings.atlas()
     spec = settings.atlas_spec()
-    if exchange is not None and spec is not None:
-        spread.connect(spec, exchange)
+    if spec is not None:  # an exchange's, or none (not an earlier command's)
+        if exchange is not None:
+            spread.connect(spec, exchange)
+        else:
+            spread.disconnect(spec)
     result = run_learner(
         learner,
         run,
