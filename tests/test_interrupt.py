@@ -207,3 +207,16 @@ def test_a_dask_connection_closed_under_a_pending_future_logs_no_traceback():
     assert not quiet.filter(logged(StreamClosedError()))
     assert quiet.filter(logged(ValueError("a real error")))
     assert quiet.filter(logging.LogRecord("tornado.application", 40, "", 1, "no exc", (), None))
+
+
+def test_an_interrupt_inside_a_foreign_call_is_still_an_interrupt():
+    """A Ctrl-C that lands while ctypes converts an argument (``import mujoco`` calls EGL so)
+    reaches the command as ctypes' ArgumentError naming it, unchained: still an interrupt."""
+    import ctypes
+    import signal
+
+    from corrections_sim.cli.executors import interruption
+
+    found = interruption(ctypes.ArgumentError("argument 1: Interrupted: SIGINT"))
+    assert found is not None and found.signum == signal.SIGINT
+    assert interruption(ctypes.ArgumentError("argument 1: TypeError: wrong type")) is None

@@ -37,6 +37,10 @@ class Interrupted(KeyboardInterrupt):
         self.signum = signum
 
 
+#: How ctypes names an interrupt raised while it converted a foreign call's argument.
+_IN_CTYPES = re.compile(r"Interrupted: (SIGINT|SIGTERM)$")
+
+
 def interruption(exc: BaseException | None) -> KeyboardInterrupt | None:
     """The interrupt behind ``exc``, if any: ``exc`` itself or an exception it was raised
     from or while handling (an extension module interrupted while it loads reports an
@@ -45,6 +49,10 @@ def interruption(exc: BaseException | None) -> KeyboardInterrupt | None:
     while exc is not None and id(exc) not in seen:
         if isinstance(exc, KeyboardInterrupt):
             return exc
+        if isinstance(exc, ctypes.ArgumentError):  # raised in a foreign call's argument:
+            found = _IN_CTYPES.search(str(exc))  # ctypes names it and does not chain it
+            if found:
+                return Interrupted(signal.Signals[found[1]])
         seen.add(id(exc))
         exc = exc.__cause__ or exc.__context__
     return None
