@@ -117,11 +117,7 @@ def judge_run(job: ReferenceJob, run: int, exchange=None) -> list[dict]:
 
     settings = job.settings
     spec = settings.atlas_spec()
-    if spec is not None:  # an exchange's, or none (not an earlier command's)
-        if exchange is not None:
-            spread.connect(spec, exchange)
-        else:
-            spread.disconnect(spec)
+    spread.attach(spec, exchange)
     planner = shared_planner(settings.planner_config())
     options = {**job.options, "seed": job.options["seed"] + run}
     records = judge.reference_run(
@@ -288,9 +284,10 @@ class ReferenceFigure:
         total, done = len(job.rows), len(by_run)
         if progress:
             progress(done, total)
+        from corrections_sim.plans import spread
+
         spec = job.settings.atlas_spec()
-        make_exchange = getattr(executor, "exchange", None)  # plans between nodes, shared
-        exchange = make_exchange() if spec is not None and make_exchange is not None else None
+        exchange = spread.exchange_for(spec, executor)  # plans between nodes, shared
         todo = [run for run in job.rows if run not in by_run]
         futures = {executor.submit(judge_run, job, run, exchange): run for run in todo}
         for future in as_completed(futures):
@@ -302,8 +299,6 @@ class ReferenceFigure:
             if progress:
                 progress(done, total)
         if exchange is not None:  # this machine keeps what a cluster solved between nodes
-            from corrections_sim.plans import spread
-
             spread.keep_all(spec, exchange)
         moved = None
         if job.check_grid:

@@ -253,6 +253,24 @@ def keep_all(spec: AtlasSpec, exchange) -> int:
     return kept
 
 
+def exchange_for(spec: AtlasSpec | None, executor):
+    """The executor's plan exchange for a command's runs (``executor.exchange()``: a pool's
+    or a cluster's), None without an atlas or an executor that offers none."""
+    make = getattr(executor, "exchange", None)
+    return make() if spec is not None and make is not None else None
+
+
+def attach(spec: AtlasSpec | None, exchange) -> None:
+    """At a run's start in a worker: its atlas asks ``exchange`` (:func:`connect`), or none
+    (:func:`disconnect`: not an earlier command's); nothing without an atlas."""
+    if spec is None:
+        return
+    if exchange is not None:
+        connect(spec, exchange)
+    else:
+        disconnect(spec)
+
+
 def disconnect(spec: AtlasSpec) -> None:
     """This process's atlas of ``spec`` asks no exchange any more (one of a finished command
     may be gone: asking it would only be said and skipped)."""

@@ -105,11 +105,7 @@ def run_one(
     seq = np.random.SeedSequence([s.seed, LEARNERS[learner].stream, run])
     atlas = settings.atlas()
     spec = settings.atlas_spec()
-    if spec is not None:  # an exchange's, or none (not an earlier command's)
-        if exchange is not None:
-            spread.connect(spec, exchange)
-        else:
-            spread.disconnect(spec)
+    spread.attach(spec, exchange)
     result = run_learner(
         learner,
         run,
@@ -264,8 +260,7 @@ def run(
     extra = {} if handed is None else {"handed": handed}
     shared = executor.submit(prepare, settings, **extra).result()
     # A cluster's runs also hand each other the plans they solve between the atlas's nodes.
-    make_exchange = getattr(executor, "exchange", None)
-    exchange = make_exchange() if spec is not None and make_exchange is not None else None
+    exchange = spread.exchange_for(spec, executor)
     each_run = extra if exchange is None else {**extra, "exchange": exchange}
     total = len(keys)
     done = resumed
