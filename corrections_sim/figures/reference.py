@@ -291,6 +291,34 @@ def reference_run(
             cloud = correction.step(engine, at_t, cloud, env, robot, z, outcome.corrected).belief
         if grid_model is None:
             log_post = None
+        elif cells is not None:
+            # Weighed where the posterior is within the margin of its peak; elsewhere the
+            # correction waits until the peak may come near (GridModel.settle), as in an
+            # exact learner.
+            now = grid_model.posterior()
+            at = np.flatnonzero(np.isfinite(now))
+            at = at[now[at] >= now[at].max() - ref.LAZY_MARGIN]
+            plans = at_nodes.plans(thetas[at], env)
+            h = grid_observations(plans, robot.trajectory, correct, env, names)
+            seen_here = Seen(z, robot, plans, h, outcome.corrected, row, before)
+            grid_model.correct(seen_here, at)
+            past.append((env, robot.trajectory))
+
+            def observe(j, points, past=past):
+                e, r = past[j]
+                plans_there = at_nodes.plans(grid_model.thetas[points], e)
+                return grid_observations(plans_there, r, correct, e, names)
+
+            log_post = grid_model.settle(observe)
+            judged = grid_model.judged
+            while (finer := refine.finer(cells, log_post)) is not None:
+                new = finer.thetas()[len(thetas) :]
+                new_hs = [
+                    grid_observations(at_nodes.plans(new, e), r, correct, e, names) for e, r in past
+                ]
+                new_p = ref.gaussian_log_prior(new, study.prior())
+                log_post = grid_model.refined(new, new_p, new_hs)
+                cells, thetas = finer, finer.thetas()
         else:
             plans = h = None
             if kind.needs_plans:
@@ -302,17 +330,6 @@ def reference_run(
             seen_here = Seen(z, robot, plans, h, outcome.corrected, row, before)
             log_post = grid_model.correct(seen_here)
             judged = grid_model.judged
-            if cells is not None:
-                past.append((env, robot.trajectory))
-                while (finer := refine.finer(cells, log_post)) is not None:
-                    new = finer.thetas()[len(thetas) :]
-                    new_hs = [
-                        grid_observations(at_nodes.plans(new, e), r, correct, e, names)
-                        for e, r in past
-                    ]
-                    new_p = ref.gaussian_log_prior(new, study.prior())
-                    log_post = grid_model.refined(new, new_p, new_hs)
-                    cells, thetas = finer, finer.thetas()
         coefficients = None if cells is None else cells.coefficients
         belief = _belief(row, k)
         if log_post is None:  # the particles are the reference

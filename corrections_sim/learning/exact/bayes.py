@@ -232,6 +232,35 @@ def boltzmann_log_likelihood(
     return np.log(0.5 * lapse + (1.0 - lapse) * sig)
 
 
+#: How far below the posterior's peak (in log density) a node may stay with corrections not yet
+#: weighed at it: its weight is then certainly below e^−100 (4e-44) of the peak's, below what a
+#: double adds to any moment (:func:`pending_needed`).
+LAZY_MARGIN = 100.0
+
+
+def pending_needed(
+    bound: np.ndarray, pending: np.ndarray, margin: float = LAZY_MARGIN
+) -> np.ndarray:
+    """The nodes (n,) whose pending corrections must be weighed before the posterior is read.
+
+    A node with every correction weighed (not ``pending``) has its log posterior in ``bound``;
+    a pending node an upper bound of it (each correction not yet weighed can only lower it:
+    :func:`gaussian_log_likelihood` is at most 0, and −(ν₀ + t)/2 · log|V₀ + Σ r rᵀ| only falls
+    as terms are added). Needed: the pending nodes within ``margin`` of the larger of the peak
+    (over the others) and the highest bound. Weighing them and asking again until none is
+    needed leaves every pending node certainly ``margin`` below the peak: its weight is then 0
+    to a double's precision, as it would be after weighing. Nodes at −inf are impossible and
+    never needed."""
+    pending = np.asarray(pending, bool)
+    bound = np.asarray(bound, float)
+    open_ = pending & np.isfinite(bound)
+    if not open_.any():
+        return open_
+    done = ~pending & np.isfinite(bound)
+    peak = bound[done].max() if done.any() else -np.inf
+    return open_ & (bound >= max(peak, bound[open_].max()) - margin)
+
+
 def posterior(log_density: np.ndarray, coefficients: np.ndarray | None = None) -> np.ndarray:
     """Normalized cell weights (n,) from an unnormalized log density at the grid points
     (each weighing ``coefficients``, a refined grid's trapezoid weights; None: the same)."""

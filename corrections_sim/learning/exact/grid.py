@@ -101,6 +101,37 @@ class GridModel(abc.ABC):
         """The log density the filter-step tools start from (prior times likelihoods)."""
         return self.log_p
 
+    # A refinable model weighs a correction lazily (``correct``'s ``at``): at the other points
+    # it waits (``known``) until the posterior's peak may come within
+    # bayes.LAZY_MARGIN of them (:meth:`settle`), as an exact learner's does.
+
+    def pending(self) -> np.ndarray:
+        """The points (n,) where some correction is not weighed yet."""
+        return self.known < len(self.zs)
+
+    def bound(self) -> np.ndarray:
+        """The log posterior, an upper bound of it where corrections wait."""
+        raise NotImplementedError
+
+    def posterior(self) -> np.ndarray:
+        """The log posterior at every point, −inf where corrections wait (their weight is 0 to
+        a double's precision)."""
+        return np.where(self.pending(), -np.inf, self.bound())
+
+    def settle(self, observe) -> np.ndarray:
+        """Weigh the waiting corrections, in the order they came, at every point the peak may
+        come within the margin of (:func:`~corrections_sim.learning.exact.bayes.pending_needed`);
+        ``observe(j, points)`` is hₜ of correction j there. Returns :meth:`posterior`."""
+        while (need := bayes.pending_needed(self.bound(), self.pending())).any():
+            for j in range(int(self.known[need].min()), len(self.zs)):
+                at = np.flatnonzero(need & (self.known <= j))
+                self._weigh(j, at, observe(j, at))
+            self.known[need] = len(self.zs)
+        return self.posterior()
+
+    def _weigh(self, j: int, at: np.ndarray, h: np.ndarray) -> None:
+        raise NotImplementedError
+
     def filter_noise(self, noise: KalmanNoise, row: dict) -> KalmanNoise:
         """The noise of the learner's filter step for the correction of ``row`` (a
         :attr:`filtered` model's): the study's."""
@@ -122,17 +153,36 @@ class GaussianGrid(GridModel):
     def __init__(self, name, likelihood, learner, study, thetas, log_prior):
         super().__init__(name, likelihood, learner, study, thetas, log_prior)
         self.zs: list[np.ndarray] = []
+        self.known = np.zeros(len(thetas), np.int64)
 
-    def correct(self, seen: Seen) -> np.ndarray:
+    def correct(self, seen: Seen, at: np.ndarray | None = None) -> np.ndarray:
+        """With ``at`` (point indices; ``seen.h`` there only), weighed there alone: call
+        :meth:`settle` before reading the posterior."""
         self.zs.append(seen.z)
-        self.log_p = self.log_p + bayes.gaussian_log_likelihood(seen.z, seen.h, self.noise)
+        at = np.arange(len(self.log_p)) if at is None else at
+        if len(at) == len(self.log_p):
+            self.log_p = self.log_p + bayes.gaussian_log_likelihood(seen.z, seen.h, self.noise)
+        else:
+            self.log_p = np.array(self.log_p)
+            self._weigh(len(self.zs) - 1, at, seen.h)
+        self.known[at] = len(self.zs)
+        return self.posterior()
+
+    def bound(self) -> np.ndarray:
         return self.log_p
+
+    def density(self) -> np.ndarray:
+        return self.posterior()
+
+    def _weigh(self, j, at, h):
+        self.log_p[at] = self.log_p[at] + bayes.gaussian_log_likelihood(self.zs[j], h, self.noise)
 
     def _refined(self, new_prior, new_hs):
         for z, h in zip(self.zs, new_hs, strict=True):
             new_prior = new_prior + bayes.gaussian_log_likelihood(z, h, self.noise)
         self.log_p = np.concatenate([self.log_p, new_prior])
-        return self.log_p
+        self.known = np.concatenate([self.known, np.full(len(new_prior), len(self.zs))])
+        return self.posterior()
 
 
 @GRID_MODELS.decorator("gaussian-learnt-noise")
@@ -146,19 +196,37 @@ class LearntNoiseGrid(GridModel):
         super().__init__(name, likelihood, learner, study, thetas, log_prior)
         self.prior_noise = learner.noise_prior(study.prior(), study.noise())
         self.zs: list[np.ndarray] = []
-        self.hs: list[np.ndarray] = []
+        self.hs: list[np.ndarray] = []  # NaN where a correction waits
+        self.known = np.zeros(len(thetas), np.int64)
 
-    def _posterior(self) -> np.ndarray:
+    def bound(self) -> np.ndarray:
         noise = self.prior_noise
         zs, hs = np.array(self.zs), np.array(self.hs)
+        if not len(zs):
+            return self.log_p
+        # A waiting correction's residual taken as 0: weighing it can only raise |V₀ + Σ r rᵀ|.
+        waiting = np.arange(len(zs))[:, None] >= self.known[None, :]
+        hs = np.where(waiting[:, :, None], zs[:, None, :], hs)
         return self.log_p + bayes.learnt_noise_log_likelihood(zs, hs, noise.dof, noise.scale)
 
-    def correct(self, seen: Seen) -> np.ndarray:
+    def correct(self, seen: Seen, at: np.ndarray | None = None) -> np.ndarray:
+        """With ``at`` (point indices; ``seen.h`` there only), weighed there alone: call
+        :meth:`settle` before reading the posterior."""
         self.zs.append(seen.z)
-        self.hs.append(seen.h)
-        return self._posterior()
+        if at is None or len(at) == len(self.log_p):
+            self.hs.append(seen.h)
+            at = np.arange(len(self.log_p))
+        else:
+            self.hs.append(np.full((len(self.log_p), len(seen.z)), np.nan))
+            self._weigh(len(self.zs) - 1, at, seen.h)
+        self.known[at] = len(self.zs)
+        return self.posterior()
+
+    def _weigh(self, j, at, h):
+        self.hs[j][at] = h
 
     def _refined(self, new_prior, new_hs):
         self.hs = [np.concatenate(pair) for pair in zip(self.hs, new_hs, strict=True)]
         self.log_p = np.concatenate([self.log_p, new_prior])
-        return self._posterior()
+        self.known = np.concatenate([self.known, np.full(len(new_prior), len(self.zs))])
+        return self.posterior()

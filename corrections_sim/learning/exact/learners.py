@@ -100,36 +100,86 @@ class ExactCorrectionAware(CorrectionAwareKalman):
             g = atlas.grid
             cells = Cells.base(g.lows, g.highs, g.counts, self.max_level)
             log_d, scatter = self._fresh(history[:1], ctx, cells.thetas())
-            before = GridPosterior(cells.thetas(), log_d, scatter, 0, cells)
-        plans = atlas.plans(before.thetas, env)
+            known = np.zeros(len(log_d), np.int64)
+            before = GridPosterior(cells.thetas(), log_d, scatter, 0, cells, known)
+        coefficients = before.cells.coefficients
+        log_before = self._log_posterior(before, noise_prior)
+        weights = ref.posterior(log_before, coefficients)
+        # The correction is weighed now where the posterior is within the margin of its peak;
+        # elsewhere it waits (GridPosterior.known) until the peak comes near (_settled).
+        at = np.flatnonzero(np.isfinite(log_before))
+        at = at[log_before[at] >= log_before[at].max() - ref.LAZY_MARGIN]
+        plans = atlas.plans(before.thetas[at], env)
         h = self.observation().at_plans(plans, plan.trajectory, env, ctx.features)
         z = np.asarray(phi_h, float)
-        coefficients = before.cells.coefficients
-        weights = ref.posterior(self._log_posterior(before, noise_prior), coefficients)
-        seen = np.all(np.isfinite(h), axis=1) & (weights > 0)
+        seen = np.all(np.isfinite(h), axis=1) & (weights[at] > 0)
         if not seen.any():
             raise PlanningError(
                 f"{env.name}: the atlas has no plan where the posterior lives; update skipped"
             )
         noise_n = ctx.noise.observation
         # What it expected before the correction: the predictive mean and spread of h.
-        w = weights[seen] / weights[seen].sum()
+        w = weights[at][seen] / weights[at][seen].sum()
         expected = w @ h[seen]
         spread = (w[:, None] * (h[seen] - expected)).T @ (h[seen] - expected)
-        log_d, scatter = self._weighed(before.log_density, before.scatter, z, h, noise_n)
-        after = GridPosterior(before.thetas, log_d, scatter, before.count + 1, before.cells)
         if self.noise == "learnt":
-            noise_mean = w @ self._noise_means(before, noise_prior)[seen].reshape(len(w), -1)
+            means = self._noise_means(before, noise_prior)[at][seen]
+            noise_mean = w @ means.reshape(len(w), -1)
             noise = noise_mean.reshape(z.size, z.size)
         else:
             noise = noise_n
         history = (*history, CorrectionEntry(env, plan.trajectory, z, noise_n))
+        after = self._taken_in(before, at, h, z, noise_n)
+        after = self._settled(ctx, after, history, noise_prior)
         after = self._refined(ctx, after, history, noise_prior)
         log_post = self._log_posterior(after, noise_prior)
         mean, cov = _moments(after.thetas, ref.posterior(log_post, after.cells.coefficients))
         kept = ExactState(noise=noise_prior, grid=after, history=history)
         new = Belief(theta=mean, cov=cov, state=kept)
         return Step(new, None, z - plan.features, symmetrize(spread + noise))
+
+    def _taken_in(
+        self, grid: GridPosterior, at: np.ndarray, h: np.ndarray, z: np.ndarray, noise
+    ) -> GridPosterior:
+        """``grid`` after one more correction (z, its hₜ ``h`` at the nodes ``at``), weighed
+        at ``at`` only: every other node waits for it (``known``)."""
+        log_d = np.array(grid.log_density)
+        scatter = None if grid.scatter is None else np.array(grid.scatter)
+        part = None if scatter is None else scatter[at]
+        log_d[at], part = self._weighed(log_d[at], part, z, h, noise)
+        if scatter is not None:
+            scatter[at] = part
+        known = grid.counts()
+        known[at] = grid.count + 1
+        return GridPosterior(grid.thetas, log_d, scatter, grid.count + 1, grid.cells, known)
+
+    def _settled(
+        self,
+        ctx: LearnerContext,
+        grid: GridPosterior,
+        history: tuple,
+        noise_prior: NoisePosterior | None,
+    ) -> GridPosterior:
+        """``grid`` with every waiting correction weighed at each node that the peak may come
+        within :data:`~corrections_sim.learning.exact.bayes.LAZY_MARGIN` of
+        (:func:`~corrections_sim.learning.exact.bayes.pending_needed`), in the order they came:
+        the numbers at those nodes are those of weighing every correction as it came."""
+        while (need := ref.pending_needed(self._bound(grid, noise_prior), grid.pending())).any():
+            log_d = np.array(grid.log_density)
+            scatter = None if grid.scatter is None else np.array(grid.scatter)
+            known = grid.counts()
+            for j in range(int(known[need].min()), grid.count):
+                seen = history[1 + j]
+                at = np.flatnonzero(need & (known <= j))
+                plans = ctx.book.atlas.plans(grid.thetas[at], seen.env)
+                h = self.observation().at_plans(plans, seen.robot, seen.env, ctx.features)
+                part = None if scatter is None else scatter[at]
+                log_d[at], part = self._weighed(log_d[at], part, seen.phi_h, h, seen.noise)
+                if scatter is not None:
+                    scatter[at] = part
+            known[need] = grid.count
+            grid = GridPosterior(grid.thetas, log_d, scatter, grid.count, grid.cells, known)
+        return grid
 
     def _refined(
         self,
@@ -149,7 +199,8 @@ class ExactCorrectionAware(CorrectionAwareKalman):
             if scatter is not None:
                 scatter = np.concatenate([grid.scatter, scatter])
             log_d = np.concatenate([grid.log_density, log_d])
-            grid = GridPosterior(cells.thetas(), log_d, scatter, grid.count, cells)
+            known = np.concatenate([grid.counts(), np.full(len(new), grid.count)])
+            grid = GridPosterior(cells.thetas(), log_d, scatter, grid.count, cells, known)
         return grid
 
     def _fresh(self, history: tuple, ctx: LearnerContext, thetas: np.ndarray):
@@ -175,8 +226,16 @@ class ExactCorrectionAware(CorrectionAwareKalman):
         r[bad] = 0.0
         return np.where(bad, -np.inf, log_d), scatter + np.einsum("ni,nj->nij", r, r)
 
+    @classmethod
+    def _log_posterior(cls, grid: GridPosterior, prior: NoisePosterior | None) -> np.ndarray:
+        """The log posterior at every node, −inf where corrections wait (their weight is 0 to
+        a double's precision: :meth:`_settled`)."""
+        return np.where(grid.pending(), -np.inf, cls._bound(grid, prior))
+
     @staticmethod
-    def _log_posterior(grid: GridPosterior, prior: NoisePosterior | None) -> np.ndarray:
+    def _bound(grid: GridPosterior, prior: NoisePosterior | None) -> np.ndarray:
+        """The log posterior where every correction is weighed, an upper bound of it where
+        some wait."""
         if grid.scatter is None:
             return grid.log_density
         spread = prior.scale[None, :, :] + grid.scatter

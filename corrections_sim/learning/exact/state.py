@@ -29,6 +29,11 @@ class GridPosterior:
         cells: the nodes as cells (:class:`~corrections_sim.learning.exact.cells.Cells`;
             their trapezoid weights integrate the density), or None: every node weighs the
             same.
+        known: how many of the ``count`` corrections each node's ``log_density`` and
+            ``scatter`` hold (n,), or None: all. A node with fewer holds an upper bound of its
+            log posterior, left so because that bound is more than
+            :data:`~corrections_sim.learning.exact.bayes.LAZY_MARGIN` below the peak
+            (:func:`~corrections_sim.learning.exact.bayes.pending_needed`).
     """
 
     thetas: np.ndarray
@@ -36,6 +41,7 @@ class GridPosterior:
     scatter: np.ndarray | None = None
     count: int = 0
     cells: Cells | None = None
+    known: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         thetas = np.array(self.thetas, dtype=float, copy=True)
@@ -55,10 +61,28 @@ class GridPosterior:
             if scatter.shape != (thetas.shape[0], k, k):
                 raise ValueError(f"GridPosterior.scatter: expected (n, k, k), got {scatter.shape}")
             object.__setattr__(self, "scatter", frozen(scatter))
+        if self.known is not None:
+            known = np.array(self.known, dtype=np.int64, copy=True)
+            if known.shape != log_d.shape or np.any((known < 0) | (known > self.count)):
+                raise ValueError(
+                    f"GridPosterior.known: expected {log_d.shape[0]} counts in [0, "
+                    f"{self.count}], got shape {known.shape}"
+                )
+            object.__setattr__(self, "known", frozen(known))
         if self.cells is not None and len(self.cells.coords) != thetas.shape[0]:
             raise ValueError(
                 f"GridPosterior.cells: {len(self.cells.coords)} nodes for {thetas.shape[0]} θ"
             )
+
+    def counts(self) -> np.ndarray:
+        """How many corrections each node holds (n,) (:attr:`known`, or ``count`` for all)."""
+        if self.known is None:
+            return np.full(len(self.log_density), self.count, np.int64)
+        return np.array(self.known)
+
+    def pending(self) -> np.ndarray:
+        """The nodes (n,) some of whose corrections are not weighed yet."""
+        return self.counts() < self.count
 
 
 @dataclass(frozen=True, eq=False)
