@@ -145,10 +145,7 @@ class ExactCorrectionAware(CorrectionAwareKalman):
         at ``at`` only: every other node waits for it (``known``)."""
         log_d = np.array(grid.log_density)
         scatter = None if grid.scatter is None else np.array(grid.scatter)
-        part = None if scatter is None else scatter[at]
-        log_d[at], part = self._weighed(log_d[at], part, z, h, noise)
-        if scatter is not None:
-            scatter[at] = part
+        self._weighed_at(log_d, scatter, at, z, h, noise)
         known = grid.counts()
         known[at] = grid.count + 1
         return GridPosterior(grid.thetas, log_d, scatter, grid.count + 1, grid.cells, known)
@@ -173,10 +170,7 @@ class ExactCorrectionAware(CorrectionAwareKalman):
                 at = np.flatnonzero(need & (known <= j))
                 plans = ctx.book.atlas.plans(grid.thetas[at], seen.env)
                 h = self.observation().at_plans(plans, seen.robot, seen.env, ctx.features)
-                part = None if scatter is None else scatter[at]
-                log_d[at], part = self._weighed(log_d[at], part, seen.phi_h, h, seen.noise)
-                if scatter is not None:
-                    scatter[at] = part
+                self._weighed_at(log_d, scatter, at, seen.phi_h, h, seen.noise)
             known[need] = grid.count
             grid = GridPosterior(grid.thetas, log_d, scatter, grid.count, grid.cells, known)
         return grid
@@ -215,6 +209,14 @@ class ExactCorrectionAware(CorrectionAwareKalman):
             h = self.observation().at_plans(plans, seen.robot, seen.env, ctx.features)
             log_d, scatter = self._weighed(log_d, scatter, seen.phi_h, h, seen.noise)
         return log_d, scatter
+
+    @classmethod
+    def _weighed_at(cls, log_d: np.ndarray, scatter, at: np.ndarray, z, h, noise) -> None:
+        """:meth:`_weighed` at the nodes ``at`` of ``log_d`` and ``scatter``, in place."""
+        part = None if scatter is None else scatter[at]
+        log_d[at], part = cls._weighed(log_d[at], part, z, h, noise)
+        if scatter is not None:
+            scatter[at] = part
 
     @staticmethod
     def _weighed(log_d: np.ndarray, scatter, z: np.ndarray, h: np.ndarray, noise: np.ndarray):
