@@ -67,9 +67,7 @@ def test_lazy_weighing_gives_the_eager_posterior_with_fewer_observations(kind, s
     for j, z in enumerate(zs):
         seen = Seen(z, None, None, thetas @ maps[j].T, None, {}, None)
         want = eager.correct(seen)
-        now = lazy.posterior()
-        at = np.flatnonzero(np.isfinite(now))
-        at = at[now[at] >= now[at].max() - bayes.LAZY_MARGIN]
+        at = bayes.near_peak(lazy.posterior())
         observed += len(at)
         lazy.correct(Seen(z, None, None, thetas[at] @ maps[j].T, None, {}, None), at)
         got = lazy.settle(observe)

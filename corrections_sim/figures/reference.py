@@ -295,9 +295,7 @@ def reference_run(
             # Weighed where the posterior is within the margin of its peak; elsewhere the
             # correction waits until the peak may come near (GridModel.settle), as in an
             # exact learner.
-            now = grid_model.posterior()
-            at = np.flatnonzero(np.isfinite(now))
-            at = at[now[at] >= now[at].max() - ref.LAZY_MARGIN]
+            at = ref.near_peak(grid_model.posterior())
             plans = at_nodes.plans(thetas[at], env)
             h = grid_observations(plans, robot.trajectory, correct, env, names)
             seen_here = Seen(z, robot, plans, h, outcome.corrected, row, before)

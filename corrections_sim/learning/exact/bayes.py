@@ -238,6 +238,13 @@ def boltzmann_log_likelihood(
 LAZY_MARGIN = 100.0
 
 
+def near_peak(log_posterior: np.ndarray, margin: float = LAZY_MARGIN) -> np.ndarray:
+    """The nodes (indices) within ``margin`` of the peak of ``log_posterior``: where a new
+    correction is weighed at once; elsewhere it waits (:func:`pending_needed`)."""
+    at = np.flatnonzero(np.isfinite(log_posterior))
+    return at[log_posterior[at] >= log_posterior[at].max() - margin]
+
+
 def pending_needed(
     bound: np.ndarray, pending: np.ndarray, margin: float = LAZY_MARGIN
 ) -> np.ndarray:

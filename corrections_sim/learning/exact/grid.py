@@ -160,11 +160,8 @@ class GaussianGrid(GridModel):
         :meth:`settle` before reading the posterior."""
         self.zs.append(seen.z)
         at = np.arange(len(self.log_p)) if at is None else at
-        if len(at) == len(self.log_p):
-            self.log_p = self.log_p + bayes.gaussian_log_likelihood(seen.z, seen.h, self.noise)
-        else:
-            self.log_p = np.array(self.log_p)
-            self._weigh(len(self.zs) - 1, at, seen.h)
+        self.log_p = np.array(self.log_p)  # the prior may be shared: weighed in a copy
+        self._weigh(len(self.zs) - 1, at, seen.h)
         self.known[at] = len(self.zs)
         return self.posterior()
 
@@ -213,12 +210,9 @@ class LearntNoiseGrid(GridModel):
         """With ``at`` (point indices; ``seen.h`` there only), weighed there alone: call
         :meth:`settle` before reading the posterior."""
         self.zs.append(seen.z)
-        if at is None or len(at) == len(self.log_p):
-            self.hs.append(seen.h)
-            at = np.arange(len(self.log_p))
-        else:
-            self.hs.append(np.full((len(self.log_p), len(seen.z)), np.nan))
-            self._weigh(len(self.zs) - 1, at, seen.h)
+        at = np.arange(len(self.log_p)) if at is None else at
+        self.hs.append(np.full((len(self.log_p), len(seen.z)), np.nan))
+        self._weigh(len(self.zs) - 1, at, seen.h)
         self.known[at] = len(self.zs)
         return self.posterior()
 

@@ -107,8 +107,7 @@ class ExactCorrectionAware(CorrectionAwareKalman):
         weights = ref.posterior(log_before, coefficients)
         # The correction is weighed now where the posterior is within the margin of its peak;
         # elsewhere it waits (GridPosterior.known) until the peak comes near (_settled).
-        at = np.flatnonzero(np.isfinite(log_before))
-        at = at[log_before[at] >= log_before[at].max() - ref.LAZY_MARGIN]
+        at = ref.near_peak(log_before)
         plans = atlas.plans(before.thetas[at], env)
         h = self.observation().at_plans(plans, plan.trajectory, env, ctx.features)
         z = np.asarray(phi_h, float)
