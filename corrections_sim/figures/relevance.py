@@ -147,7 +147,9 @@ def write(settings, results: Sequence[FigureResult], folder: Path) -> dict:
     pairs = paired(settings, results)
     summary = robustness.write_matrix(settings, results, rows, folder, pairs)
     title = robustness.title(settings, "relevance")
-    plot_robustness_matrix(rows, title, [folder / f"{FIGURE}.png", folder / f"{FIGURE}.pdf"])
+    paths = [folder / f"{FIGURE}.png", folder / f"{FIGURE}.pdf"]
+    environments = len(settings.columns[0].settings.envs())
+    plot_robustness_matrix(rows, title, paths, environments=environments)
     seen = {
         c.label: {
             learner: judged(r.records, learner)

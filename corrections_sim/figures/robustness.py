@@ -218,7 +218,8 @@ def write(settings: RobustnessSettings, results: Sequence[FigureResult], folder:
         f"fig6: learners × simulated users; {first.study.runs} runs × "
         f"{first.study.iterations} corrections; " + learning_study.describe(first).rsplit(";", 1)[0]
     )
-    plot_robustness_matrix(rows, title, [folder / "fig6.png", folder / "fig6.pdf"])
+    paths = [folder / "fig6.png", folder / "fig6.pdf"]
+    plot_robustness_matrix(rows, title, paths, environments=len(first.envs()))
     return summary
 
 
@@ -268,13 +269,14 @@ class RobustnessFigure:
 register(RobustnessFigure())
 
 
-def plot_robustness_matrix(rows: Sequence[dict], title: str, paths) -> None:
+def plot_robustness_matrix(rows: Sequence[dict], title: str, paths, *, environments: int) -> None:
     """Fig. 6: learners (rows) × users (columns); final estimate error, final regret and
     final mean NEES as coloured tables with mean ± SEM in each cell.
 
     Args:
         rows: ``robustness.matrix`` rows (learner, user, *_mean, *_sem, nees_final, band).
         paths: files to write.
+        environments: how many the regret is summed over.
     """
     from corrections_sim.figures.style import plt, save_and_close
 
@@ -283,7 +285,7 @@ def plot_robustness_matrix(rows: Sequence[dict], title: str, paths) -> None:
     cell = {(r["learner"], r["user"]): r for r in rows}
     panels = (
         ("estimate_error", "Final estimate error ‖θ̂ − θ*‖₁ (lower is better)", "viridis_r"),
-        ("regret", "Final regret, Σ over 48 envs (lower is better)", "viridis_r"),
+        ("regret", f"Final regret, Σ over {environments} envs (lower is better)", "viridis_r"),
         ("nees", "Final mean NEES (calibrated: k = 2; log colour)", "coolwarm"),
     )
     fig, axes = plt.subplots(1, 3, figsize=(6.2 * 3, 0.55 * len(learners) + 2.6))
