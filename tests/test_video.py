@@ -55,14 +55,17 @@ def _read_gif(path) -> list[np.ndarray]:
     return frames
 
 
-@pytest.mark.parametrize("suffix", [".mp4", ".gif"])
-def test_video_has_every_frame_and_none_is_blank(recorded, suffix):
+@pytest.mark.parametrize(
+    ("suffix", "corrections"), [(".mp4", "1,2"), (".gif", "2")]
+)  # the GIF one correction: the frames are drawn in software, 0.25 s each
+def test_video_has_every_frame_and_none_is_blank(recorded, suffix, corrections):
     target = recorded / f"clip{suffix}"
     result = video.make_video(
-        recorded, "fig4", corrections="1,2", video_file=target, timing=TIMING, **SIZE
+        recorded, "fig4", corrections=corrections, video_file=target, timing=TIMING, **SIZE
     )
-    # 2 corrections x 3 stages x (11 segments x 1 substep + 1 + 1 held) frames.
-    expected = 2 * 3 * (11 * TIMING.substeps + 1 + TIMING.hold)
+    # corrections x 3 stages x (11 segments x 1 substep + 1 + 1 held) frames.
+    count = len(corrections.split(","))
+    expected = count * 3 * (11 * TIMING.substeps + 1 + TIMING.hold)
     assert result.frames == expected and result.seconds == pytest.approx(expected / TIMING.fps)
     frames = (_read_mp4 if suffix == ".mp4" else _read_gif)(target)
     assert len(frames) == expected
