@@ -455,7 +455,15 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument(
         "--study",
         help="exact: a study file with a plan atlas to time instead of fig. 4 (e.g. "
-        "experiments/three_features.toml), its learners' parameters as it gives them",
+        "experiments/three_features.toml), its learners' parameters as it gives them; atlas: "
+        "its atlas, a coarse level and a lazily solved finer one against random restarts",
+    )
+    parser.add_argument(
+        "--coarse",
+        type=int,
+        default=7,
+        help="atlas --study: points a weight of the coarse level built in full (default 7); "
+        "the lazily solved finer level has twice as many cells a weight",
     )
     parser.add_argument(
         "--cluster",
@@ -641,8 +649,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         parser.error(f"--pool: only exact compares a pool's sharing, not {args.what}")
     if args.pool and args.cluster:
         parser.error("--pool and --cluster: one at a time")
-    if args.study is not None and args.what != "exact":
-        parser.error(f"--study: only exact takes a study file, not {args.what}")
+    if args.study is not None and args.what not in ("exact", "atlas"):
+        parser.error(f"--study: only exact and atlas take a study file, not {args.what}")
     if args.study_envs is not None and not 1 <= args.study_envs <= 48:
         parser.error("--study-envs: 1 to 48 paper environments")
     points = None if args.what == "atlas" else args.grid
@@ -686,8 +694,26 @@ def main(argv: Sequence[str] | None = None) -> None:
     if args.what == "atlas":
         from benchmarks.bench_atlas import report as report_atlas
         from benchmarks.bench_atlas import run as run_atlas
+        from benchmarks.bench_atlas import run_study
 
         n = 200 if args.problems is None else args.problems
+        if args.study is not None:
+            if n < 1 or args.restarts < 1:
+                parser.error("atlas: --problems and --restarts must be >= 1")
+            if not Path(args.study).is_file():
+                parser.error(f"--study {args.study}: not a study file (a .toml that exists)")
+            try:
+                lines = run_study(
+                    args.study,
+                    coarse=args.coarse,
+                    problems=n,
+                    restarts=args.restarts,
+                    seed=65 if args.seed is None else args.seed,
+                )
+            except ValueError as exc:
+                parser.error(str(exc).splitlines()[0])
+            print("\n".join(lines), flush=True)
+            return
         if n < 1 or not 1 <= args.envs <= 48:
             parser.error("atlas: --problems >= 1, --envs in [1, 48]")
         try:

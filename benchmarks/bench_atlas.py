@@ -19,6 +19,14 @@ node, (count + 1) / 2 points a weight, built in full as today; each node of the 
 between its nodes solved once, warm from its parent cell's corner best at its θ (the next if
 that fails), only where a problem's cell asks for it; the problem then answered from those
 nodes as ``Atlas.solve`` answers.
+
+:func:`run_study` (``--study FILE --lazy``) makes the same comparison for a study's own
+atlas (its planner, box and environments, k = 3 included), without building a full finer
+grid: a coarse atlas of ``coarse`` points a weight, built in full by continuation; a finer
+level of 2·coarse − 1 points whose nodes between the coarse ones are solved only where a
+problem's cell asks, once from the parent cell's best corner and once from every corner of
+it (the best kept); and the study's own atlas as it is stored. Each against the best of
+``restarts`` random restarts, the planner's own answer and every answer here.
 """
 
 from __future__ import annotations
@@ -26,6 +34,7 @@ from __future__ import annotations
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -80,7 +89,9 @@ class CoarseToFine:
         ValueError: a grid whose every other node is not a grid (an even count, or < 5).
     """
 
-    def __init__(self, planner, grid: A.AtlasGrid, cold_stride: int) -> None:
+    def __init__(
+        self, planner, grid: A.AtlasGrid, cold_stride: int, every_corner: bool = False
+    ) -> None:
         if any(n % 2 == 0 or n < 5 for n in grid.counts):
             raise ValueError(
                 f"--lazy: --grid must be odd and >= 5 (the coarse grid is every other node), "
@@ -94,6 +105,9 @@ class CoarseToFine:
         self.thetas = grid.thetas()
         self.asked: dict[bytes, set[int]] = {}  # per environment, the full grid's nodes filled
         self.build_cpu = self.node_cpu = 0.0
+        #: Fill a node from every distinct corner plan of its coarse cell, the best kept
+        #: (else from the best corner at its θ, the next only if that fails).
+        self.every_corner = every_corner
 
     def _fill(self, env, node: int) -> None:
         """The full grid's ``node`` in ``env``: a coarse node's own plan, else the coarse
@@ -111,13 +125,28 @@ class CoarseToFine:
             reward = coarse.rewards[c]
         else:
             try:
-                plan = self.coarse.solve(self.thetas[node], env)
+                plan = (self._every if self.every_corner else self.coarse.solve)(
+                    self.thetas[node], env
+                )
             except PlanningError:
                 return
             trajectory, phi, reward = plan.trajectory, plan.features, plan.reward
             smooth = A.smoothness_cost(trajectory)
         held.trajectories[node], held.features[node] = trajectory, phi
         held.smoothness[node], held.rewards[node] = smooth, reward
+
+    def _every(self, theta: np.ndarray, env):
+        """θ's plan from each distinct corner plan of its coarse cell, the best kept (the
+        planner's cold starts where none converges)."""
+        planner, plans = self.fine.planner, []
+        for start in A.cell_starts(self.coarse.environment(env), theta, planner.config.smoothness):
+            try:
+                plans.append(planner.solve(theta, env, inits=[start]))
+            except PlanningError:
+                continue
+        if not plans:
+            return planner.solve(theta, env)
+        return max(plans, key=lambda p: p.reward)
 
     def solve(self, theta: np.ndarray, env) -> float:
         """The reward of θ's answer (−inf where nothing converges)."""
@@ -254,6 +283,115 @@ def run(
         fine.node_cpu if fine is not None else 0.0,
         fine.builds if fine is not None else 0,
     )
+
+
+def run_study(
+    study,
+    coarse: int = 7,
+    problems: int = 200,
+    restarts: int = 30,
+    seed: int = 65,
+    workers: int = 2,
+) -> list[str]:
+    """The comparison of the module docstring for ``study``'s atlas (a path to a study file
+    with ``atlas``): θ uniform over its whole box, environments uniform over its own; the
+    report's lines.
+
+    Raises:
+        ValueError: a study without an atlas, or ``coarse`` < 3.
+    """
+    from dataclasses import replace
+
+    from corrections_sim.plans import spread
+    from corrections_sim.study.schema import load_study
+
+    if isinstance(coarse, bool) or not isinstance(coarse, int) or coarse < 3:
+        raise ValueError(f"--coarse {coarse!r}: a coarse grid needs >= 3 points a weight")
+    settings = load_study(study, name=Path(study).stem, quick=False)
+    spec = settings.atlas_spec()
+    if spec is None:
+        raise ValueError(f"--study {study}: the study has no plan atlas")
+    k = spec.grid.k
+    lows, highs = np.array(spec.grid.lows), np.array(spec.grid.highs)
+    coarse_spec = replace(spec, grid=A.AtlasGrid(spec.grid.lows, spec.grid.highs, (coarse,) * k))
+    envs = list({e.key(): e for e in settings.envs()}.values())
+    t0, c0 = time.perf_counter(), _children_cpu()
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        built = spread.prepare(coarse_spec, envs, pool)
+    build_wall, build_cpu = time.perf_counter() - t0, _children_cpu() - c0
+    planner = shared_planner(spec.config)
+    fine_grid = A.AtlasGrid(spec.grid.lows, spec.grid.highs, (2 * coarse - 1,) * k)
+    answers = {
+        f"the study's atlas ({spec.grid.counts[0]} points, built in full)": spec.atlas(),
+        f"coarse ({coarse} points, built in full)": coarse_spec.atlas(),
+    }
+    lazy = {
+        f"finer level ({2 * coarse - 1} points), lazily, best corner": CoarseToFine(
+            planner, fine_grid, spec.cold_stride
+        ),
+        f"finer level ({2 * coarse - 1} points), lazily, every corner": CoarseToFine(
+            planner, fine_grid, spec.cold_stride, every_corner=True
+        ),
+    }
+    for fine in lazy.values():
+        fine.coarse = coarse_spec.atlas()  # the coarse level built above, shared
+    rng = np.random.default_rng(seed)
+    gaps: dict[str, list[float]] = {name: [] for name in [*answers, *lazy, "planner's own"]}
+    for _ in range(problems):
+        theta = lows + rng.uniform(size=k) * (highs - lows)
+        env = envs[int(rng.integers(len(envs)))]
+        rewards: dict[str, float] = {}
+        for name, atlas in answers.items():
+            try:
+                rewards[name] = atlas.solve(theta, env).reward
+            except PlanningError:
+                rewards[name] = -np.inf
+        for name, fine in lazy.items():
+            rewards[name] = fine.solve(theta, env)
+        try:
+            rewards["planner's own"] = planner.solve(theta, env).reward
+        except PlanningError:
+            rewards["planner's own"] = -np.inf
+        starts = random_restarts(env, spec.config.n_waypoints, restarts, rng)
+        try:
+            best = planner.solve(theta, env, inits=starts).reward
+        except PlanningError:
+            best = -np.inf
+        best = max(best, *rewards.values())
+        if not np.isfinite(best):
+            continue
+        for name, value in rewards.items():
+            gaps[name].append(relative_gap(best, value))
+    box = f"{[round(float(v), 2) for v in lows]} .. {[round(float(v), 2) for v in highs]}"
+    lines = [
+        f"atlas levels of {study}: {len(envs)} environments, k = {k}, box {box}; {problems} "
+        f"problems (seed {seed}), theta uniform over the box, against the best of {restarts} "
+        "random restarts and every answer here",
+        f"  coarse level, {coarse} points a weight: {built} environments built in "
+        f"{build_wall:.0f} s wall, {build_cpu:.0f} s CPU ({workers} workers; 0: on disk)",
+    ]
+    for name, values in gaps.items():
+        g = np.array(values)
+        found = g[np.isfinite(g)]
+        lines.append(
+            f"  {name}: within 1% on {100 * np.mean(g <= 0.01):.1f}% of {len(g)}, within "
+            f"1e-6 on {100 * np.mean(g <= 1e-6):.1f}%, no plan on {int((~np.isfinite(g)).sum())}"
+            f", worst gap where a plan {100 * found.max(initial=0.0):.1f}%"
+        )
+    for name, fine in lazy.items():
+        lines.append(
+            f"  {name}: {fine.nodes} nodes asked for, "
+            f"{1000 * fine.node_cpu / max(fine.nodes, 1):.1f} ms CPU each"
+        )
+    return lines
+
+
+def _children_cpu() -> float:
+    """CPU seconds of this process's finished children (a process pool's workers)."""
+    import resource
+
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
 
 
 def report(b: AtlasBench) -> list[str]:

@@ -6,6 +6,8 @@ The ones that drive chromium are in ``test_bench_browser.py``."""
 
 from __future__ import annotations
 
+import re
+
 import pytest
 from bench_tiny import IN_A_BROWSER, run_tiny
 
@@ -59,7 +61,11 @@ def test_a_bad_tiny_request_is_one_line():
     ("argv", "message"),
     [
         (["exact", "--study", "missing.toml"], "--study missing.toml: not a study file"),
-        (["atlas", "--study", "experiments/three_features.toml"], "only exact takes a study"),
+        (["warm", "--study", "experiments/three_features.toml"], "only exact and atlas take"),
+        (
+            ["atlas", "--study", "experiments/three_features.toml", "--coarse", "2"],
+            "--coarse 2: a coarse grid needs >= 3 points",
+        ),
         (
             ["exact", "--study", "experiments/three_features.toml", "--study-envs", "2"],
             "a study file has its own",
@@ -70,7 +76,8 @@ def test_a_bad_tiny_request_is_one_line():
     ],
 )
 def test_a_study_the_benchmark_cannot_take_is_one_line(argv, message, capsys):
-    """``--study`` names a study file for ``exact`` alone, with its own environments, and
+    """``--study`` names a study file for ``exact`` and ``atlas`` alone, with its own
+    environments, and
     ``--cluster`` is ``exact``'s alone: anything else is refused in one line before anything
     is built."""
     with pytest.raises(SystemExit):
@@ -78,3 +85,22 @@ def test_a_study_the_benchmark_cannot_take_is_one_line(argv, message, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     errors = [line for line in err if line.startswith("python -m benchmarks.bench: error:")]
     assert len(errors) == 1 and message in errors[0] and err[-1] == errors[0]
+
+
+def test_atlas_compares_a_studys_levels_on_its_own_box(tmp_path, capsys):
+    """``bench atlas --study``: the study's atlas, a coarse level and a lazily solved finer
+    one, each within 1% of the best answer on some share of the problems, and the finer
+    level's nodes counted (a one-environment study at 3 points a weight: a check that it
+    runs, not a measurement)."""
+    study = tmp_path / "tiny.toml"
+    study.write_text(
+        'theta_star = [1.0, -1.0]\nruns = 1\niterations = 1\nenvironments = ["s0-t0-l1"]\n'
+        "atlas = { points = 3 }\n"
+    )
+    argv = ["atlas", "--study", str(study), "--coarse", "3", "--problems", "2"]
+    bench.main([*argv, "--restarts", "1"])
+    out = capsys.readouterr().out
+    shares = re.findall(r"within 1% on ([0-9.]+)% of 2,", out)
+    assert len(shares) == 5 and all(0.0 <= float(v) <= 100.0 for v in shares), out
+    asked = re.findall(r"(\d+) nodes asked for", out)
+    assert len(asked) == 2 and all(int(n) > 0 for n in asked), out
