@@ -20,7 +20,7 @@ between its nodes solved once, warm from its parent cell's corner best at its θ
 that fails), only where a problem's cell asks for it; the problem then answered from those
 nodes as ``Atlas.solve`` answers.
 
-:func:`run_study` (``--study FILE --lazy``) makes the same comparison for a study's own
+:func:`run_study` (``--study FILE``) makes the same comparison for a study's own
 atlas (its planner, box and environments, k = 3 included), without building a full finer
 grid: a coarse atlas of ``coarse`` points a weight, built in full by continuation; a finer
 level of 2·coarse − 1 points whose nodes between the coarse ones are solved only where a
@@ -90,7 +90,12 @@ class CoarseToFine:
     """
 
     def __init__(
-        self, planner, grid: A.AtlasGrid, cold_stride: int, every_corner: bool = False
+        self,
+        planner,
+        grid: A.AtlasGrid,
+        cold_stride: int,
+        every_corner: bool = False,
+        coarse: A.Atlas | None = None,
     ) -> None:
         if any(n % 2 == 0 or n < 5 for n in grid.counts):
             raise ValueError(
@@ -98,8 +103,13 @@ class CoarseToFine:
                 f"got {grid.counts[0]}"
             )
         counts = tuple((n + 1) // 2 for n in grid.counts)
-        self.coarse = A.Atlas(
-            planner, A.AtlasGrid(grid.lows, grid.highs, counts), cold_stride=cold_stride
+        #: The coarse level (given: one already built, shared; else built on first use).
+        self.coarse = (
+            coarse
+            if coarse is not None
+            else A.Atlas(
+                planner, A.AtlasGrid(grid.lows, grid.highs, counts), cold_stride=cold_stride
+            )
         )
         self.fine = A.Atlas(planner, grid, cold_stride=cold_stride)
         self.thetas = grid.thetas()
@@ -326,15 +336,11 @@ def run_study(
         f"coarse ({coarse} points, built in full)": coarse_spec.atlas(),
     }
     lazy = {
-        f"finer level ({2 * coarse - 1} points), lazily, best corner": CoarseToFine(
-            planner, fine_grid, spec.cold_stride
-        ),
-        f"finer level ({2 * coarse - 1} points), lazily, every corner": CoarseToFine(
-            planner, fine_grid, spec.cold_stride, every_corner=True
-        ),
+        f"finer level ({2 * coarse - 1} points), lazily, {how}": CoarseToFine(
+            planner, fine_grid, spec.cold_stride, every, coarse=coarse_spec.atlas()
+        )
+        for how, every in (("best corner", False), ("every corner", True))
     }
-    for fine in lazy.values():
-        fine.coarse = coarse_spec.atlas()  # the coarse level built above, shared
     rng = np.random.default_rng(seed)
     gaps: dict[str, list[float]] = {name: [] for name in [*answers, *lazy, "planner's own"]}
     for _ in range(problems):

@@ -77,9 +77,8 @@ def test_a_bad_tiny_request_is_one_line():
 )
 def test_a_study_the_benchmark_cannot_take_is_one_line(argv, message, capsys):
     """``--study`` names a study file for ``exact`` and ``atlas`` alone, with its own
-    environments, and
-    ``--cluster`` is ``exact``'s alone: anything else is refused in one line before anything
-    is built."""
+    environments, and ``--cluster`` is ``exact``'s alone: anything else is refused in one line
+    before anything is built."""
     with pytest.raises(SystemExit):
         bench.main(argv)
     err = capsys.readouterr().err.strip().splitlines()
