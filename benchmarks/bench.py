@@ -432,10 +432,11 @@ def main(argv: Sequence[str] | None = None) -> None:
         "(--problems off-grid problems, default 200; --envs, --grid). 'particles': PF-C's "
         "likelihood read off fig. 4's atlas against solved plans (accuracy in --envs "
         "environments, default 4) and its CPU a correction (--problems runs, default 4; "
-        "--particles, default 2000; --bound in noise sd, default 0.02). 'exact': EX-C's and "
-        "EX-CL's update on fig. 4's atlas (or --study FILE's), CPU s a correction (median, "
-        "p90) in a fresh process with an empty store of plans between the atlas's nodes and "
-        "then a full one (--problems runs, default 3; --iterations; --learners).",
+        "--particles, default 2000; --bound in noise sd, default 0.02). 'exact': an exact "
+        "learner's update (EX-C, EX-CL, EX-M) on fig. 4's atlas (or --study FILE's), CPU s "
+        "a correction (median, p90) in a fresh process with an empty store of plans "
+        "between the atlas's nodes and then a full one (--problems runs, default 3; "
+        "--iterations; --learners).",
     )
     parser.add_argument(
         "what",
@@ -511,7 +512,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         "--learners",
         help="interact: the learners, one session each (default KF-CL,KF-C,BP); relevance: "
         "the learners costed (default KF-C,KF-CR,KF-CRP); confidence: (default "
-        "KF-CI,PF-C,AL-C,AL-PF); exact: (default EX-C,EX-CL)",
+        "KF-CI,PF-C,AL-C,AL-PF); exact: (default EX-C,EX-CL; EX-M on request)",
     )
     parser.add_argument(
         "--corrections", type=int, default=10, help="interact: corrections per session"

@@ -1,4 +1,5 @@
-"""What an exact learner's correction costs (``bench exact``): EX-C's and EX-CL's update, CPU
+"""What an exact learner's correction costs (``bench exact``): EX-C's, EX-CL's (and, with
+``--learners``, EX-M's) update, CPU
 seconds a correction (median and 90th percentile), at fig. 4's paper settings (or a study
 file's, ``--study``, with the learner's parameters as that file gives them) on its plan
 atlas, in a fresh process whose store of plans between the atlas's nodes is
@@ -50,19 +51,28 @@ def _measure(figure: str, learner: str, runs: int, iterations: int | None, small
     """In this process: ``runs`` runs of ``learner`` with the parameters the study gives it,
     each update timed (CPU seconds)."""
     from corrections_sim.learning.exact.learners import ExactCorrectionAware
+    from corrections_sim.learning.exact.mixture import ExactPersonModel
     from corrections_sim.study import runner
 
     times: list[float] = []
-    update = ExactCorrectionAware.update
+    depth = [0]  # EX-M's update calls its models' EX-CL updates: only the outermost counts
 
-    def timed(self, *args, **kwargs):
-        start = time.process_time()
-        try:
-            return update(self, *args, **kwargs)
-        finally:
-            times.append(time.process_time() - start)
+    def timing(update):
+        def timed(self, *args, **kwargs):
+            start = time.process_time()
+            depth[0] += 1
+            try:
+                return update(self, *args, **kwargs)
+            finally:
+                depth[0] -= 1
+                if depth[0] == 0:
+                    times.append(time.process_time() - start)
 
-    ExactCorrectionAware.update = timed  # EX-CL's is EX-C's: both are timed
+        return timed
+
+    # EX-CL's update is EX-C's; EX-M's calls it once for each of its models.
+    for cls in (ExactCorrectionAware, ExactPersonModel):
+        cls.update = timing(cls.__dict__["update"])
     overrides = _overrides(runs, iterations, smaller)
     params = _settings(figure, overrides).study.learner_params().get(learner, {})
     settings = _settings(figure, {**overrides, "learners": {learner: params}})

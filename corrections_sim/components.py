@@ -10,8 +10,10 @@ key path of a bad value (``learners.KF-A.attenuation_min: must be > 0``)::
 
 A field may itself be a component of another registry (KF-C's ``model`` is a correction
 model): declare it with :func:`nested`, and :func:`build` accepts a name (``"deform"``) or a
-table (``{name = "waypoint", step = 0.5}``) for it. :func:`params` turns a component back into
-plain data (nested ones as ``{"name": ..., **params}``), for ``summary.json`` and run keys.
+table (``{name = "waypoint", step = 0.5}``) for it; a field holding several (a tuple), with
+:func:`nested_many`, takes a list of those. :func:`params` turns a component back into plain
+data (nested ones as ``{"name": ..., **params}``, several as a list of them), for
+``summary.json`` and run keys.
 """
 
 from __future__ import annotations
@@ -41,6 +43,19 @@ class ParameterError(ValueError):
 def nested(registry: Registry, default: Any) -> Any:
     """A dataclass field holding a component of ``registry`` (default: the instance ``default``)."""
     return dataclasses.field(default_factory=lambda: default, metadata={"registry": registry})
+
+
+def nested_many(registry: Registry, default: tuple) -> Any:
+    """A dataclass field holding a tuple of components of ``registry`` (default: the tuple of
+    instances ``default``), given in settings as a list of names or tables."""
+    return dataclasses.field(
+        default_factory=lambda: tuple(default), metadata={"registry": registry, "many": True}
+    )
+
+
+def _many(cls: type, name: str) -> bool:
+    """Whether the field ``name`` of ``cls`` holds several components (:func:`nested_many`)."""
+    return any(f.name == name and f.metadata.get("many") for f in dataclasses.fields(cls))
 
 
 def defaults(cls: type) -> dict[str, Any]:
@@ -102,7 +117,9 @@ def build(registry: Registry, name: str, values: Mapping[str, Any] | None, *, wh
     kwargs = {}
     for key, value in values.items():
         inner = nested_registries(cls).get(key)
-        if inner is not None and not (inner.base and isinstance(value, inner.base)):
+        if inner is not None and _many(cls, key):
+            kwargs[key] = _build_many(inner, value, where=f"{where}.{key}")
+        elif inner is not None and not (inner.base and isinstance(value, inner.base)):
             kwargs[key] = build_spec(inner, value, where=f"{where}.{key}")
         else:
             kwargs[key] = value
@@ -112,6 +129,18 @@ def build(registry: Registry, name: str, values: Mapping[str, Any] | None, *, wh
         raise ValueError(f"{where}.{exc.name}: {exc.message}") from None
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{where}: {exc}") from None
+
+
+def _build_many(registry: Registry, values: Any, *, where: str) -> tuple:
+    """Several components from a list of names or tables (instances kept as they are)."""
+    if isinstance(values, str | Mapping) or not isinstance(values, list | tuple) or not values:
+        raise ValueError(
+            f"{where} = {values!r}: expected a non-empty list of {registry.kind} names or tables"
+        )
+    return tuple(
+        v if registry.base and isinstance(v, registry.base) else build_spec(registry, v, where=w)
+        for v, w in ((v, f"{where}[{i}]") for i, v in enumerate(values))
+    )
 
 
 def build_spec(registry: Registry, spec: Any, *, where: str) -> Any:
@@ -146,7 +175,9 @@ def params(component: Any) -> dict[str, Any]:
             continue
         value = getattr(component, f.name)
         registry = f.metadata.get("registry")
-        if registry is not None:
+        if registry is not None and f.metadata.get("many"):
+            value = [{"name": name_of(registry, v), **params(v)} for v in value]
+        elif registry is not None:
             value = {"name": name_of(registry, value), **params(value)}
         out[f.name] = value
     return out

@@ -8,7 +8,7 @@ lines here.
   AL-CL, KF-A; :mod:`~corrections_sim.learning.boltzmann`: BP;
   :mod:`~corrections_sim.learning.relevance`: KF-CR, KF-CRP, PP-R, KF-CRX;
   :mod:`~corrections_sim.learning.particles`: PF-C, AL-PF;
-  :mod:`~corrections_sim.learning.exact`: EX-C, EX-CL (on the study's plan atlas).
+  :mod:`~corrections_sim.learning.exact`: EX-C, EX-CL, EX-M (on the study's plan atlas).
 
 Each is a frozen dataclass whose fields are its own parameters (``[learners.KF-A]
 attenuation_min = 0.1`` in a study file); the filters' shared M, N and sigma points come from
@@ -25,6 +25,7 @@ from corrections_sim.learning.exact.learners import (
     ExactCorrectionAware,
     ExactCorrectionAwareLearntNoise,
 )
+from corrections_sim.learning.exact.mixture import ExactPersonModel
 from corrections_sim.learning.kalman.active import (
     ActiveLearning,
     CorrectionAwareActive,
@@ -73,3 +74,4 @@ LEARNERS.register("PF-C", ParticleCorrectionAware)
 LEARNERS.register("AL-PF", ParticleActive)
 LEARNERS.register("EX-C", ExactCorrectionAware)
 LEARNERS.register("EX-CL", ExactCorrectionAwareLearntNoise)
+LEARNERS.register("EX-M", ExactPersonModel)

@@ -40,7 +40,9 @@ def _shown(value, registry: Registry | None = None) -> str:
         return "absent"
     if value is components.dataclasses.MISSING:
         return "required"
-    if registry is not None:
+    if registry is not None and isinstance(value, tuple):
+        value = [{"name": components.name_of(registry, v), **components.params(v)} for v in value]
+    elif registry is not None:
         value = {"name": components.name_of(registry, value), **components.params(value)}
     return f"`{_toml(value)}`"
 

@@ -135,7 +135,9 @@ class ExactCorrectionAware(CorrectionAwareKalman):
         mean, cov = _moments(after.thetas, ref.posterior(log_post, after.cells.coefficients))
         kept = ExactState(noise=noise_prior, grid=after, history=history)
         new = Belief(theta=mean, cov=cov, state=kept)
-        return Step(new, None, z - plan.features, symmetrize(spread + noise))
+        return ExactStep(
+            new, None, z - plan.features, symmetrize(spread + noise), expected=expected
+        )
 
     def _taken_in(
         self, grid: GridPosterior, at: np.ndarray, h: np.ndarray, z: np.ndarray, noise
@@ -260,6 +262,18 @@ class ExactCorrectionAwareLearntNoise(ExactCorrectionAware):
     style = ("#5254a3", ":")
 
     noise: str = "learnt"
+
+
+@dataclass(frozen=True, eq=False)
+class ExactStep(Step):
+    """An exact learner's :class:`Step` with the mean it predicted the correction's features
+    at (what a posterior over several of its models mixes, :mod:`.mixture`).
+
+    Attributes:
+        expected: E[hₜ(θ)] under the posterior before the correction (k,).
+    """
+
+    expected: np.ndarray | None = None
 
 
 def _moments(thetas: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,140 @@
+"""EX-M, the exact posterior over θ, N and the person's correction model (issue 66): with one
+model it is EX-CL to the bit; with several, the models' evidences decide between them, so a
+person who corrects by a smooth deformation is found to, and learnt from as one; bad models
+are refused in one line."""
+
+from __future__ import annotations
+
+import csv
+
+import numpy as np
+import pytest
+from scipy.special import logsumexp
+
+from corrections_sim.cli import main as cli
+from corrections_sim.learning.base import make_learner
+from corrections_sim.learning.exact.mixture import MixtureState, model_tag
+
+STUDY = """\
+theta_star = [1.0, -1.0]
+runs = 1
+iterations = {iterations}
+seed = 3
+environments = ["s0-t0-l1", "s1-t1-l2"]
+atlas = {{ points = 9 }}
+user = {user}
+[learners.EX-CL]
+[learners.EX-M]
+{models}
+"""
+
+
+def _study(folder, name, **fields) -> list[dict]:
+    path = folder / f"{name}.toml"
+    path.write_text(STUDY.format(**fields))
+    argv = ["study", str(path), "--out", str(folder / "out"), "--workers", "1"]
+    assert cli.main(argv) == 0
+    with open(folder / "out" / name / "curves.csv", newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+@pytest.fixture(scope="module")
+def one_model(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("one")
+    fields = {"iterations": 3, "user": '"biased"', "models": 'models = ["waypoint"]'}
+    return _study(folder, "one", **fields)
+
+
+@pytest.fixture(scope="module")
+def deforming(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("deform")
+    fields = {"iterations": 4, "user": '{ name = "deform", step = 1.0 }', "models": ""}
+    return _study(folder, "deform", **fields)
+
+
+def test_with_one_model_it_is_ex_cl_to_the_bit(one_model):
+    ex_cl = [r for r in one_model if r["learner"] == "EX-CL"]
+    ex_m = [r for r in one_model if r["learner"] == "EX-M"]
+    assert len(ex_cl) == len(ex_m) == 4
+    keys = ("theta_0", "theta_1", "cov_00", "cov_01", "cov_11", "nees", "regret", "nis")
+    for a, b in zip(ex_cl, ex_m, strict=True):
+        assert {k: a[k] for k in keys} == {k: b[k] for k in keys}
+        assert float(b["model_waypoint"]) == 1.0
+    assert float(ex_m[-1]["cov_00"]) < float(ex_m[0]["cov_00"])
+
+
+def test_a_person_who_deforms_is_found_to_and_learnt_from(deforming):
+    """The paper's person corrects one waypoint; this one deforms the path around it. EX-CL
+    (one waypoint) is misled; EX-M's deformation model gains the most weight and its estimate
+    ends nearer θ*."""
+    ex_cl = [r for r in deforming if r["learner"] == "EX-CL"]
+    ex_m = [r for r in deforming if r["learner"] == "EX-M"]
+    probability = {k[len("model_") :]: float(v) for k, v in ex_m[-1].items() if k[:6] == "model_"}
+    assert len(probability) == 6 and sum(probability.values()) == pytest.approx(1.0)
+    assert [float(v) for k, v in ex_m[0].items() if k[:6] == "model_"] == pytest.approx([1 / 6] * 6)
+    assert max(probability, key=probability.get) == "deform"
+    assert probability["deform"] > 2 / 6
+    assert float(ex_m[-1]["estimate_error"]) < 0.5 * float(ex_cl[-1]["estimate_error"])
+    # The mixture's P holds the spread between the models' means: no smaller than its parts'
+    # would allow, and positive definite.
+    cov = np.array([[float(ex_m[-1]["cov_00"]), float(ex_m[-1]["cov_01"])]] * 2)
+    cov[1] = [float(ex_m[-1]["cov_01"]), float(ex_m[-1]["cov_11"])]
+    assert np.all(np.linalg.eigvalsh(cov) > 0)
+
+
+def test_the_model_tags_name_what_differs_from_the_defaults():
+    learner = make_learner("EX-M")
+    assert [model_tag(m) for m in learner.models] == [
+        "waypoint",
+        "waypoint_step0.5",
+        "waypoint_waypoints3",
+        "deform",
+        "deform_step0.5",
+        "optimal",
+    ]
+    assert [p.model for p in learner.parts()] == list(learner.models)
+    assert {p.noise for p in learner.parts()} == {"learnt"}
+    assert make_learner("EX-M", {"noise": "fixed"}).parts()[0].noise == "fixed"
+
+
+@pytest.mark.parametrize(
+    ("models", "message"),
+    [
+        ("waypoint", "learners.EX-M.models = 'waypoint': expected a non-empty list"),
+        ([], "learners.EX-M.models = []: expected a non-empty list"),
+        (["waypoint", "waypoint"], "learners.EX-M.models: lists a model twice"),
+        (["waypoint", {"name": "deform", "step": 2}], "learners.EX-M.models[1].step: must lie"),
+        (["nudge"], "learners.EX-M.models[0]: unknown correction model 'nudge'"),
+    ],
+)
+def test_bad_models_are_one_line(models, message):
+    with pytest.raises(ValueError) as info:
+        make_learner("EX-M", {"models": models})
+    assert str(info.value).startswith(message), str(info.value)
+    assert "\n" not in str(info.value)
+
+
+def test_a_mixture_state_refuses_weights_that_do_not_sum_to_one():
+    prior = make_learner("EX-M").initial
+    from corrections_sim.belief import Belief, KalmanNoise
+
+    belief = prior(Belief(theta=np.zeros(2), cov=np.eye(2)), KalmanNoise.isotropic(2, 0, 0.25))
+    state = belief.state
+    assert isinstance(state, MixtureState)
+    assert logsumexp(state.log_weights) == pytest.approx(0.0)
+    with pytest.raises(ValueError, match="not a normalized"):
+        MixtureState(state.tags, state.parts, state.log_weights + 1.0)
+    with pytest.raises(ValueError, match="one of each per model"):
+        MixtureState(state.tags[:2], state.parts, state.log_weights)
+
+
+def test_its_parameters_are_its_own_and_checked_where_ex_c_checks_them():
+    from corrections_sim import components
+
+    assert set(components.params(make_learner("EX-M"))) == {
+        "models", "noise", "noise_dof", "resolution", "cut", "max_level", "axes"
+    }  # fmt: skip
+    with pytest.raises(ValueError, match=r"^learners.EX-M.resolution: must be a number >= 0"):
+        make_learner("EX-M", {"resolution": -1})
+    with pytest.raises(ValueError, match=r"^learners.EX-M.axes: must be"):
+        make_learner("EX-M", {"axes": "some"})
