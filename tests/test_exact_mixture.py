@@ -138,3 +138,43 @@ def test_its_parameters_are_its_own_and_checked_where_ex_c_checks_them():
         make_learner("EX-M", {"resolution": -1})
     with pytest.raises(ValueError, match=r"^learners.EX-M.axes: must be"):
         make_learner("EX-M", {"axes": "some"})
+
+
+def test_fig6_with_ex_m_pairs_it_with_every_other_learner(tmp_path):
+    """A learners × users matrix with EX-M writes paired.csv: EX-M minus each other learner,
+    per person, final error and regret, each the mean of the runs' differences."""
+    import json
+
+    argv = [
+        "fig6", "--quick", "--out", str(tmp_path), "--learners", "EX-CL,EX-M", "--workers", "1",
+        "--set", "atlas={ points = 9 }", "--set", 'environments=["s0-t0-l1", "s1-t1-l2"]',
+    ]  # fmt: skip
+    assert cli.main(argv) == 0
+    folder = tmp_path / "fig6"
+    summary = json.loads((folder / "summary.json").read_text())
+    with open(folder / "curves.csv", newline="") as fh:
+        curves = list(csv.DictReader(fh))
+    users = list(summary["settings"])  # a matrix's settings: one entry a person
+    assert len(summary["paired"]) == 2 * len(users) == 10
+    for row in summary["paired"]:
+        assert (row["a"], row["b"]) == ("EX-M", "EX-CL")
+        metric = row["metric"].removeprefix("final ")
+        last = {
+            (r["learner"], r["run"]): float(r[metric])
+            for r in curves
+            if r["user"] == row["user"] and r["iteration"] == "2"
+        }
+        diff = [last[("EX-M", run)] - last[("EX-CL", run)] for run in ("0", "1")]
+        assert row["mean"] == pytest.approx(np.mean(diff), rel=1e-12, abs=1e-12)
+        assert row["n"] == 2
+    assert (folder / "paired.csv").exists()
+    # The matrix says which model EX-M ended on, for each person (the mean over runs).
+    with open(folder / "matrix.csv", newline="") as fh:
+        matrix = {(r["learner"], r["user"]): r for r in csv.DictReader(fh)}
+    for user in users:
+        mine = matrix[("EX-M", user)]
+        final = [r for r in curves if r["user"] == user and r["learner"] == "EX-M"]
+        final = [r for r in final if r["iteration"] == "2"]
+        for key in [k for k in mine if k.startswith("model_")]:
+            assert float(mine[key]) == pytest.approx(np.mean([float(r[key]) for r in final]))
+        assert matrix[("EX-CL", user)]["model_waypoint"] == ""

@@ -144,7 +144,8 @@ def run(
 
 
 def matrix(settings: RobustnessSettings, results: Sequence[FigureResult]) -> list[dict]:
-    """One row per (learner, user): final error and regret (mean, SEM), calibration."""
+    """One row per (learner, user): final error and regret (mean, SEM), calibration and, for
+    EX-M, its final posterior over the person's correction models (``model_<tag>``)."""
     rows = []
     for column, result in zip(settings.columns, results, strict=True):
         stats = analysis.summarize(column.settings, result)
@@ -162,8 +163,45 @@ def matrix(settings: RobustnessSettings, results: Sequence[FigureResult]) -> lis
             row["nees_band_low"], row["nees_band_high"] = calib["band"] if calib else (None, None)
             row["inside_band"] = calib["inside_band"] if calib else None
             row["coverage_2sigma"] = calib["coverage_2sigma_mean"] if calib else None
+            row |= _final_model_posterior(result.records, learner)
             rows.append(row)
     return rows
+
+
+def _final_model_posterior(records: Sequence[dict], learner: str) -> dict[str, float]:
+    """A learner's posterior over how the person corrects (EX-M's ``model_<tag>`` columns)
+    after the last correction, the mean over runs; empty for a learner without one."""
+    last = max(r["iteration"] for r in records)
+    finals = [r for r in records if r["learner"] == learner and r["iteration"] == last]
+    keys = [k for k in (finals[0] if finals else {}) if k.startswith("model_")]
+    return {k: float(np.mean([float(r[k]) for r in finals])) for k in keys}
+
+
+#: The learner a matrix compares every other one with, paired by run (``paired.csv``), when
+#: it is one of the matrix's learners: the exact posterior over how the person corrects.
+PAIRED_AGAINST = "EX-M"
+
+
+def paired_against(
+    settings: RobustnessSettings, results: Sequence[FigureResult], learner: str = PAIRED_AGAINST
+) -> list[dict] | None:
+    """Paired 95% t-intervals of ``learner`` minus every other learner with as many runs, per
+    user: final estimate error and final regret (the learners share their runs' draws); None
+    where ``learner`` is not in the matrix."""
+    rows = []
+    for column, result in zip(settings.columns, results, strict=True):
+        learners = column.settings.study.learners
+        if learner not in learners:
+            continue
+        data = analysis.curves(column.settings, result.records)
+        for other in learners:
+            if other == learner or data[other]["regret"].shape != data[learner]["regret"].shape:
+                continue
+            for metric in ("estimate_error", "regret"):
+                diff = data[learner][metric][:, -1] - data[other][metric][:, -1]
+                row = {"user": column.label, "a": learner, "b": other, "metric": f"final {metric}"}
+                rows.append(row | analysis._mean_ci(diff))
+    return rows or None
 
 
 def title(settings: RobustnessSettings, what: str) -> str:
@@ -208,11 +246,12 @@ def write_matrix(
 
 
 def write(settings: RobustnessSettings, results: Sequence[FigureResult], folder: Path) -> dict:
-    """matrix.csv, curves.csv (every column's records, labelled by user) and the plot in
-    ``folder``; returns the summary's fields."""
+    """matrix.csv, curves.csv (every column's records, labelled by user), with EX-M among
+    the learners paired.csv (:func:`paired_against`), and the plot in ``folder``; returns the
+    summary's fields."""
 
     rows = matrix(settings, results)
-    summary = write_matrix(settings, results, rows, folder)
+    summary = write_matrix(settings, results, rows, folder, paired_against(settings, results))
     first = settings.columns[0].settings
     title = (
         f"fig6: learners × simulated users; {first.study.runs} runs × "
