@@ -80,3 +80,29 @@ def test_the_summary_is_strict_json(quick):
         raise ValueError(f"{constant} is not JSON")
 
     json.loads((folder / "summary.json").read_text(), parse_constant=refuse)
+
+
+def test_each_column_reports_the_atlas_build_as_its_own_phase(monkeypatch):
+    """A matrix's columns get the command's progress with its ``phase``, so building a plan
+    atlas (minutes, in the first column) is shown as fig. 4's and fig. 5's is."""
+    from corrections_sim.figures import robustness
+    from corrections_sim.study import runner
+
+    seen = []
+    monkeypatch.setattr(runner, "run", lambda s, e, report, **kw: seen.append(report))
+    monkeypatch.setattr(runner, "tasks", lambda s: [0, 1])
+
+    class Progress:
+        def __call__(self, done: int, total: int) -> None:
+            self.last = (done, total)
+
+        def phase(self, label: str, unit: str):
+            return (label, unit)
+
+    settings = robustness.load_settings(quick=True)
+    progress = Progress()
+    robustness.run(settings, executor=None, progress=progress)
+    assert len(seen) == len(settings.columns) == 5
+    assert all(r.phase("atlas", "environment") == ("atlas", "environment") for r in seen)
+    seen[-1](2, 2)  # the last column's runs done: all of the matrix's
+    assert progress.last == (10, 10)

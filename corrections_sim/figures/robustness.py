@@ -136,6 +136,10 @@ def run(
             if progress:
                 progress(base + done, total)
 
+        # The atlas's build is a phase of its own (the first column builds it; minutes).
+        phase = getattr(progress, "phase", None)
+        if phase is not None:
+            report.phase = phase  # type: ignore[attr-defined]
         results.append(
             runner.run(column.settings, executor, report, cache=cache, mean_estimate=False)
         )
