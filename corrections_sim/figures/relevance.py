@@ -110,14 +110,10 @@ def paired(settings, results: Sequence[FigureResult]) -> list[dict]:
         for a, b in TWINS.items():
             if a not in learners or b not in learners:
                 continue
-            if data[a]["regret"].shape[0] != data[b]["regret"].shape[0]:
+            pairs = robustness.final_pairs(column.label, data, a, b)
+            if not pairs:
                 continue
-            for metric in ("estimate_error", "regret"):
-                diff = data[a][metric][:, -1] - data[b][metric][:, -1]
-                out.append(
-                    {"user": column.label, "a": a, "b": b, "metric": f"final {metric}"}
-                    | analysis._mean_ci(diff)
-                )
+            out += pairs
             diff = drift(result.records, a, k) - drift(result.records, b, k)
             out.append(
                 {"user": column.label, "a": a, "b": b, "metric": "drift"} | analysis._mean_ci(diff)

@@ -186,12 +186,25 @@ def _final_model_posterior(records: Sequence[dict], learner: str) -> dict[str, f
 PAIRED_AGAINST = "EX-M"
 
 
+def final_pairs(user: str, data: dict, a: str, b: str) -> list[dict]:
+    """Paired 95% t-intervals of ``a`` minus ``b`` for one ``user`` (``data``: their curves,
+    :func:`~corrections_sim.study.analysis.curves`), final estimate error and final regret
+    (the learners share their runs' draws); none where they ran different numbers of runs (an
+    active learner runs once)."""
+    if data[a]["regret"].shape[0] != data[b]["regret"].shape[0]:
+        return []
+    return [
+        {"user": user, "a": a, "b": b, "metric": f"final {metric}"}
+        | analysis._mean_ci(data[a][metric][:, -1] - data[b][metric][:, -1])
+        for metric in ("estimate_error", "regret")
+    ]
+
+
 def paired_against(
     settings: RobustnessSettings, results: Sequence[FigureResult], learner: str = PAIRED_AGAINST
 ) -> list[dict] | None:
-    """Paired 95% t-intervals of ``learner`` minus every other learner with as many runs, per
-    user: final estimate error and final regret (the learners share their runs' draws); None
-    where ``learner`` is not in the matrix."""
+    """:func:`final_pairs` of ``learner`` minus every other learner, per user; None where
+    ``learner`` is not in the matrix."""
     rows = []
     for column, result in zip(settings.columns, results, strict=True):
         learners = column.settings.study.learners
@@ -199,12 +212,8 @@ def paired_against(
             continue
         data = analysis.curves(column.settings, result.records)
         for other in learners:
-            if other == learner or data[other]["regret"].shape != data[learner]["regret"].shape:
-                continue
-            for metric in ("estimate_error", "regret"):
-                diff = data[learner][metric][:, -1] - data[other][metric][:, -1]
-                row = {"user": column.label, "a": learner, "b": other, "metric": f"final {metric}"}
-                rows.append(row | analysis._mean_ci(diff))
+            if other != learner:
+                rows += final_pairs(column.label, data, learner, other)
     return rows or None
 
 
