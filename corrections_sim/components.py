@@ -39,6 +39,11 @@ class ParameterError(ValueError):
         self.name = name
         self.message = message
 
+    def __reduce__(self):
+        # Pickled as its two arguments, so one raised in a worker process reaches the command
+        # (the default pickles the joined message alone, which __init__ cannot take back).
+        return (type(self), (self.name, self.message))
+
 
 def nested(registry: Registry, default: Any) -> Any:
     """A dataclass field holding a component of ``registry`` (default: the instance ``default``)."""

@@ -41,7 +41,8 @@ def _study(folder, name, **fields) -> list[dict]:
 @pytest.fixture(scope="module")
 def one_model(tmp_path_factory):
     folder = tmp_path_factory.mktemp("one")
-    fields = {"iterations": 3, "user": '"biased"', "models": 'models = ["waypoint"]'}
+    models = 'models = ["waypoint"]\nnoise_scales = [1]'  # EX-CL's model and N's prior
+    fields = {"iterations": 3, "user": '"biased"', "models": models}
     return _study(folder, "one", **fields)
 
 
@@ -132,7 +133,7 @@ def test_its_parameters_are_its_own_and_checked_where_ex_c_checks_them():
     from corrections_sim import components
 
     assert set(components.params(make_learner("EX-M"))) == {
-        "models", "noise", "noise_dof", "resolution", "cut", "max_level", "axes"
+        "models", "noise", "noise_dof", "noise_scales", "resolution", "cut", "max_level", "axes"
     }  # fmt: skip
     with pytest.raises(ValueError, match=r"^learners.EX-M.resolution: must be a number >= 0"):
         make_learner("EX-M", {"resolution": -1})
@@ -178,3 +179,101 @@ def test_fig6_with_ex_m_pairs_it_with_every_other_learner(tmp_path):
         for key in [k for k in mine if k.startswith("model_")]:
             assert float(mine[key]) == pytest.approx(np.mean([float(r[key]) for r in final]))
         assert matrix[("EX-CL", user)]["model_waypoint"] == ""
+
+
+@pytest.mark.parametrize(
+    ("params", "message"),
+    [
+        ({"noise_scales": []}, "learners.EX-M.noise_scales: expected a non-empty list"),
+        ({"noise_scales": 0.5}, "learners.EX-M.noise_scales: expected a non-empty list"),
+        ({"noise_scales": [1, 0]}, "learners.EX-M.noise_scales[1]: must be a number > 0"),
+        ({"noise_scales": [1, True]}, "learners.EX-M.noise_scales[1]: must be a number > 0"),
+        ({"noise_scales": [1, 1.0]}, "learners.EX-M.noise_scales: lists a scale twice"),
+        ({"noise": "fixed", "noise_scales": [1]}, "learners.EX-M.noise_scales: only with noise"),
+    ],
+)
+def test_bad_noise_scales_are_one_line(params, message):
+    with pytest.raises(ValueError) as info:
+        make_learner("EX-M", params)
+    assert str(info.value).startswith(message), str(info.value)
+    assert "\n" not in str(info.value)
+
+
+def test_the_parts_hold_the_noise_prior_asked_for():
+    from corrections_sim.learning.exact.learners import ExactCorrectionAware
+    from corrections_sim.learning.exact.mixture import DEFAULT_NOISE_SCALES, ScaledNoiseExact
+
+    assert {type(p) for p in make_learner("EX-M", {"noise_scales": [1]}).parts()} == {
+        ExactCorrectionAware
+    }
+    assert {type(p) for p in make_learner("EX-M", {"noise": "fixed"}).parts()} == {
+        ExactCorrectionAware
+    }
+    parts = make_learner("EX-M").parts()
+    assert all(isinstance(p, ScaledNoiseExact) for p in parts)
+    assert {p.noise_scales for p in parts} == {DEFAULT_NOISE_SCALES}
+
+
+def test_the_scale_mixture_is_the_integral_over_n():
+    """The scale mixture's marginal, p(r₁…rₜ | θ) = Σ_c π_c ∫ Πᵢ N(rᵢ; 0, N) IW(N; ν₀, c V₀)
+    dN, against a Monte Carlo integral over N drawn from each IW: the ratio between two nodes
+    (which the shared constants cancel from) and each scale's posterior weight."""
+    from scipy import stats
+
+    from corrections_sim.learning.exact.mixture import ScaledNoiseExact
+    from corrections_sim.learning.exact.state import GridPosterior
+    from corrections_sim.learning.kalman.state import NoisePosterior
+
+    rng = np.random.default_rng(0)
+    prior = NoisePosterior.around(0.25 * np.eye(2), 4.0)
+    scales = (1 / 16, 1.0, 4.0)
+    part = ScaledNoiseExact(model=make_learner("KF-C").model, noise="learnt", noise_scales=scales)
+    residuals = [0.1 * rng.normal(size=(3, 2)), 0.8 * rng.normal(size=(3, 2))]  # two nodes
+    scatter = np.array([r.T @ r for r in residuals])
+    grid = GridPosterior(np.zeros((2, 2)), np.zeros(2), scatter, count=3)
+    exact = part._noise_log_marginal(grid, prior)
+    per_scale = part._log_marginals(grid, prior)
+
+    def monte_carlo(r: np.ndarray, c: float) -> float:
+        noise = stats.invwishart(df=prior.dof, scale=c * prior.scale).rvs(200_000, random_state=1)
+        inv = np.linalg.inv(noise)
+        _, logdet = np.linalg.slogdet(noise)
+        quad = np.einsum("ti,nij,tj->n", r, inv, r)
+        log_l = -0.5 * quad - 0.5 * len(r) * logdet - len(r) * np.log(2 * np.pi)
+        return float(logsumexp(log_l) - np.log(len(log_l)))
+
+    mc = np.array([[monte_carlo(r, c) for c in scales] for r in residuals])  # (node, c)
+    mc_mix = logsumexp(mc, axis=1) - np.log(len(scales))
+    assert exact[1] - exact[0] == pytest.approx(mc_mix[1] - mc_mix[0], abs=0.05)
+    weights = np.exp(per_scale - logsumexp(per_scale, axis=1, keepdims=True))
+    mc_weights = np.exp(mc - logsumexp(mc, axis=1, keepdims=True))
+    np.testing.assert_allclose(weights, mc_weights, atol=0.02)
+    assert weights[0, 0] > 0.99 and weights[1, 0] < 0.01  # small residuals: small N, not large
+
+
+def test_an_exact_learner_refuses_a_noise_prior_without_a_mean():
+    from corrections_sim.belief import Belief, KalmanNoise
+    from corrections_sim.components import ParameterError
+
+    belief = Belief(theta=np.zeros(2), cov=np.eye(2))
+    noise = KalmanNoise.isotropic(2, 0, 0.25)
+    with pytest.raises(ParameterError, match=r"^noise_dof: must be > k \+ 1 = 3 for an exact"):
+        make_learner("EX-CL", {"noise_dof": 2.5}).initial(belief, noise)
+    make_learner("EX-CL", {"noise_dof": 3.5}).initial(belief, noise)
+    make_learner("KF-CL", {"noise_dof": 2.5}).initial(belief, noise)  # KF-CL's N̂ is V / ν
+
+
+def test_a_parameter_error_raised_in_a_worker_reaches_the_command():
+    """Pickled and back, with its key and message (a bad value found inside a run once broke
+    the process pool instead: "worker processes died 3 times")."""
+    import pickle
+
+    from corrections_sim.components import ParameterError
+
+    back = pickle.loads(pickle.dumps(ParameterError("noise_dof", "must be > 3, got 2")))
+    assert (type(back), back.name, back.message) == (
+        ParameterError,
+        "noise_dof",
+        "must be > 3, got 2",
+    )
+    assert str(back) == "noise_dof: must be > 3, got 2"

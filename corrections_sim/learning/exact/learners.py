@@ -81,6 +81,18 @@ class ExactCorrectionAware(CorrectionAwareKalman):
     def likelihood(self) -> Likelihood:
         return dataclasses.replace(super().likelihood(), max_level=self.max_level, axes=self.axes)
 
+    def noise_prior(self, belief: Belief, noise: KalmanNoise) -> NoisePosterior | None:
+        """KF-CL's prior over N; its degrees of freedom above k + 1, where N's posterior mean
+        (the predicted spread of a correction, :meth:`_noise_means`) exists."""
+        prior = super().noise_prior(belief, noise)
+        if prior is not None and not prior.dof > belief.dim + 1:
+            raise ParameterError(
+                "noise_dof",
+                f"must be > k + 1 = {belief.dim + 1} for an exact learner (N's posterior mean "
+                f"predicts a correction's spread), got {prior.dof:g}",
+            )
+        return prior
+
     def initial(self, belief: Belief, noise: KalmanNoise) -> Belief:
         prior = PriorEntry(belief.theta, belief.cov)  # what a refined grid weighs again
         state = ExactState(noise=self.noise_prior(belief, noise), history=(prior,))
@@ -229,26 +241,28 @@ class ExactCorrectionAware(CorrectionAwareKalman):
         r[bad] = 0.0
         return np.where(bad, -np.inf, log_d), scatter + np.einsum("ni,nj->nij", r, r)
 
-    @classmethod
-    def _log_posterior(cls, grid: GridPosterior, prior: NoisePosterior | None) -> np.ndarray:
+    def _log_posterior(self, grid: GridPosterior, prior: NoisePosterior | None) -> np.ndarray:
         """The log posterior at every node, −inf where corrections wait (their weight is 0 to
         a double's precision: :meth:`_settled`)."""
-        return np.where(grid.pending(), -np.inf, cls._bound(grid, prior))
+        return np.where(grid.pending(), -np.inf, self._bound(grid, prior))
 
-    @staticmethod
-    def _bound(grid: GridPosterior, prior: NoisePosterior | None) -> np.ndarray:
+    def _bound(self, grid: GridPosterior, prior: NoisePosterior | None) -> np.ndarray:
         """The log posterior where every correction is weighed, an upper bound of it where
         some wait."""
         if grid.scatter is None:
             return grid.log_density
-        spread = prior.scale[None, :, :] + grid.scatter
-        sign, logdet = np.linalg.slogdet(spread)
+        return grid.log_density + self._noise_log_marginal(grid, prior)
+
+    def _noise_log_marginal(self, grid: GridPosterior, prior: NoisePosterior) -> np.ndarray:
+        """log p(r₁…rₜ | θ) at every node with N integrated out under IW(ν₀, V₀), up to the
+        constants that are the same at every node: −(ν₀ + t)/2 log|V₀ + Σ r rᵀ| (an upper
+        bound where some rᵢ wait: the determinant only grows with them)."""
+        sign, logdet = np.linalg.slogdet(prior.scale[None, :, :] + grid.scatter)
         if np.any(sign <= 0):
             raise ValueError("EX-CL: V0 + sum r r^T must stay positive definite")
-        return grid.log_density - 0.5 * (prior.dof + grid.count) * logdet
+        return -0.5 * (prior.dof + grid.count) * logdet
 
-    @staticmethod
-    def _noise_means(grid: GridPosterior, prior: NoisePosterior) -> np.ndarray:
+    def _noise_means(self, grid: GridPosterior, prior: NoisePosterior) -> np.ndarray:
         """E[N | θ, corrections] = (V₀ + Σ r rᵀ) / (ν₀ + t − k − 1) at every node."""
         k = grid.thetas.shape[1]
         return (prior.scale[None] + grid.scatter) / (prior.dof + grid.count - k - 1)

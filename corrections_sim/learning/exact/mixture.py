@@ -10,7 +10,10 @@ person's model fixed across their corrections, and computes
 
 each p(θ | z, C_m) exactly as EX-CL does (N integrated out, or fixed with ``noise =
 "fixed"``: EX-C), on the same atlas and its refined cells (each model's cells refined where
-its own posterior lives). The posterior over models is their evidences,
+its own posterior lives). How noisy the person is, is theirs too: N's prior is a mixture of
+KF-CL's inverse-Wishart at several scales (:class:`ScaledNoiseExact`), so a person who
+corrects without noise is not held to the study's N. The posterior over models is their
+evidences,
 
     p(m | z₁…zₜ) ∝ π_m Z_m,   Z_m = ∫ p(θ) Πᵢ p(zᵢ | θ, C_m) dθ,
 
@@ -70,6 +73,58 @@ def model_tag(model: CorrectionModel) -> str:
         if value != base.get(key)
     ]
     return "_".join([name, *changed])
+
+
+#: The scales c of N's prior EX-M mixes by default (``noise_scales``): IW(ν₀, c V₀), its
+#: estimate c N from 1/16 to 4 times the study's N (factors of 4, each 1/4 of the prior).
+#: Chosen on fig. 6's people at θ* drawn from the prior (docs/person-models.md): against
+#: KF-CL's prior alone (c = 1) it learns a noiseless person several times better; reaching
+#: down to 1/256 learns them better still but leaves the posterior narrower than the atlas's
+#: finest cells resolve (mean NEES in the hundreds).
+DEFAULT_NOISE_SCALES: tuple[float, ...] = tuple(4.0**j for j in range(-2, 2))
+
+
+@dataclass(frozen=True)
+class ScaledNoiseExact(ExactCorrectionAware):
+    """EX-CL with N integrated out under a mixture of inverse-Wisharts that differ in scale,
+    p(N) = Σ_c π_c IW(N; ν₀, c V₀), π uniform over ``noise_scales``: how noisy the person is
+    left to their corrections, from near noiseless (a deterministic person, whose
+    corrections EX-CL's one prior, centred on the study's N, cannot tell apart below that
+    noise) to four times the study's. Exact at every node, with no plan or kinematics beyond
+    EX-CL's: the marginal over c needs only the scatter Σ r rᵀ each node keeps,
+
+        p(r₁…rₜ | θ) ∝ Σ_c π_c c^(kν₀/2) |c V₀ + Σ r rᵀ|^(−(ν₀+t)/2)
+
+    (the IW marginal's other constants are the same for every c). EX-M's part.
+
+    Attributes:
+        noise_scales: the scales c (> 0, distinct).
+    """
+
+    noise_scales: tuple[float, ...] = (1.0,)
+
+    def _log_marginals(self, grid, prior) -> np.ndarray:
+        """log π_c p(r₁…rₜ | θ, c) at every node and scale (n, C), up to the shared constants."""
+        k = grid.thetas.shape[1]
+        out = np.empty((len(grid.thetas), len(self.noise_scales)))
+        for j, c in enumerate(self.noise_scales):
+            sign, logdet = np.linalg.slogdet(c * prior.scale[None, :, :] + grid.scatter)
+            if np.any(sign <= 0):
+                raise ValueError("EX-M: c V0 + sum r r^T must stay positive definite")
+            out[:, j] = 0.5 * k * prior.dof * np.log(c) - 0.5 * (prior.dof + grid.count) * logdet
+        return out - np.log(len(self.noise_scales))
+
+    def _noise_log_marginal(self, grid, prior) -> np.ndarray:
+        return logsumexp(self._log_marginals(grid, prior), axis=1)
+
+    def _noise_means(self, grid, prior) -> np.ndarray:
+        """E[N | θ, corrections] = Σ_c p(c | θ, corrections) (c V₀ + Σ r rᵀ) / (ν₀ + t − k − 1)."""
+        k = grid.thetas.shape[1]
+        log_m = self._log_marginals(grid, prior)
+        p = np.exp(log_m - logsumexp(log_m, axis=1, keepdims=True))
+        scales = np.asarray(self.noise_scales, float)
+        spread = np.einsum("nc,c->n", p, scales)[:, None, None] * prior.scale[None] + grid.scatter
+        return spread / (prior.dof + grid.count - k - 1)
 
 
 @dataclass(frozen=True, eq=False)
@@ -136,6 +191,9 @@ class ExactPersonModel(Learner):
         noise: "learnt" (N integrated out under KF-CL's prior, as EX-CL) or "fixed" (N the
             study's, as EX-C).
         noise_dof: that prior's degrees of freedom (None: k + 2, as KF-CL's).
+        noise_scales: with N learnt, the scales c of that prior it mixes
+            (:class:`ScaledNoiseExact`; None: :data:`DEFAULT_NOISE_SCALES`; ``[1]``: KF-CL's
+            prior alone, as EX-CL).
         resolution, cut, max_level, axes: how every model's cells are refined, as EX-C's.
     """
 
@@ -146,6 +204,7 @@ class ExactPersonModel(Learner):
     models: tuple[CorrectionModel, ...] = components.nested_many(CORRECTIONS, DEFAULT_MODELS)
     noise: str = "learnt"
     noise_dof: float | None = None
+    noise_scales: tuple[float, ...] | None = None
     resolution: float = 1.0
     cut: float = 9.2
     max_level: int = 4
@@ -160,6 +219,19 @@ class ExactPersonModel(Learner):
         tags = [model_tag(m) for m in self.models]
         if len(set(tags)) != len(tags):
             raise ParameterError("models", f"lists a model twice: {', '.join(tags)}")
+        if self.noise_scales is not None:
+            scales = self.noise_scales
+            if self.noise != "learnt":
+                raise ParameterError("noise_scales", 'only with noise = "learnt"')
+            if isinstance(scales, str) or not isinstance(scales, list | tuple) or not scales:
+                raise ParameterError("noise_scales", f"expected a non-empty list, got {scales!r}")
+            for i, c in enumerate(scales):
+                number = isinstance(c, int | float) and not isinstance(c, bool)
+                if not (number and 0 < c < np.inf):
+                    raise ParameterError(f"noise_scales[{i}]", f"must be a number > 0, got {c!r}")
+            if len(set(scales)) != len(scales):
+                raise ParameterError("noise_scales", f"lists a scale twice: {list(scales)}")
+            object.__setattr__(self, "noise_scales", tuple(float(c) for c in scales))
         self.parts()  # the shared settings checked where EX-C checks them
 
     def check(self, n_waypoints: int) -> None:
@@ -180,7 +252,10 @@ class ExactPersonModel(Learner):
             "max_level": self.max_level,
             "axes": self.axes,
         }
-        return tuple(ExactCorrectionAware(model=m, **shared) for m in self.models)
+        if self.noise != "learnt" or self.noise_scales == (1.0,):
+            return tuple(ExactCorrectionAware(model=m, **shared) for m in self.models)
+        scales = DEFAULT_NOISE_SCALES if self.noise_scales is None else self.noise_scales
+        return tuple(ScaledNoiseExact(model=m, noise_scales=scales, **shared) for m in self.models)
 
     def assumed_correction(self) -> CorrectionModel | None:
         """None: it holds several (:attr:`models`)."""
@@ -212,7 +287,9 @@ class ExactPersonModel(Learner):
             part.update(ctx, prior, env, plan, phi_h)
             for part, prior in zip(self.parts(), state.parts, strict=True)
         ]
-        log_z = np.array([_log_evidence(step.belief) for step in steps])
+        log_z = np.array(
+            [_log_evidence(p, s.belief) for p, s in zip(self.parts(), steps, strict=True)]
+        )
         log_w = np.log(1.0 / len(steps)) + log_z
         log_w = log_w - logsumexp(log_w)
         weights = np.exp(log_w)
@@ -225,11 +302,11 @@ class ExactPersonModel(Learner):
         return ExactStep(new, None, steps[0].innovation, predicted[1], expected=predicted[0])
 
 
-def _log_evidence(belief: Belief) -> float:
+def _log_evidence(part: ExactCorrectionAware, belief: Belief) -> float:
     """log Z of an exact part's posterior: the trapezoid rule's integral of its unnormalized
     density over its cells (the constants every model shares left out)."""
     grid = ExactState.of(belief).grid
-    log_post = ExactCorrectionAware._log_posterior(grid, ExactState.of(belief).noise)
+    log_post = part._log_posterior(grid, ExactState.of(belief).noise)
     with np.errstate(divide="ignore"):
         return float(logsumexp(log_post + np.log(grid.cells.coefficients)))
 
