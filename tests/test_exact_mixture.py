@@ -203,9 +203,7 @@ def test_the_parts_hold_the_noise_prior_asked_for():
     from corrections_sim.learning.exact.learners import ExactCorrectionAware
     from corrections_sim.learning.exact.mixture import DEFAULT_NOISE_SCALES, ScaledNoiseExact
 
-    assert {type(p) for p in make_learner("EX-M", {"noise_scales": [1]}).parts()} == {
-        ExactCorrectionAware
-    }
+    assert {p.noise_scales for p in make_learner("EX-M", {"noise_scales": [1]}).parts()} == {(1.0,)}
     assert {type(p) for p in make_learner("EX-M", {"noise": "fixed"}).parts()} == {
         ExactCorrectionAware
     }

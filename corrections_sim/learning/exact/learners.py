@@ -255,12 +255,8 @@ class ExactCorrectionAware(CorrectionAwareKalman):
 
     def _noise_log_marginal(self, grid: GridPosterior, prior: NoisePosterior) -> np.ndarray:
         """log p(r₁…rₜ | θ) at every node with N integrated out under IW(ν₀, V₀), up to the
-        constants that are the same at every node: −(ν₀ + t)/2 log|V₀ + Σ r rᵀ| (an upper
-        bound where some rᵢ wait: the determinant only grows with them)."""
-        sign, logdet = np.linalg.slogdet(prior.scale[None, :, :] + grid.scatter)
-        if np.any(sign <= 0):
-            raise ValueError("EX-CL: V0 + sum r r^T must stay positive definite")
-        return -0.5 * (prior.dof + grid.count) * logdet
+        constants that are the same at every node (:func:`iw_log_marginal`)."""
+        return iw_log_marginal(grid, prior)
 
     def _noise_means(self, grid: GridPosterior, prior: NoisePosterior) -> np.ndarray:
         """E[N | θ, corrections] = (V₀ + Σ r rᵀ) / (ν₀ + t − k − 1) at every node."""
@@ -288,6 +284,18 @@ class ExactStep(Step):
     """
 
     expected: np.ndarray | None = None
+
+
+def iw_log_marginal(grid: GridPosterior, prior: NoisePosterior, scale: float = 1.0) -> np.ndarray:
+    """log p(r₁…rₜ | θ) at every node of ``grid`` with N integrated out under IW(ν₀, c V₀),
+    c = ``scale``, up to the constants that are the same at every node and every c:
+    (kν₀/2) log c − (ν₀ + t)/2 log|c V₀ + Σ r rᵀ| (an upper bound where some rᵢ wait: the
+    determinant only grows with them)."""
+    k = grid.thetas.shape[1]
+    sign, logdet = np.linalg.slogdet(scale * prior.scale[None, :, :] + grid.scatter)
+    if np.any(sign <= 0):
+        raise ValueError("EX-CL: c V0 + sum r r^T must stay positive definite")
+    return 0.5 * k * prior.dof * np.log(scale) - 0.5 * (prior.dof + grid.count) * logdet
 
 
 def _moments(thetas: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -37,7 +37,11 @@ from corrections_sim import components
 from corrections_sim.belief import Belief, FamilyState, KalmanNoise, floored, symmetrize
 from corrections_sim.components import ParameterError
 from corrections_sim.learning.base import Learner, LearnerContext, Likelihood, Step
-from corrections_sim.learning.exact.learners import ExactCorrectionAware, ExactStep
+from corrections_sim.learning.exact.learners import (
+    ExactCorrectionAware,
+    ExactStep,
+    iw_log_marginal,
+)
 from corrections_sim.learning.exact.state import ExactState
 from corrections_sim.people.corrections import (
     CORRECTIONS,
@@ -80,7 +84,7 @@ def model_tag(model: CorrectionModel) -> str:
 #: Chosen on fig. 6's people at θ* drawn from the prior (docs/person-models.md): against
 #: KF-CL's prior alone (c = 1) it learns a noiseless person several times better; reaching
 #: down to 1/256 learns them better still but leaves the posterior narrower than the atlas's
-#: finest cells resolve (mean NEES in the hundreds).
+#: finest cells resolve (mean NEES in the tens to thousands).
 DEFAULT_NOISE_SCALES: tuple[float, ...] = tuple(4.0**j for j in range(-2, 2))
 
 
@@ -105,13 +109,7 @@ class ScaledNoiseExact(ExactCorrectionAware):
 
     def _log_marginals(self, grid, prior) -> np.ndarray:
         """log π_c p(r₁…rₜ | θ, c) at every node and scale (n, C), up to the shared constants."""
-        k = grid.thetas.shape[1]
-        out = np.empty((len(grid.thetas), len(self.noise_scales)))
-        for j, c in enumerate(self.noise_scales):
-            sign, logdet = np.linalg.slogdet(c * prior.scale[None, :, :] + grid.scatter)
-            if np.any(sign <= 0):
-                raise ValueError("EX-M: c V0 + sum r r^T must stay positive definite")
-            out[:, j] = 0.5 * k * prior.dof * np.log(c) - 0.5 * (prior.dof + grid.count) * logdet
+        out = np.stack([iw_log_marginal(grid, prior, c) for c in self.noise_scales], axis=1)
         return out - np.log(len(self.noise_scales))
 
     def _noise_log_marginal(self, grid, prior) -> np.ndarray:
@@ -193,7 +191,7 @@ class ExactPersonModel(Learner):
         noise_dof: that prior's degrees of freedom (None: k + 2, as KF-CL's).
         noise_scales: with N learnt, the scales c of that prior it mixes
             (:class:`ScaledNoiseExact`; None: :data:`DEFAULT_NOISE_SCALES`; ``[1]``: KF-CL's
-            prior alone, as EX-CL).
+            prior alone, EX-CL's numbers to the bit).
         resolution, cut, max_level, axes: how every model's cells are refined, as EX-C's.
     """
 
@@ -252,7 +250,7 @@ class ExactPersonModel(Learner):
             "max_level": self.max_level,
             "axes": self.axes,
         }
-        if self.noise != "learnt" or self.noise_scales == (1.0,):
+        if self.noise != "learnt":
             return tuple(ExactCorrectionAware(model=m, **shared) for m in self.models)
         scales = DEFAULT_NOISE_SCALES if self.noise_scales is None else self.noise_scales
         return tuple(ScaledNoiseExact(model=m, noise_scales=scales, **shared) for m in self.models)
@@ -283,13 +281,12 @@ class ExactPersonModel(Learner):
         if not isinstance(state, MixtureState):
             state = MixtureState.of(self.initial(belief, ctx.noise))
         before = state.weights()
+        parts = self.parts()
         steps = [
             part.update(ctx, prior, env, plan, phi_h)
-            for part, prior in zip(self.parts(), state.parts, strict=True)
+            for part, prior in zip(parts, state.parts, strict=True)
         ]
-        log_z = np.array(
-            [_log_evidence(p, s.belief) for p, s in zip(self.parts(), steps, strict=True)]
-        )
+        log_z = np.array([_log_evidence(p, s.belief) for p, s in zip(parts, steps, strict=True)])
         log_w = np.log(1.0 / len(steps)) + log_z
         log_w = log_w - logsumexp(log_w)
         weights = np.exp(log_w)
