@@ -44,6 +44,13 @@ def test_every_cell_is_filled_and_the_files_are_written(quick):
         assert float(r["estimate_error_mean"]) >= 0.0 and float(r["regret_mean"]) >= 0.0
     summary = json.loads((folder / "summary.json").read_text())
     assert summary["planner_solves"] > 0 and len(summary["matrix"]) == len(rows)
+    # The summary's runs are the matrix's: per column where the columns differ (an active
+    # learner runs once for a deterministic person and N times for the random one).
+    for learner, given in summary["runs_per_learner"].items():
+        cells = {r["user"]: int(r["runs"]) for r in rows if r["learner"] == learner}
+        expected = cells if len(set(cells.values())) > 1 else cells[users[0]]
+        assert given == expected, learner
+    assert isinstance(summary["runs_per_learner"]["AL"], dict)
 
 
 def test_kf_c_is_calibrated_for_the_user_it_models_and_kf_is_not(quick):

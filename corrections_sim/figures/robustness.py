@@ -253,9 +253,21 @@ def write_matrix(
         "resumed_runs": sum(r.resumed for r in results),
         "matrix": rows,
         "planner": provenance.plain(first.planner_config()),
-        "runs_per_learner": {n: first.study.runs_of(n) for n in settings.learners},
+        "runs_per_learner": runs_per_learner(settings),
         **({"paired": paired} if paired is not None else {}),
     }
+
+
+def runs_per_learner(settings: RobustnessSettings) -> dict[str, int | dict[str, int]]:
+    """Each learner's runs: one number when every column gives it as many, else the runs per
+    column label (an active learner runs once under a deterministic person and ``runs`` times
+    under a random one: fig. 6's noisy-optimal column)."""
+    out: dict[str, int | dict[str, int]] = {}
+    for name in settings.learners:
+        by_column = {c.label: c.settings.study.runs_of(name) for c in settings.columns}
+        counts = set(by_column.values())
+        out[name] = counts.pop() if len(counts) == 1 else by_column
+    return out
 
 
 def write(settings: RobustnessSettings, results: Sequence[FigureResult], folder: Path) -> dict:
