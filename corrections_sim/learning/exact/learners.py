@@ -98,14 +98,19 @@ class ExactCorrectionAware(CorrectionAwareKalman):
         state = ExactState(noise=self.noise_prior(belief, noise), history=(prior,))
         return Belief(theta=belief.theta, cov=belief.cov, state=state)
 
-    def update(
-        self, ctx: LearnerContext, belief: Belief, env: Environment, plan: Plan, phi_h: np.ndarray
-    ) -> Step:
+    def _opened(self, ctx: LearnerContext, belief: Belief):
+        """(the study's atlas, the exact state, its history with the prior first): what an
+        update starts from; refused in one line without an atlas."""
         atlas = ctx.book.atlas
         if atlas is None:
             raise ValueError(f"{type(self).__name__}: needs the study's plan atlas (atlas = true)")
         state = ExactState.of(belief)
-        history = state.history or (PriorEntry(belief.theta, belief.cov),)
+        return atlas, state, state.history or (PriorEntry(belief.theta, belief.cov),)
+
+    def update(
+        self, ctx: LearnerContext, belief: Belief, env: Environment, plan: Plan, phi_h: np.ndarray
+    ) -> Step:
+        atlas, state, history = self._opened(ctx, belief)
         noise_prior = state.noise  # N's prior, kept as the run started (EX-CL)
         before = state.grid
         if before is None:
@@ -240,6 +245,11 @@ class ExactCorrectionAware(CorrectionAwareKalman):
         bad = ~np.all(np.isfinite(r), axis=1)
         r[bad] = 0.0
         return np.where(bad, -np.inf, log_d), scatter + np.einsum("ni,nj->nij", r, r)
+
+    def state_log_posterior(self, state: ExactState) -> np.ndarray:
+        """The log posterior at every node of ``state``'s grid, up to the constants every
+        correction model shares (what EX-M's evidence integrates)."""
+        return self._log_posterior(state.grid, state.noise)
 
     def _log_posterior(self, grid: GridPosterior, prior: NoisePosterior | None) -> np.ndarray:
         """The log posterior at every node, −inf where corrections wait (their weight is 0 to

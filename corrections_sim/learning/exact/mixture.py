@@ -22,7 +22,9 @@ every model's density is written with the same constants (the prior's, N's or th
 inverse-Wishart marginal's, which do not depend on C), so the Z_m compare as they are. The
 belief's θ̂ and P are the mixture's moments; its columns add p(m | z) per model.
 
-With one model, EX-M is EX-CL (EX-C) to the bit (tested).
+With one model, EX-M is EX-CL (EX-C) to the bit (tested). With ``relevance = true`` each part
+also judges, exactly, which of the person's corrections were about what the robot can
+represent (:mod:`.relevance`; N then among point masses); an option, not the default.
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ from corrections_sim.learning.exact.learners import (
     ExactStep,
     iw_log_marginal,
 )
+from corrections_sim.learning.exact.relevance import RelevantExact
 from corrections_sim.learning.exact.state import ExactState
 from corrections_sim.people.corrections import (
     CORRECTIONS,
@@ -86,6 +89,9 @@ def model_tag(model: CorrectionModel) -> str:
 #: down to 1/256 learns them better still but leaves the posterior narrower than the atlas's
 #: finest cells resolve (mean NEES in the tens to thousands).
 DEFAULT_NOISE_SCALES: tuple[float, ...] = tuple(4.0**j for j in range(-2, 2))
+#: With relevance judged (:mod:`.relevance`), N is one of these point masses s N̄ instead:
+#: the same span, 1/16 to 4, at factors of 2.
+DEFAULT_POINT_SCALES: tuple[float, ...] = tuple(2.0**j for j in range(-4, 3))
 
 
 @dataclass(frozen=True)
@@ -191,7 +197,13 @@ class ExactPersonModel(Learner):
         noise_dof: that prior's degrees of freedom (None: k + 2, as KF-CL's).
         noise_scales: with N learnt, the scales c of that prior it mixes
             (:class:`ScaledNoiseExact`; None: :data:`DEFAULT_NOISE_SCALES`; ``[1]``: KF-CL's
-            prior alone, EX-CL's numbers to the bit).
+            prior alone, EX-CL's numbers to the bit); with ``relevance``, the point masses
+            s of N = s N̄ (None: :data:`DEFAULT_POINT_SCALES`).
+        relevance: judge whether each correction is about what the robot can represent,
+            across the person's corrections, exactly
+            (:class:`~corrections_sim.learning.exact.relevance.RelevantExact`).
+        relevance_prior, relevance_count: with ``relevance``, the prior over the person's
+            rate r of relevant corrections: Beta(prior · count, (1 − prior) · count).
         resolution, cut, max_level, axes: how every model's cells are refined, as EX-C's.
     """
 
@@ -203,6 +215,9 @@ class ExactPersonModel(Learner):
     noise: str = "learnt"
     noise_dof: float | None = None
     noise_scales: tuple[float, ...] | None = None
+    relevance: bool = False
+    relevance_prior: float = 0.9
+    relevance_count: float = 2.0
     resolution: float = 1.0
     cut: float = 9.2
     max_level: int = 4
@@ -230,6 +245,12 @@ class ExactPersonModel(Learner):
             if len(set(scales)) != len(scales):
                 raise ParameterError("noise_scales", f"lists a scale twice: {list(scales)}")
             object.__setattr__(self, "noise_scales", tuple(float(c) for c in scales))
+        if not isinstance(self.relevance, bool):
+            raise ParameterError("relevance", f"must be true or false, got {self.relevance!r}")
+        base = components.defaults(type(self))
+        for name in ("relevance_prior", "relevance_count"):
+            if not self.relevance and getattr(self, name) != base[name]:
+                raise ParameterError(name, "only with relevance = true")
         self.parts()  # the shared settings checked where EX-C checks them
 
     def check(self, n_waypoints: int) -> None:
@@ -250,6 +271,14 @@ class ExactPersonModel(Learner):
             "max_level": self.max_level,
             "axes": self.axes,
         }
+        if self.relevance:
+            scales = DEFAULT_POINT_SCALES if self.noise_scales is None else self.noise_scales
+            judged = {
+                "noise_scales": scales,
+                "relevance_prior": self.relevance_prior,
+                "relevance_count": self.relevance_count,
+            }
+            return tuple(RelevantExact(model=m, **judged, **shared) for m in self.models)
         if self.noise != "learnt":
             return tuple(ExactCorrectionAware(model=m, **shared) for m in self.models)
         scales = DEFAULT_NOISE_SCALES if self.noise_scales is None else self.noise_scales
@@ -296,14 +325,24 @@ class ExactPersonModel(Learner):
         predicted = _predictive(steps, before)
         kept = MixtureState(state.tags, tuple(s.belief for s in steps), log_w)
         new = Belief(theta=mean, cov=floored(cov), state=kept)
-        return ExactStep(new, None, steps[0].innovation, predicted[1], expected=predicted[0])
+        judged = [s.relevance for s in steps]
+        relevance = None if None in judged else float(weights @ np.array(judged))
+        return ExactStep(
+            new,
+            None,
+            steps[0].innovation,
+            predicted[1],
+            relevance=relevance,
+            expected=predicted[0],
+        )
 
 
 def _log_evidence(part: ExactCorrectionAware, belief: Belief) -> float:
     """log Z of an exact part's posterior: the trapezoid rule's integral of its unnormalized
     density over its cells (the constants every model shares left out)."""
-    grid = ExactState.of(belief).grid
-    log_post = part._log_posterior(grid, ExactState.of(belief).noise)
+    state = ExactState.of(belief)
+    grid = state.grid
+    log_post = part.state_log_posterior(state)
     with np.errstate(divide="ignore"):
         return float(logsumexp(log_post + np.log(grid.cells.coefficients)))
 

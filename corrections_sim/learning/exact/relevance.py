@@ -1,0 +1,338 @@
+"""EX-M's relevance: the exact posterior over θ with each correction either about what the
+robot can represent (relevant) or not, judged across the person's corrections.
+
+Each correction zᵢ (the features of the person's correction) is relevant with probability r,
+the person's rate, independently given r, and r ~ Beta(a, b) is shared by all of their
+corrections:
+
+* relevant: zᵢ ~ N(hᵢ(θ), N_s), hᵢ(θ) = Φ(C(ξⁱ, ξ*(θ, Eⁱ))) as in EX-C, and the person's
+  noise N_s = s N̄ one of the scales s of ``noise_scales`` (a uniform prior over them; N̄ the
+  centre of KF-CL's prior over N, V₀ / (ν₀ − k − 1));
+* irrelevant: zᵢ ~ qᵢ, the features of a nudge of the same size as the person's move, on
+  the waypoints they moved, in a uniformly random joint-space direction (the "distracted"
+  person's nudge, and what a correction made for a feature the robot lacks looks like to
+  it): a Gaussian moment-matched to 64 such nudges (32 directions and their opposites, the
+  same for every correction and run), its spread widened by N̄ / 16.
+
+The sum over which corrections were relevant is exact: given θ and s the corrections are
+independent, so with j of t relevant
+
+    p(z₁…zₜ | θ, s) = Σⱼ B(a + j, b + t − j) / B(a, b) · eⱼ(θ, s),
+
+eⱼ the sum over the subsets R of j corrections of Π_{i∈R} N(zᵢ; hᵢ(θ), N_s) Π_{i∉R} qᵢ(zᵢ),
+found by a recursion over the corrections (O(t²) a node and scale). The sum over s is the
+prior's. A person's noise is learnt among point masses, not under KF-CL's inverse-Wishart as
+in EX-CL: with N integrated out under the latter the corrections are not independent given
+θ, and the sum over subsets would take 2ᵗ terms. Where ``ctx.corrected`` is not given (no
+joint-space correction to judge), the correction is taken as relevant.
+
+Every correction is weighed at every node at once (no lazy weighing: at k = 2 it saves
+little, and the relevance sum has no cheap bound).
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.special import betaln, logsumexp
+
+from corrections_sim.belief import Belief, symmetrize
+from corrections_sim.components import ParameterError
+from corrections_sim.learning.base import LearnerContext, Step
+from corrections_sim.learning.exact import bayes as ref
+from corrections_sim.learning.exact.cells import Cells
+from corrections_sim.learning.exact.learners import ExactCorrectionAware, ExactStep, _moments
+from corrections_sim.learning.exact.state import ExactState, GridPosterior
+from corrections_sim.learning.history import CorrectionEntry
+from corrections_sim.planning.features import waypoint_features
+from corrections_sim.planning.planner import Plan, PlanningError
+from corrections_sim.scene.environments import Environment
+
+#: Random nudge directions the irrelevant density is moment-matched to (and their opposites).
+NUDGE_DIRECTIONS = 32
+#: The seed of those directions (the same for every correction, run and machine).
+NUDGE_SEED = 6602
+#: The irrelevant density's spread is widened by N̄ times this (a nudge that barely moves
+#: the features is not a point mass).
+NUDGE_FLOOR = 1.0 / 16.0
+#: A waypoint counts as moved when it moved more than this (rad).
+MOVED = 1e-9
+
+
+@functools.cache
+def _directions(dims: int) -> np.ndarray:
+    """Unit directions in ``dims`` joint dimensions, and their opposites (2·NUDGE_DIRECTIONS,
+    dims)."""
+    u = np.random.default_rng([NUDGE_SEED, dims]).normal(size=(NUDGE_DIRECTIONS, dims))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    out = np.concatenate([u, -u])
+    out.setflags(write=False)
+    return out
+
+
+def nudge_density(
+    robot: np.ndarray, corrected: np.ndarray, env: Environment, names, floor: np.ndarray
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The irrelevant density's mean (k,) and covariance (k, k) of Φ after a nudge as large as
+    the move from ``robot`` to ``corrected`` (both (T, 7)) on the waypoints it moved, in a
+    random direction; None when nothing moved."""
+    robot = np.asarray(robot, float)
+    move = np.asarray(corrected, float) - robot
+    rows = np.flatnonzero(np.linalg.norm(move, axis=1) > MOVED)
+    if rows.size == 0:
+        return None
+    size = float(np.linalg.norm(move[rows]))
+    u = _directions(7 * rows.size) * size  # (m, 7·rows)
+    params = env.params()
+    nudged = robot[rows][None] + u.reshape(len(u), rows.size, 7)
+    after = waypoint_features(nudged.reshape(-1, 7), params, names).reshape(len(u), rows.size, -1)
+    before = waypoint_features(robot, params, names)
+    phi = before.sum(axis=0) + (after - before[rows][None]).sum(axis=1)  # (m, k)
+    mean = phi.mean(axis=0)
+    d = phi - mean
+    return mean, symmetrize(d.T @ d / len(d) + floor)
+
+
+def _log_gaussian(z: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> float:
+    d = np.asarray(z, float) - mean
+    sign, logdet = np.linalg.slogdet(2.0 * np.pi * cov)
+    return float(-0.5 * d @ np.linalg.solve(cov, d) - 0.5 * logdet) if sign > 0 else -np.inf
+
+
+@dataclass(frozen=True, eq=False)
+class JudgedEntry(CorrectionEntry):
+    """A correction with the irrelevant density of its features, log qᵢ(zᵢ) (−inf: it is
+    relevant for certain, e.g. no joint-space correction was given)."""
+
+    log_irrelevant: float = -np.inf
+
+
+@dataclass(frozen=True)
+class RelevantExact(ExactCorrectionAware):
+    """One correction model's exact posterior over θ, the person's noise scale and which of
+    their corrections were relevant (module docstring). EX-M's part when it judges relevance.
+
+    Attributes:
+        noise_scales: the point masses s of N = s N̄ (> 0, distinct), uniform a priori.
+        relevance_prior: E[r] before any correction, in (0, 1).
+        relevance_count: how many corrections' worth the prior on r holds (> 0):
+            r ~ Beta(prior · count, (1 − prior) · count).
+    """
+
+    noise: str = "learnt"
+    noise_scales: tuple[float, ...] = (1.0,)
+    relevance_prior: float = 0.9
+    relevance_count: float = 2.0
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.noise != "learnt":
+            raise ParameterError("noise", 'judging relevance needs noise = "learnt"')
+        p = self.relevance_prior
+        if not (isinstance(p, int | float) and not isinstance(p, bool) and 0 < p < 1):
+            raise ParameterError("relevance_prior", f"must be a number in (0, 1), got {p!r}")
+        c = self.relevance_count
+        if not (isinstance(c, int | float) and not isinstance(c, bool) and 0 < c < np.inf):
+            raise ParameterError("relevance_count", f"must be a number > 0, got {c!r}")
+
+    # -- the model ---------------------------------------------------------------------------
+
+    def _beta(self) -> tuple[float, float]:
+        a = self.relevance_prior * self.relevance_count
+        return a, self.relevance_count - a
+
+    def _centre(self, prior) -> np.ndarray:
+        k = prior.scale.shape[0]
+        return prior.scale / (prior.dof - k - 1)
+
+    def _scale_terms(self, grid: GridPosterior, prior) -> np.ndarray:
+        """log N(rᵢ; 0, s N̄) at every node, scale and correction (n, S, t)."""
+        res = grid.scatter  # (n, t, k): the residuals rᵢ = zᵢ − hᵢ(θ)
+        centre = self._centre(prior)
+        k = centre.shape[0]
+        inv = np.linalg.inv(centre)
+        _, logdet = np.linalg.slogdet(2.0 * np.pi * centre)
+        quad = np.einsum("nti,ij,ntj->nt", res, inv, res)
+        s = np.asarray(self.noise_scales, float)
+        norm = 0.5 * (logdet + k * np.log(s))
+        out = -0.5 * quad[:, None, :] / s[None, :, None] - norm[None, :, None]
+        return np.where(np.isfinite(out), out, -np.inf)
+
+    def _elementary(self, grid: GridPosterior, prior, log_q: np.ndarray, upto: int):
+        """log eⱼ over the first ``upto`` corrections (n, S, upto + 1) and the scale terms."""
+        terms = self._scale_terms(grid, prior)
+        n, S, _ = terms.shape
+        e = np.full((n, S, upto + 1), -np.inf)
+        e[:, :, 0] = 0.0
+        for i in range(upto):
+            rel = e[:, :, :-1] + terms[:, :, i : i + 1]
+            irr = e + log_q[i]
+            e = irr.copy()
+            e[:, :, 1:] = np.logaddexp(irr[:, :, 1:], rel)
+        return e, terms
+
+    def _count_weights(self, t: int) -> np.ndarray:
+        """log B(a + j, b + t − j) / B(a, b) for j = 0…t."""
+        a, b = self._beta()
+        j = np.arange(t + 1)
+        return betaln(a + j, b + t - j) - betaln(a, b)
+
+    def _joint(self, grid: GridPosterior, prior, log_q: np.ndarray) -> np.ndarray:
+        """log π_s p(z₁…zₜ | θ, s) at every node and scale (n, S)."""
+        t = grid.count
+        e, _ = self._elementary(grid, prior, log_q, t)
+        out = logsumexp(e + self._count_weights(t)[None, None, :], axis=2)
+        return out - np.log(len(self.noise_scales))
+
+    # -- the grid -----------------------------------------------------------------------------
+
+    def _log_q(self, history) -> np.ndarray:
+        return np.array([getattr(h, "log_irrelevant", -np.inf) for h in history[1:]], float)
+
+    def state_log_posterior(self, state: ExactState) -> np.ndarray:
+        return self._posterior(state.grid, state.noise, state.history)
+
+    def _posterior(self, grid: GridPosterior, prior, history) -> np.ndarray:
+        """The log posterior at every node (n,)."""
+        joint = self._joint(grid, prior, self._log_q(history))
+        return grid.log_density + logsumexp(joint, axis=1)
+
+    def _residuals(self, history, ctx: LearnerContext, thetas: np.ndarray):
+        """(log prior, residuals (n, t, k)) at ``thetas``: every correction of ``history``."""
+        first = history[0]
+        log_d = ref.gaussian_log_prior(thetas, Belief(theta=first.theta, cov=first.cov))
+        k = thetas.shape[1]
+        res = np.zeros((len(thetas), len(history) - 1, k))
+        for i, seen in enumerate(history[1:]):
+            plans = ctx.book.atlas.plans(thetas, seen.env)
+            h = self.observation().at_plans(plans, seen.robot, seen.env, ctx.features)
+            r = np.asarray(seen.phi_h, float)[None, :] - h
+            bad = ~np.all(np.isfinite(r), axis=1)
+            log_d = np.where(bad, -np.inf, log_d)
+            r[bad] = 0.0
+            res[:, i] = r
+        return log_d, res
+
+    def _grid(self, thetas, log_d, res, count, cells) -> GridPosterior:
+        return _ResidualGrid(thetas, log_d, res, count, cells)
+
+    def update(
+        self, ctx: LearnerContext, belief: Belief, env: Environment, plan: Plan, phi_h: np.ndarray
+    ) -> Step:
+        atlas, state, history = self._opened(ctx, belief)
+        prior = state.noise
+        before = state.grid
+        if before is None:
+            g = atlas.grid
+            cells = Cells.base(g.lows, g.highs, g.counts, self.max_level)
+            log_d, res = self._residuals(history[:1], ctx, cells.thetas())
+            before = self._grid(cells.thetas(), log_d, res, 0, cells)
+        log_before = self._posterior(before, prior, history)
+        weights = ref.posterior(log_before, before.cells.coefficients)
+        z = np.asarray(phi_h, float)
+        k = z.size
+        at = np.flatnonzero(np.isfinite(before.log_density))
+        plans = atlas.plans(before.thetas[at], env)
+        h = self.observation().at_plans(plans, plan.trajectory, env, ctx.features)
+        seen = np.all(np.isfinite(h), axis=1) & (weights[at] > 0)
+        if not seen.any():
+            raise PlanningError(
+                f"{env.name}: the atlas has no plan where the posterior lives; update skipped"
+            )
+        centre = self._centre(prior)
+        found = None
+        if ctx.corrected is not None:
+            found = nudge_density(
+                plan.trajectory, ctx.corrected, env, ctx.features, NUDGE_FLOOR * centre
+            )
+        log_q = -np.inf if found is None else _log_gaussian(z, *found)
+        # What it expected before the correction (a relevant correction's predictive).
+        w = weights[at][seen] / weights[at][seen].sum()
+        expected = w @ h[seen]
+        spread = (w[:, None] * (h[seen] - expected)).T @ (h[seen] - expected)
+        noise_mean = self._noise_mean(before, prior, history, weights)
+        # Take it in: the residuals at every node.
+        r = np.zeros((len(before.thetas), k))
+        log_d = np.array(before.log_density)
+        r[at] = z[None, :] - h
+        bad = np.zeros(len(log_d), bool)
+        bad[at] = ~np.all(np.isfinite(r[at]), axis=1)
+        r[bad] = 0.0
+        log_d[bad] = -np.inf
+        res = np.concatenate([before.scatter, r[:, None, :]], axis=1)
+        entry = JudgedEntry(env, plan.trajectory, z, ctx.noise.observation, log_q)
+        history = (*history, entry)
+        after = self._grid(before.thetas, log_d, res, before.count + 1, before.cells)
+        after = self._refine(ctx, after, history, prior)
+        log_post = self._posterior(after, prior, history)
+        mean, cov = _moments(after.thetas, ref.posterior(log_post, after.cells.coefficients))
+        kept = ExactState(noise=prior, grid=after, history=history)
+        new = Belief(theta=mean, cov=cov, state=kept)
+        beta = self._relevance(after, prior, history)
+        return ExactStep(
+            new,
+            None,
+            z - plan.features,
+            symmetrize(spread + noise_mean),
+            relevance=beta,
+            expected=expected,
+        )
+
+    def _refine(self, ctx, grid: GridPosterior, history, prior) -> GridPosterior:
+        refine = ref.Refinement(self.resolution, self.cut, self.axes)
+        while (
+            cells := refine.finer(grid.cells, self._posterior(grid, prior, history))
+        ) is not None:
+            new = cells.thetas()[len(grid.thetas) :]
+            log_d, res = self._residuals(history, ctx, new)
+            grid = self._grid(
+                cells.thetas(),
+                np.concatenate([grid.log_density, log_d]),
+                np.concatenate([grid.scatter, res]),
+                grid.count,
+                cells,
+            )
+        return grid
+
+    def _noise_mean(self, grid: GridPosterior, prior, history, weights: np.ndarray) -> np.ndarray:
+        """E[N | corrections] = Σ_s p(s | corrections) s N̄."""
+        joint = self._joint(grid, prior, self._log_q(history))  # (n, S)
+        with np.errstate(divide="ignore"):
+            log_s = logsumexp(joint + np.log(weights)[:, None], axis=0)
+        p = np.exp(log_s - logsumexp(log_s))
+        return float(p @ np.asarray(self.noise_scales, float)) * self._centre(prior)
+
+    def _relevance(self, grid: GridPosterior, prior, history) -> float:
+        """P(the latest correction is relevant | every correction so far)."""
+        log_q = self._log_q(history)
+        t = grid.count
+        if not np.isfinite(log_q[-1]):
+            return 1.0
+        e, terms = self._elementary(grid, prior, log_q, t - 1)  # (n, S, t)
+        w = self._count_weights(t)
+        on = logsumexp(e + w[None, None, 1:], axis=2) + terms[:, :, t - 1]
+        off = logsumexp(e + w[None, None, :-1], axis=2) + log_q[-1]
+        with np.errstate(divide="ignore"):
+            log_c = np.log(grid.cells.coefficients)[:, None] + grid.log_density[:, None]
+        on, off = logsumexp(on + log_c), logsumexp(off + log_c)
+        return float(np.exp(on - np.logaddexp(on, off)))
+
+
+@dataclass(frozen=True, eq=False)
+class _ResidualGrid(GridPosterior):
+    """A :class:`GridPosterior` whose ``scatter`` holds every correction's residual at every
+    node (n, t, k) instead of their sum of squares."""
+
+    def __post_init__(self) -> None:
+        res = None if self.scatter is None else np.array(self.scatter, float, copy=True)
+        object.__setattr__(self, "scatter", None)
+        super().__post_init__()
+        if res is None or res.shape[:2] != (len(self.thetas), self.count):
+            raise ValueError(
+                f"_ResidualGrid: expected residuals (n, t, k) for {len(self.thetas)} nodes and "
+                f"{self.count} corrections"
+            )
+        res.setflags(write=False)
+        object.__setattr__(self, "scatter", res)
