@@ -1,17 +1,20 @@
 """EX-M's relevance (issue 66): the sum over which corrections were relevant, the person's
 rate and noise scale integrated out, is the sum over every subset (checked against brute
 force); the latest correction's probability of being relevant is that sum's; the irrelevant
-density is a random nudge's, the same for every call; a person whose corrections are all
-relevant is believed more as they come; bad values are one line."""
+density is a random nudge's, the same for every call; the move's direction is compared on the
+waypoints the person moved; from the features alone a person whose corrections are all
+relevant is believed more as they come, and with the direction a nudge is told from a
+correction; bad values are one line."""
 
 from __future__ import annotations
 
 import csv
 import itertools
+import re
 
 import numpy as np
 import pytest
-from scipy.special import betaln, logsumexp
+from scipy.special import betaln, gamma, iv, logsumexp
 
 from corrections_sim.cli import main as cli
 from corrections_sim.learning.base import make_learner
@@ -20,6 +23,7 @@ from corrections_sim.learning.exact.relevance import (
     JudgedEntry,
     RelevantExact,
     _ResidualGrid,
+    log_vmf_ratio,
     nudge_density,
 )
 from corrections_sim.learning.history import PriorEntry
@@ -34,60 +38,85 @@ def _case(seed: int, t: int):
     thetas = cells.thetas()
     n = len(thetas)
     log_d = rng.normal(size=n)
-    res = rng.normal(scale=0.7, size=(n, t, 2))
+    res = rng.normal(scale=0.7, size=(n, t, 3))  # residuals (2) and the moves' cosines
+    res[:, :, 2] = rng.uniform(-1.0, 1.0, size=(n, t))
     grid = _ResidualGrid(thetas, log_d, res, t, cells)
     log_q = rng.normal(loc=-2.0, size=t)
+    rows = np.zeros(2, bool)
+    # Every other correction has a joint-space direction (7 a waypoint), the rest none.
     history = (
         PriorEntry(np.zeros(2), np.eye(2)),
-        *(JudgedEntry(None, np.zeros((2, 7)), np.zeros(2), np.eye(2), q) for q in log_q),
+        *(
+            JudgedEntry(None, np.zeros((2, 7)), np.zeros(2), np.eye(2), q, rows, None)
+            if i % 2
+            else JudgedEntry(None, np.zeros((2, 7)), np.zeros(2), np.eye(2), q, rows, np.ones(7))
+            for i, q in enumerate(log_q)
+        ),
     )
-    part = RelevantExact(noise_scales=(0.25, 1.0, 4.0), relevance_prior=0.7, relevance_count=3.0)
+    part = RelevantExact(
+        noise_scales=(0.25, 1.0, 4.0),
+        concentrations=(3.0, 50.0),
+        relevance_prior=0.7,
+        relevance_count=3.0,
+    )
     prior = NoisePosterior.around(0.25 * np.eye(2), 4.0)
     return part, grid, prior, history, log_q
 
 
-def _brute(part, grid, prior, log_q, forced_last=None) -> np.ndarray:
+def _brute(part, grid, prior, history, log_q, forced_last=None) -> np.ndarray:
     """log p(z | θ) at every node by summing over every subset of relevant corrections
     (with the last one's relevance fixed when ``forced_last`` is given)."""
     a = part.relevance_prior * part.relevance_count
     b = part.relevance_count - a
     t = grid.count
     centre = prior.scale / (prior.dof - 3)
+    combos = len(part.noise_scales) * len(part.concentrations)
     out = []
     for node in range(len(grid.thetas)):
         terms = []
-        for s in part.noise_scales:
+        for s, kappa in itertools.product(part.noise_scales, part.concentrations):
             cov = s * centre
             for relevant in itertools.product([0, 1], repeat=t):
                 if forced_last is not None and relevant[-1] != forced_last:
                     continue
                 j = sum(relevant)
-                total = betaln(a + j, b + t - j) - betaln(a, b) - np.log(len(part.noise_scales))
+                total = betaln(a + j, b + t - j) - betaln(a, b) - np.log(combos)
                 for i, on in enumerate(relevant):
-                    if on:
-                        r = grid.scatter[node, i]
-                        total += -0.5 * r @ np.linalg.solve(cov, r) - 0.5 * np.log(
-                            np.linalg.det(2 * np.pi * cov)
-                        )
-                    else:
+                    if not on:
                         total += log_q[i]
+                        continue
+                    r = grid.scatter[node, i, :2]
+                    total += -0.5 * r @ np.linalg.solve(cov, r) - 0.5 * np.log(
+                        np.linalg.det(2 * np.pi * cov)
+                    )
+                    if history[1 + i].direction is not None:  # vMF(κ) over the uniform
+                        total += _vmf_over_uniform(kappa, 7, grid.scatter[node, i, 2])
                 terms.append(total)
         out.append(logsumexp(terms))
     return np.array(out)
+
+
+def _vmf_over_uniform(kappa: float, dims: int, cos: float) -> float:
+    """The von Mises–Fisher density on the sphere S^(dims − 1) over the uniform one, from
+    its textbook normalizer (scipy's iv, not the exponentially scaled ive the code uses)."""
+    nu = dims / 2 - 1
+    normalizer = kappa**nu / ((2 * np.pi) ** (dims / 2) * iv(nu, kappa))
+    area = 2 * np.pi ** (dims / 2) / gamma(dims / 2)
+    return float(np.log(normalizer * area) + kappa * cos)
 
 
 @pytest.mark.parametrize("t", [1, 4, 6])
 def test_the_sum_over_relevant_subsets_is_brute_force(t):
     part, grid, prior, history, log_q = _case(t, t)
     mine = part._posterior(grid, prior, history) - grid.log_density
-    np.testing.assert_allclose(mine, _brute(part, grid, prior, log_q), rtol=0, atol=1e-10)
+    np.testing.assert_allclose(mine, _brute(part, grid, prior, history, log_q), rtol=0, atol=1e-10)
 
 
 def test_the_latest_correction_is_relevant_with_the_brute_force_probability():
     part, grid, prior, history, log_q = _case(11, 5)
     node = grid.log_density + np.log(grid.cells.coefficients)
-    on = logsumexp(node + _brute(part, grid, prior, log_q, forced_last=1))
-    off = logsumexp(node + _brute(part, grid, prior, log_q, forced_last=0))
+    on = logsumexp(node + _brute(part, grid, prior, history, log_q, forced_last=1))
+    off = logsumexp(node + _brute(part, grid, prior, history, log_q, forced_last=0))
     assert part._relevance(grid, prior, history) == pytest.approx(
         np.exp(on - np.logaddexp(on, off))
     )
@@ -119,6 +148,39 @@ def test_the_irrelevant_density_is_a_random_nudge_of_the_same_size():
     assert nudge_density(robot, robot, env, ("laptop", "table"), floor) is None
 
 
+def test_a_concentration_of_zero_reads_no_direction():
+    cos = np.array([-1.0, 0.0, 0.3, 1.0])
+    out = log_vmf_ratio(np.array([0.0, 5.0]), 7, cos)
+    assert np.array_equal(out[:, 0], np.zeros(4)) and np.all(np.diff(out[:, 1]) > 0)
+
+
+def test_the_move_s_direction_is_compared_on_the_waypoints_the_person_moved():
+    """A person who moves waypoint 5 onto ξ*'s: the waypoint model predicts that direction
+    exactly (cos 1) at that ξ*, its opposite at the mirrored one, a right angle elsewhere;
+    a model that moves every waypoint is compared on the same ones; a NaN plan stays NaN."""
+    from corrections_sim.learning.exact.relevance import moved_direction, predicted_cosines
+    from corrections_sim.people.corrections import DeformCorrection, WaypointCorrection
+
+    rng = np.random.default_rng(1)
+    robot = rng.uniform(-1.0, 1.0, size=(12, 7))
+    intended = robot.copy()
+    intended[5] += 0.2 * rng.normal(size=7)
+    corrected = WaypointCorrection().apply(robot, intended)
+    rows, direction = moved_direction(robot, corrected)
+    assert rows.sum() == 1 and rows[5] and np.linalg.norm(direction) == pytest.approx(1.0)
+    mirrored = robot.copy()
+    mirrored[5] -= intended[5] - robot[5]
+    aside = robot.copy()
+    aside[5] += np.linalg.svd((intended[5] - robot[5])[None])[2][-1]  # orthogonal
+    plans = np.stack([intended, mirrored, aside, np.full_like(robot, np.nan)])
+    cos = predicted_cosines(WaypointCorrection(), robot, plans, rows, direction)
+    np.testing.assert_allclose(cos[:3], [1.0, -1.0, 0.0], atol=1e-12)
+    assert np.isnan(cos[3])
+    deform = predicted_cosines(DeformCorrection(), robot, plans[:1], rows, direction)
+    assert deform[0] == pytest.approx(1.0)  # at the worst waypoint it moves all the way
+    assert moved_direction(robot, robot) == (None, None)
+
+
 @pytest.mark.parametrize(
     ("params", "message"),
     [
@@ -130,35 +192,58 @@ def test_the_irrelevant_density_is_a_random_nudge_of_the_same_size():
         ({"relevance": True, "relevance_count": 0}, "relevance_count: must be a number > 0"),
         ({"relevance": True, "noise": "fixed"}, 'noise: judging relevance needs noise = "learnt"'),
         ({"relevance_prior": 0.5}, "relevance_prior: only with relevance = true"),
+        ({"concentrations": [4]}, "concentrations: only with relevance = true"),
+        ({"relevance": True, "concentrations": [-1]}, "concentrations[0]: must be a number >= 0"),
     ],
 )
 def test_bad_relevance_values_are_one_line(params, message):
-    with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(")", r"\)")):
+    with pytest.raises(ValueError, match="^learners.EX-M." + re.escape(message)):
         make_learner("EX-M", params)
 
 
 STUDY = """\
 theta_star = [1.0, -1.0]
-runs = 1
-iterations = 6
+runs = {runs}
+iterations = {iterations}
 seed = 4
 environments = ["s0-t0-l1", "s1-t1-l2", "s2-t0-l0", "s0-t2-l2"]
-atlas = { points = 9 }
-user = "biased"
+atlas = {{ points = 9 }}
+user = {user}
 [learners.EX-M]
 relevance = true
-noise_scales = [0.0009765625, 0.015625, 0.25, 4]
+noise_scales = [0.0009765625, 0.00390625, 0.015625, 0.0625, 0.25, 1, 4]
+{more}
 """
 
 
-def test_a_person_whose_corrections_are_all_relevant_is_believed_more_as_they_come(tmp_path):
-    """The paper's person: every correction is relevant. The first is believed as the prior
-    on the rate allows (0.9 on average); as the person's rate is learnt across their
-    corrections each later one is believed more, past 0.99 (measured: 0.94 at the first)."""
-    path = tmp_path / "relevant.toml"
-    path.write_text(STUDY)
+def _judged(tmp_path, **fields) -> list[dict]:
+    path = tmp_path / "judged.toml"
+    path.write_text(STUDY.format(**fields))
     assert cli.main(["study", str(path), "--out", str(tmp_path / "out"), "--workers", "1"]) == 0
-    with open(tmp_path / "out" / "relevant" / "curves.csv", newline="") as fh:
-        beta = [float(r["relevance"]) for r in csv.DictReader(fh) if r["relevance"] != ""]
+    with open(tmp_path / "out" / "judged" / "curves.csv", newline="") as fh:
+        return [r for r in csv.DictReader(fh) if r["relevance"] != ""]
+
+
+def test_from_the_features_alone_a_relevant_person_is_believed_more_as_they_come(tmp_path):
+    """The paper's person, relevance judged from the features alone (``concentrations =
+    [0]``): the first correction is believed as the prior on the rate allows (0.94 measured);
+    as the person's rate is learnt across their corrections each later one is believed more,
+    past 0.99."""
+    rows = _judged(tmp_path, runs=1, iterations=6, user='"biased"', more="concentrations = [0]")
+    beta = [float(r["relevance"]) for r in rows]
     assert len(beta) == 6 and all(0.0 < b <= 1.0 for b in beta)
-    assert beta[-1] > 0.99 and beta[-1] > beta[0]
+    assert beta[0] < 0.99 < beta[-1]
+
+
+def test_the_move_s_direction_tells_a_nudge_from_a_correction(tmp_path):
+    """The distracted person (30% of their corrections a nudge in a random joint-space
+    direction, labelled), relevance judged from features and direction (the defaults):
+    measured, 2 runs of 8 corrections, both nudges believed below 0.001 and every correction
+    above 0.2 (from the features alone, a nudge of this study's first run was believed at
+    0.999)."""
+    user = '{ name = "distracted", fraction = 0.3 }'
+    rows = _judged(tmp_path, runs=2, iterations=8, user=user, more="")
+    nudges = [float(r["relevance"]) for r in rows if float(r["relevant"]) == 0.0]
+    relevant = [float(r["relevance"]) for r in rows if float(r["relevant"]) == 1.0]
+    assert nudges and relevant
+    assert max(nudges) < 0.01 < 0.2 < min(relevant), (nudges, relevant)

@@ -44,7 +44,7 @@ from corrections_sim.learning.exact.learners import (
     ExactStep,
     iw_log_marginal,
 )
-from corrections_sim.learning.exact.relevance import RelevantExact
+from corrections_sim.learning.exact.relevance import DEFAULT_CONCENTRATIONS, RelevantExact
 from corrections_sim.learning.exact.state import ExactState
 from corrections_sim.people.corrections import (
     CORRECTIONS,
@@ -90,8 +90,9 @@ def model_tag(model: CorrectionModel) -> str:
 #: finest cells resolve (mean NEES in the tens to thousands).
 DEFAULT_NOISE_SCALES: tuple[float, ...] = tuple(4.0**j for j in range(-2, 2))
 #: With relevance judged (:mod:`.relevance`), N is one of these point masses s N̄ instead:
-#: the same span, 1/16 to 4, at factors of 2.
-DEFAULT_POINT_SCALES: tuple[float, ...] = tuple(2.0**j for j in range(-4, 3))
+#: 1/1024 to 4 at factors of 4 (a point mass at 1/16 cannot fit a noiseless person, as the
+#: inverse-Wishart at that scale can: measured, docs/person-models.md).
+DEFAULT_POINT_SCALES: tuple[float, ...] = tuple(4.0**j for j in range(-5, 2))
 
 
 @dataclass(frozen=True)
@@ -202,6 +203,10 @@ class ExactPersonModel(Learner):
         relevance: judge whether each correction is about what the robot can represent,
             across the person's corrections, exactly
             (:class:`~corrections_sim.learning.exact.relevance.RelevantExact`).
+        concentrations: with ``relevance``, the concentrations κ of a relevant move's
+            direction about the predicted one (None:
+            :data:`~corrections_sim.learning.exact.relevance.DEFAULT_CONCENTRATIONS`;
+            ``[0]``: the direction not read, relevance judged from the features alone).
         relevance_prior, relevance_count: with ``relevance``, the prior over the person's
             rate r of relevant corrections: Beta(prior · count, (1 − prior) · count).
         resolution, cut, max_level, axes: how every model's cells are refined, as EX-C's.
@@ -216,6 +221,7 @@ class ExactPersonModel(Learner):
     noise_dof: float | None = None
     noise_scales: tuple[float, ...] | None = None
     relevance: bool = False
+    concentrations: tuple[float, ...] | None = None
     relevance_prior: float = 0.9
     relevance_count: float = 2.0
     resolution: float = 1.0
@@ -247,8 +253,19 @@ class ExactPersonModel(Learner):
             object.__setattr__(self, "noise_scales", tuple(float(c) for c in scales))
         if not isinstance(self.relevance, bool):
             raise ParameterError("relevance", f"must be true or false, got {self.relevance!r}")
+        if self.concentrations is not None:
+            kappas = self.concentrations
+            if isinstance(kappas, str) or not isinstance(kappas, list | tuple) or not kappas:
+                raise ParameterError("concentrations", f"expected a non-empty list, got {kappas!r}")
+            for i, c in enumerate(kappas):
+                number = isinstance(c, int | float) and not isinstance(c, bool)
+                if not (number and 0 <= c < np.inf):
+                    raise ParameterError(
+                        f"concentrations[{i}]", f"must be a number >= 0, got {c!r}"
+                    )
+            object.__setattr__(self, "concentrations", tuple(float(c) for c in kappas))
         base = components.defaults(type(self))
-        for name in ("relevance_prior", "relevance_count"):
+        for name in ("concentrations", "relevance_prior", "relevance_count"):
             if not self.relevance and getattr(self, name) != base[name]:
                 raise ParameterError(name, "only with relevance = true")
         self.parts()  # the shared settings checked where EX-C checks them
@@ -273,8 +290,10 @@ class ExactPersonModel(Learner):
         }
         if self.relevance:
             scales = DEFAULT_POINT_SCALES if self.noise_scales is None else self.noise_scales
+            kappas = DEFAULT_CONCENTRATIONS if self.concentrations is None else self.concentrations
             judged = {
                 "noise_scales": scales,
+                "concentrations": kappas,
                 "relevance_prior": self.relevance_prior,
                 "relevance_count": self.relevance_count,
             }

@@ -1,30 +1,37 @@
 """EX-M's relevance: the exact posterior over θ with each correction either about what the
 robot can represent (relevant) or not, judged across the person's corrections.
 
-Each correction zᵢ (the features of the person's correction) is relevant with probability r,
-the person's rate, independently given r, and r ~ Beta(a, b) is shared by all of their
-corrections:
+Each correction is relevant with probability r, the person's rate, independently given r,
+and r ~ Beta(a, b) is shared by all of their corrections. A correction is seen twice: its
+features zᵢ, and the direction uᵢ of the person's move on the waypoints they moved (a unit
+vector in 7 dimensions a waypoint; its size is taken as given).
 
-* relevant: zᵢ ~ N(hᵢ(θ), N_s), hᵢ(θ) = Φ(C(ξⁱ, ξ*(θ, Eⁱ))) as in EX-C, and the person's
-  noise N_s = s N̄ one of the scales s of ``noise_scales`` (a uniform prior over them; N̄ the
-  centre of KF-CL's prior over N, V₀ / (ν₀ − k − 1));
-* irrelevant: zᵢ ~ qᵢ, the features of a nudge of the same size as the person's move, on
-  the waypoints they moved, in a uniformly random joint-space direction (the "distracted"
-  person's nudge, and what a correction made for a feature the robot lacks looks like to
-  it): a Gaussian moment-matched to 64 such nudges (32 directions and their opposites, the
-  same for every correction and run), its spread widened by N̄ / 16.
+* relevant: zᵢ ~ N(hᵢ(θ), N_s), hᵢ(θ) = Φ(C(ξⁱ, ξ*(θ, Eⁱ))) as in EX-C, the person's noise
+  N_s = s N̄ one of the point masses s of ``noise_scales`` (N̄ the centre of KF-CL's prior
+  over N, V₀ / (ν₀ − k − 1)); and uᵢ ~ von Mises–Fisher about the direction C(ξⁱ, ξ*(θ, Eⁱ))
+  − ξⁱ predicts there, with the person's concentration κ one of ``concentrations``;
+  a uniform prior over the (s, κ) pairs;
+* irrelevant: uᵢ uniform on the sphere (a nudge in a random direction, or a move made for a
+  feature the robot lacks, whose direction no θ predicts), and zᵢ ~ qᵢ, the features of a
+  nudge as large as the person's move in a random direction (a Gaussian moment-matched to 64
+  such nudges, 32 directions and their opposites, the same for every correction and run),
+  its spread widened by N̄ / 16.
 
-The sum over which corrections were relevant is exact: given θ and s the corrections are
-independent, so with j of t relevant
+The direction is what tells a nudge from a correction: the features alone cannot once the
+robot's plan is nearly the person's, when both move them by a few thousandths (measured,
+docs/person-models.md), whereas the angle between two directions does not shrink with the
+move. The sum over which corrections were relevant is exact: given θ, s and κ the corrections
+are independent, so with j of t relevant
 
-    p(z₁…zₜ | θ, s) = Σⱼ B(a + j, b + t − j) / B(a, b) · eⱼ(θ, s),
+    p(data | θ, s, κ) = Σⱼ B(a + j, b + t − j) / B(a, b) · eⱼ(θ, s, κ),
 
-eⱼ the sum over the subsets R of j corrections of Π_{i∈R} N(zᵢ; hᵢ(θ), N_s) Π_{i∉R} qᵢ(zᵢ),
-found by a recursion over the corrections (O(t²) a node and scale). The sum over s is the
-prior's. A person's noise is learnt among point masses, not under KF-CL's inverse-Wishart as
-in EX-CL: with N integrated out under the latter the corrections are not independent given
-θ, and the sum over subsets would take 2ᵗ terms. Where ``ctx.corrected`` is not given (no
-joint-space correction to judge), the correction is taken as relevant.
+eⱼ the sum over the subsets R of j corrections of Π_{i∈R} (relevant density) Π_{i∉R} qᵢ(zᵢ)
+(each density over the uniform one of uᵢ), found by a recursion over the corrections (O(t²) a
+node and pair). A person's noise is learnt among point masses, not under KF-CL's
+inverse-Wishart as in EX-CL: with N integrated out under the latter the corrections are not
+independent given θ, and the sum over subsets would take 2ᵗ terms. Where ``ctx.corrected`` is
+not given (no joint-space correction to judge), the correction is taken as relevant and its
+direction is not read.
 
 Every correction is weighed at every node at once (no lazy weighing: at k = 2 it saves
 little, and the relevance sum has no cheap bound).
@@ -36,7 +43,7 @@ import functools
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import betaln, logsumexp
+from scipy.special import betaln, gammaln, ive, logsumexp
 
 from corrections_sim.belief import Belief, symmetrize
 from corrections_sim.components import ParameterError
@@ -46,6 +53,7 @@ from corrections_sim.learning.exact.cells import Cells
 from corrections_sim.learning.exact.learners import ExactCorrectionAware, ExactStep, _moments
 from corrections_sim.learning.exact.state import ExactState, GridPosterior
 from corrections_sim.learning.history import CorrectionEntry
+from corrections_sim.people.corrections import CorrectionModel, WaypointCorrection
 from corrections_sim.planning.features import waypoint_features
 from corrections_sim.planning.planner import Plan, PlanningError
 from corrections_sim.scene.environments import Environment
@@ -59,6 +67,12 @@ NUDGE_SEED = 6602
 NUDGE_FLOOR = 1.0 / 16.0
 #: A waypoint counts as moved when it moved more than this (rad).
 MOVED = 1e-9
+#: The concentrations κ of a relevant move's direction about the predicted one (von
+#: Mises–Fisher), a uniform prior over them: from nearly any direction (1) to within about
+#: 0.3 rad of it (64) for a one-waypoint move. Up to 1024, a person whose plan is another
+#: local optimum than the atlas's in one environment was judged irrelevant there and the
+#: posterior collapsed off θ* (mean NEES in the millions; docs/person-models.md).
+DEFAULT_CONCENTRATIONS: tuple[float, ...] = (1.0, 4.0, 16.0, 64.0)
 
 
 @functools.cache
@@ -104,9 +118,59 @@ def _log_gaussian(z: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> float:
 @dataclass(frozen=True, eq=False)
 class JudgedEntry(CorrectionEntry):
     """A correction with the irrelevant density of its features, log qᵢ(zᵢ) (−inf: it is
-    relevant for certain, e.g. no joint-space correction was given)."""
+    relevant for certain, e.g. no joint-space correction was given), the waypoints the person
+    moved (a mask (T,)) and the direction of their move there (a unit vector, 7 a waypoint),
+    or None."""
 
     log_irrelevant: float = -np.inf
+    rows: np.ndarray | None = None
+    direction: np.ndarray | None = None
+
+
+def moved_direction(robot: np.ndarray, corrected: np.ndarray):
+    """(the waypoints moved (T,) bool, the unit direction of the move there (7·m,)), or
+    (None, None) when nothing moved."""
+    move = np.asarray(corrected, float) - np.asarray(robot, float)
+    rows = np.linalg.norm(move, axis=1) > MOVED
+    if not rows.any():
+        return None, None
+    d = move[rows].ravel()
+    return rows, d / np.linalg.norm(d)
+
+
+def predicted_cosines(
+    model: CorrectionModel, robot: np.ndarray, plans: np.ndarray, rows, direction
+) -> np.ndarray:
+    """cos of the angle between the person's move and the move C(ξ, ξ*(θ)) − ξ predicts, on
+    the waypoints they moved, at each of ``plans`` (n, T, 7) (0 where none is predicted, NaN
+    where a plan is NaN)."""
+    robot = np.asarray(robot, float)
+    plans = np.asarray(plans, float)
+    if isinstance(model, WaypointCorrection):  # its answer for the observed waypoints
+        moved = robot[rows][None] + model.step * (plans[:, rows] - robot[rows][None])
+    else:
+        moved = np.full((len(plans), int(rows.sum()), robot.shape[1]), np.nan)
+        finite = np.all(np.isfinite(plans), axis=(1, 2))
+        if finite.any():
+            moved[finite] = model.apply_many(robot, plans[finite])[:, rows]
+    pred = (moved - robot[rows][None]).reshape(len(plans), -1)
+    norm = np.linalg.norm(pred, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cos = (pred @ direction) / norm
+    return np.where(norm > 0, np.clip(cos, -1.0, 1.0), np.where(np.isnan(norm), np.nan, 0.0))
+
+
+def log_vmf_ratio(kappas: np.ndarray, dims: int, cos: np.ndarray) -> np.ndarray:
+    """log of the von Mises–Fisher density on the sphere in ``dims`` dimensions with
+    concentration κ at cos, over the uniform density there: (…, K) for cos (…,); 0 at κ = 0
+    (the uniform density: the direction not read)."""
+    kappas = np.asarray(kappas, float)
+    nu = 0.5 * dims - 1.0
+    some = np.where(kappas > 0, kappas, 1.0)
+    log_c = nu * np.log(some) - 0.5 * dims * np.log(2 * np.pi) - (np.log(ive(nu, some)) + some)
+    log_area = np.log(2.0) + 0.5 * dims * np.log(np.pi) - gammaln(0.5 * dims)
+    out = log_c + log_area + some * np.asarray(cos, float)[..., None]
+    return np.where(kappas > 0, out, 0.0)
 
 
 @dataclass(frozen=True)
@@ -123,6 +187,7 @@ class RelevantExact(ExactCorrectionAware):
 
     noise: str = "learnt"
     noise_scales: tuple[float, ...] = (1.0,)
+    concentrations: tuple[float, ...] = DEFAULT_CONCENTRATIONS
     relevance_prior: float = 0.9
     relevance_count: float = 2.0
 
@@ -147,9 +212,12 @@ class RelevantExact(ExactCorrectionAware):
         k = prior.scale.shape[0]
         return prior.scale / (prior.dof - k - 1)
 
-    def _scale_terms(self, grid: GridPosterior, prior) -> np.ndarray:
-        """log N(rᵢ; 0, s N̄) at every node, scale and correction (n, S, t)."""
-        res = grid.scatter  # (n, t, k): the residuals rᵢ = zᵢ − hᵢ(θ)
+    def _scale_terms(self, grid: GridPosterior, prior, history) -> np.ndarray:
+        """log of a relevant correction's density (over the irrelevant direction's) at every
+        node, (noise scale, concentration) and correction (n, S·K, t): N(rᵢ; 0, s N̄) times
+        the von Mises–Fisher density of its direction over the uniform one."""
+        res = grid.scatter[:, :, :-1]  # (n, t, k): the residuals rᵢ = zᵢ − hᵢ(θ)
+        cos = grid.scatter[:, :, -1]  # (n, t): the moves' cosines
         centre = self._centre(prior)
         k = centre.shape[0]
         inv = np.linalg.inv(centre)
@@ -157,12 +225,19 @@ class RelevantExact(ExactCorrectionAware):
         quad = np.einsum("nti,ij,ntj->nt", res, inv, res)
         s = np.asarray(self.noise_scales, float)
         norm = 0.5 * (logdet + k * np.log(s))
-        out = -0.5 * quad[:, None, :] / s[None, :, None] - norm[None, :, None]
+        gauss = -0.5 * quad[:, None, :] / s[None, :, None] - norm[None, :, None]  # (n, S, t)
+        kappas = np.asarray(self.concentrations, float)
+        vmf = np.zeros((len(res), len(kappas), grid.count))
+        for i, seen in enumerate(history[1 : grid.count + 1]):
+            if getattr(seen, "direction", None) is not None:
+                vmf[:, :, i] = log_vmf_ratio(kappas, seen.direction.size, cos[:, i])
+        combos = len(s) * len(kappas)
+        out = (gauss[:, :, None, :] + vmf[:, None, :, :]).reshape(len(res), combos, grid.count)
         return np.where(np.isfinite(out), out, -np.inf)
 
-    def _elementary(self, grid: GridPosterior, prior, log_q: np.ndarray, upto: int):
+    def _elementary(self, grid: GridPosterior, prior, history, log_q: np.ndarray, upto: int):
         """log eⱼ over the first ``upto`` corrections (n, S, upto + 1) and the scale terms."""
-        terms = self._scale_terms(grid, prior)
+        terms = self._scale_terms(grid, prior, history)
         n, S, _ = terms.shape
         e = np.full((n, S, upto + 1), -np.inf)
         e[:, :, 0] = 0.0
@@ -179,12 +254,12 @@ class RelevantExact(ExactCorrectionAware):
         j = np.arange(t + 1)
         return betaln(a + j, b + t - j) - betaln(a, b)
 
-    def _joint(self, grid: GridPosterior, prior, log_q: np.ndarray) -> np.ndarray:
-        """log π_s p(z₁…zₜ | θ, s) at every node and scale (n, S)."""
+    def _joint(self, grid: GridPosterior, prior, history) -> np.ndarray:
+        """log π p(z₁…zₜ | θ, s, κ) at every node and (scale, concentration) (n, S·K)."""
         t = grid.count
-        e, _ = self._elementary(grid, prior, log_q, t)
+        e, _ = self._elementary(grid, prior, history, self._log_q(history), t)
         out = logsumexp(e + self._count_weights(t)[None, None, :], axis=2)
-        return out - np.log(len(self.noise_scales))
+        return out - np.log(len(self.noise_scales) * len(self.concentrations))
 
     # -- the grid -----------------------------------------------------------------------------
 
@@ -196,24 +271,32 @@ class RelevantExact(ExactCorrectionAware):
 
     def _posterior(self, grid: GridPosterior, prior, history) -> np.ndarray:
         """The log posterior at every node (n,)."""
-        joint = self._joint(grid, prior, self._log_q(history))
+        joint = self._joint(grid, prior, history)
         return grid.log_density + logsumexp(joint, axis=1)
 
     def _residuals(self, history, ctx: LearnerContext, thetas: np.ndarray):
-        """(log prior, residuals (n, t, k)) at ``thetas``: every correction of ``history``."""
+        """(log prior, what each correction left at each node (n, t, k + 1): its residual and
+        its move's cosine) at ``thetas``: every correction of ``history``."""
         first = history[0]
         log_d = ref.gaussian_log_prior(thetas, Belief(theta=first.theta, cov=first.cov))
         k = thetas.shape[1]
-        res = np.zeros((len(thetas), len(history) - 1, k))
+        res = np.zeros((len(thetas), len(history) - 1, k + 1))
         for i, seen in enumerate(history[1:]):
             plans = ctx.book.atlas.plans(thetas, seen.env)
-            h = self.observation().at_plans(plans, seen.robot, seen.env, ctx.features)
-            r = np.asarray(seen.phi_h, float)[None, :] - h
-            bad = ~np.all(np.isfinite(r), axis=1)
+            res[:, i], bad = self._left(plans, seen, ctx.features)
             log_d = np.where(bad, -np.inf, log_d)
-            r[bad] = 0.0
-            res[:, i] = r
         return log_d, res
+
+    def _left(self, plans: np.ndarray, seen: JudgedEntry, names):
+        """(residual and cosine at each of ``plans`` (n, k + 1), where no plan is (n,))."""
+        h = self.observation().at_plans(plans, seen.robot, seen.env, names)
+        out = np.zeros((len(plans), h.shape[1] + 1))
+        out[:, :-1] = np.asarray(seen.phi_h, float)[None, :] - h
+        if seen.direction is not None:
+            out[:, -1] = predicted_cosines(self.model, seen.robot, plans, seen.rows, seen.direction)
+        bad = ~np.all(np.isfinite(out), axis=1)
+        out[bad] = 0.0
+        return out, bad
 
     def _grid(self, thetas, log_d, res, count, cells) -> GridPosterior:
         return _ResidualGrid(thetas, log_d, res, count, cells)
@@ -242,27 +325,25 @@ class RelevantExact(ExactCorrectionAware):
                 f"{env.name}: the atlas has no plan where the posterior lives; update skipped"
             )
         centre = self._centre(prior)
-        found = None
+        found, rows, direction = None, None, None
         if ctx.corrected is not None:
             found = nudge_density(
                 plan.trajectory, ctx.corrected, env, ctx.features, NUDGE_FLOOR * centre
             )
+            rows, direction = moved_direction(plan.trajectory, ctx.corrected)
         log_q = -np.inf if found is None else _log_gaussian(z, *found)
+        entry = JudgedEntry(env, plan.trajectory, z, ctx.noise.observation, log_q, rows, direction)
         # What it expected before the correction (a relevant correction's predictive).
         w = weights[at][seen] / weights[at][seen].sum()
         expected = w @ h[seen]
         spread = (w[:, None] * (h[seen] - expected)).T @ (h[seen] - expected)
         noise_mean = self._noise_mean(before, prior, history, weights)
-        # Take it in: the residuals at every node.
-        r = np.zeros((len(before.thetas), k))
+        # Take it in: its residual and cosine at every node.
+        r = np.zeros((len(before.thetas), k + 1))
         log_d = np.array(before.log_density)
-        r[at] = z[None, :] - h
-        bad = np.zeros(len(log_d), bool)
-        bad[at] = ~np.all(np.isfinite(r[at]), axis=1)
-        r[bad] = 0.0
-        log_d[bad] = -np.inf
+        r[at], bad = self._left(plans, entry, ctx.features)
+        log_d[at[bad]] = -np.inf
         res = np.concatenate([before.scatter, r[:, None, :]], axis=1)
-        entry = JudgedEntry(env, plan.trajectory, z, ctx.noise.observation, log_q)
         history = (*history, entry)
         after = self._grid(before.thetas, log_d, res, before.count + 1, before.cells)
         after = self._refine(ctx, after, history, prior)
@@ -298,7 +379,8 @@ class RelevantExact(ExactCorrectionAware):
 
     def _noise_mean(self, grid: GridPosterior, prior, history, weights: np.ndarray) -> np.ndarray:
         """E[N | corrections] = Σ_s p(s | corrections) s N̄."""
-        joint = self._joint(grid, prior, self._log_q(history))  # (n, S)
+        joint = self._joint(grid, prior, history)  # (n, S·K)
+        joint = logsumexp(joint.reshape(len(joint), len(self.noise_scales), -1), axis=2)
         with np.errstate(divide="ignore"):
             log_s = logsumexp(joint + np.log(weights)[:, None], axis=0)
         p = np.exp(log_s - logsumexp(log_s))
@@ -310,7 +392,7 @@ class RelevantExact(ExactCorrectionAware):
         t = grid.count
         if not np.isfinite(log_q[-1]):
             return 1.0
-        e, terms = self._elementary(grid, prior, log_q, t - 1)  # (n, S, t)
+        e, terms = self._elementary(grid, prior, history, log_q, t - 1)  # (n, S·K, t)
         w = self._count_weights(t)
         on = logsumexp(e + w[None, None, 1:], axis=2) + terms[:, :, t - 1]
         off = logsumexp(e + w[None, None, :-1], axis=2) + log_q[-1]
