@@ -180,6 +180,8 @@ class RelevantExact(ExactCorrectionAware):
 
     Attributes:
         noise_scales: the point masses s of N = s N̄ (> 0, distinct), uniform a priori.
+        concentrations: the concentrations κ ≥ 0 of a relevant move's direction (0: the
+            direction not read), uniform a priori, each pair (s, κ) alike.
         relevance_prior: E[r] before any correction, in (0, 1).
         relevance_count: how many corrections' worth the prior on r holds (> 0):
             r ~ Beta(prior · count, (1 − prior) · count).
