@@ -189,7 +189,7 @@ def test_fig6_with_ex_m_pairs_it_with_every_other_learner(tmp_path):
         ({"noise_scales": 0.5}, "learners.EX-M.noise_scales: expected a non-empty list"),
         ({"noise_scales": [1, 0]}, "learners.EX-M.noise_scales[1]: must be a number > 0"),
         ({"noise_scales": [1, True]}, "learners.EX-M.noise_scales[1]: must be a number > 0"),
-        ({"noise_scales": [1, 1.0]}, "learners.EX-M.noise_scales: lists a scale twice"),
+        ({"noise_scales": [1, 1.0]}, "learners.EX-M.noise_scales: lists a value twice"),
         ({"noise": "fixed", "noise_scales": [1]}, "learners.EX-M.noise_scales: only with noise"),
     ],
 )

@@ -22,10 +22,11 @@ from corrections_sim.learning.exact.cells import Cells
 from corrections_sim.learning.exact.relevance import (
     JudgedEntry,
     RelevantExact,
-    _ResidualGrid,
     log_vmf_ratio,
     nudge_density,
 )
+from corrections_sim.learning.exact.relevance import moved as moved_at
+from corrections_sim.learning.exact.state import GridPosterior
 from corrections_sim.learning.history import PriorEntry
 from corrections_sim.learning.kalman.state import NoisePosterior
 from corrections_sim.scene.environments import paper_environments
@@ -40,7 +41,7 @@ def _case(seed: int, t: int):
     log_d = rng.normal(size=n)
     res = rng.normal(scale=0.7, size=(n, t, 3))  # residuals (2) and the moves' cosines
     res[:, :, 2] = rng.uniform(-1.0, 1.0, size=(n, t))
-    grid = _ResidualGrid(thetas, log_d, res, t, cells)
+    grid = GridPosterior(thetas, log_d, None, t, cells, left=res)
     log_q = rng.normal(loc=-2.0, size=t)
     rows = np.zeros(2, bool)
     # Every other correction has a joint-space direction (7 a waypoint), the rest none.
@@ -85,12 +86,12 @@ def _brute(part, grid, prior, history, log_q, forced_last=None) -> np.ndarray:
                     if not on:
                         total += log_q[i]
                         continue
-                    r = grid.scatter[node, i, :2]
+                    r = grid.left[node, i, :2]
                     total += -0.5 * r @ np.linalg.solve(cov, r) - 0.5 * np.log(
                         np.linalg.det(2 * np.pi * cov)
                     )
                     if history[1 + i].direction is not None:  # vMF(κ) over the uniform
-                        total += _vmf_over_uniform(kappa, 7, grid.scatter[node, i, 2])
+                        total += _vmf_over_uniform(kappa, 7, grid.left[node, i, 2])
                 terms.append(total)
         out.append(logsumexp(terms))
     return np.array(out)
@@ -136,16 +137,16 @@ def test_the_irrelevant_density_is_a_random_nudge_of_the_same_size():
     moved = robot.copy()
     moved[5] += 0.3 * rng.normal(size=7)
     floor = 1e-3 * np.eye(2)
-    mean, cov = nudge_density(robot, moved, env, ("laptop", "table"), floor)
-    again = nudge_density(robot, moved, env, ("laptop", "table"), floor)
+    rows, move = moved_at(robot, moved)
+    assert rows.sum() == 1 and rows[5] and np.array_equal(move, moved[5] - robot[5])
+    size = float(np.linalg.norm(move))
+    mean, cov = nudge_density(robot, rows, size, env, ("laptop", "table"), floor)
+    again = nudge_density(robot, rows, size, env, ("laptop", "table"), floor)
     assert np.array_equal(mean, again[0]) and np.array_equal(cov, again[1])
     assert mean.shape == (2,) and np.all(np.linalg.eigvalsh(cov - floor) >= -1e-12)
-    bigger = robot.copy()
-    bigger[5] += 3.0 * (moved[5] - robot[5])
-    assert np.trace(nudge_density(robot, bigger, env, ("laptop", "table"), floor)[1]) > np.trace(
-        cov
-    )
-    assert nudge_density(robot, robot, env, ("laptop", "table"), floor) is None
+    wider = nudge_density(robot, rows, 3.0 * size, env, ("laptop", "table"), floor)[1]
+    assert np.trace(wider) > np.trace(cov)
+    assert moved_at(robot, robot) == (None, None)
 
 
 def test_a_concentration_of_zero_reads_no_direction():
@@ -158,7 +159,7 @@ def test_the_move_s_direction_is_compared_on_the_waypoints_the_person_moved():
     """A person who moves waypoint 5 onto ξ*'s: the waypoint model predicts that direction
     exactly (cos 1) at that ξ*, its opposite at the mirrored one, a right angle elsewhere;
     a model that moves every waypoint is compared on the same ones; a NaN plan stays NaN."""
-    from corrections_sim.learning.exact.relevance import moved_direction, predicted_cosines
+    from corrections_sim.learning.exact.relevance import predicted_cosines
     from corrections_sim.people.corrections import DeformCorrection, WaypointCorrection
 
     rng = np.random.default_rng(1)
@@ -166,8 +167,8 @@ def test_the_move_s_direction_is_compared_on_the_waypoints_the_person_moved():
     intended = robot.copy()
     intended[5] += 0.2 * rng.normal(size=7)
     corrected = WaypointCorrection().apply(robot, intended)
-    rows, direction = moved_direction(robot, corrected)
-    assert rows.sum() == 1 and rows[5] and np.linalg.norm(direction) == pytest.approx(1.0)
+    rows, move = moved_at(robot, corrected)
+    direction = move / np.linalg.norm(move)
     mirrored = robot.copy()
     mirrored[5] -= intended[5] - robot[5]
     aside = robot.copy()
@@ -178,18 +179,15 @@ def test_the_move_s_direction_is_compared_on_the_waypoints_the_person_moved():
     assert np.isnan(cos[3])
     deform = predicted_cosines(DeformCorrection(), robot, plans[:1], rows, direction)
     assert deform[0] == pytest.approx(1.0)  # at the worst waypoint it moves all the way
-    assert moved_direction(robot, robot) == (None, None)
 
 
 @pytest.mark.parametrize(
     ("params", "message"),
     [
         ({"relevance": "yes"}, "relevance: must be true or false"),
-        (
-            {"relevance": True, "relevance_prior": 1.0},
-            "relevance_prior: must be a number in (0, 1)",
-        ),
-        ({"relevance": True, "relevance_count": 0}, "relevance_count: must be a number > 0"),
+        ({"relevance": True, "relevance_prior": 1.0}, "relevance_prior: must lie in (0, 1)"),
+        ({"relevance": True, "relevance_count": 0}, "relevance_count: must be a finite number > 0"),
+        ({"relevance": True, "concentrations": [1, 1]}, "concentrations: lists a value twice"),
         ({"relevance": True, "noise": "fixed"}, 'noise: judging relevance needs noise = "learnt"'),
         ({"relevance_prior": 0.5}, "relevance_prior: only with relevance = true"),
         ({"concentrations": [4]}, "concentrations: only with relevance = true"),

@@ -1,5 +1,6 @@
-"""Checks of a learner's own parameters, shared by the families: a positive number, an integer
-of at least a bound, and a maths class's field re-raised under the learner's parameter name.
+"""Checks of a learner's own parameters, shared by the families: a positive number, a
+fraction, an integer of at least a bound, and a maths class's field re-raised under the
+learner's parameter name.
 """
 
 from __future__ import annotations
@@ -13,6 +14,14 @@ def require_positive(name: str, value) -> None:
     ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
     if not (ok and value > 0):
         raise ParameterError(name, f"must be a finite number > 0, got {value!r}")
+
+
+def require_fraction(name: str, value) -> float:
+    """Refuse a parameter that is not a number in (0, 1); the number as a float."""
+    ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+    if not (ok and 0.0 < value < 1.0):
+        raise ParameterError(name, f"must lie in (0, 1), got {value!r}")
+    return float(value)
 
 
 def require_count(name: str, value, low: int) -> None:

@@ -31,6 +31,10 @@ import numpy as np
 from corrections_sim.components import ParameterError
 from corrections_sim.registry import Registry
 
+#: A waypoint counts as moved when it moved more than this (rad): what a learner reading a
+#: correction takes for the waypoints the person moved.
+MOVED = 1e-9
+
 
 def _check_pair(robot, intended) -> tuple[np.ndarray, np.ndarray]:
     robot = np.asarray(robot, dtype=float)

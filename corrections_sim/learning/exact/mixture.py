@@ -239,31 +239,14 @@ class ExactPersonModel(Learner):
         if len(set(tags)) != len(tags):
             raise ParameterError("models", f"lists a model twice: {', '.join(tags)}")
         if self.noise_scales is not None:
-            scales = self.noise_scales
             if self.noise != "learnt":
                 raise ParameterError("noise_scales", 'only with noise = "learnt"')
-            if isinstance(scales, str) or not isinstance(scales, list | tuple) or not scales:
-                raise ParameterError("noise_scales", f"expected a non-empty list, got {scales!r}")
-            for i, c in enumerate(scales):
-                number = isinstance(c, int | float) and not isinstance(c, bool)
-                if not (number and 0 < c < np.inf):
-                    raise ParameterError(f"noise_scales[{i}]", f"must be a number > 0, got {c!r}")
-            if len(set(scales)) != len(scales):
-                raise ParameterError("noise_scales", f"lists a scale twice: {list(scales)}")
-            object.__setattr__(self, "noise_scales", tuple(float(c) for c in scales))
+            object.__setattr__(self, "noise_scales", _numbers("noise_scales", self.noise_scales))
         if not isinstance(self.relevance, bool):
             raise ParameterError("relevance", f"must be true or false, got {self.relevance!r}")
         if self.concentrations is not None:
-            kappas = self.concentrations
-            if isinstance(kappas, str) or not isinstance(kappas, list | tuple) or not kappas:
-                raise ParameterError("concentrations", f"expected a non-empty list, got {kappas!r}")
-            for i, c in enumerate(kappas):
-                number = isinstance(c, int | float) and not isinstance(c, bool)
-                if not (number and 0 <= c < np.inf):
-                    raise ParameterError(
-                        f"concentrations[{i}]", f"must be a number >= 0, got {c!r}"
-                    )
-            object.__setattr__(self, "concentrations", tuple(float(c) for c in kappas))
+            kappas = _numbers("concentrations", self.concentrations, zero=True)
+            object.__setattr__(self, "concentrations", kappas)
         base = components.defaults(type(self))
         for name in ("concentrations", "relevance_prior", "relevance_count"):
             if not self.relevance and getattr(self, name) != base[name]:
@@ -354,6 +337,21 @@ class ExactPersonModel(Learner):
             relevance=relevance,
             expected=predicted[0],
         )
+
+
+def _numbers(name: str, values, *, zero: bool = False) -> tuple[float, ...]:
+    """A non-empty list of distinct finite numbers > 0 (≥ 0 with ``zero``), as floats;
+    anything else refused in one line naming ``name`` (and the item)."""
+    if isinstance(values, str) or not isinstance(values, list | tuple) or not values:
+        raise ParameterError(name, f"expected a non-empty list, got {values!r}")
+    for i, c in enumerate(values):
+        number = isinstance(c, int | float) and not isinstance(c, bool)
+        if not (number and (c >= 0 if zero else c > 0) and c < np.inf):
+            bound = ">= 0" if zero else "> 0"
+            raise ParameterError(f"{name}[{i}]", f"must be a number {bound}, got {c!r}")
+    if len(set(values)) != len(values):
+        raise ParameterError(name, f"lists a value twice: {list(values)}")
+    return tuple(float(c) for c in values)
 
 
 def _log_evidence(part: ExactCorrectionAware, belief: Belief) -> float:

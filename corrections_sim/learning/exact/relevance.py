@@ -53,7 +53,8 @@ from corrections_sim.learning.exact.cells import Cells
 from corrections_sim.learning.exact.learners import ExactCorrectionAware, ExactStep, _moments
 from corrections_sim.learning.exact.state import ExactState, GridPosterior
 from corrections_sim.learning.history import CorrectionEntry
-from corrections_sim.people.corrections import CorrectionModel, WaypointCorrection
+from corrections_sim.learning.params import require_fraction, require_positive
+from corrections_sim.people.corrections import MOVED, CorrectionModel, WaypointCorrection
 from corrections_sim.planning.features import waypoint_features
 from corrections_sim.planning.planner import Plan, PlanningError
 from corrections_sim.scene.environments import Environment
@@ -65,8 +66,6 @@ NUDGE_SEED = 6602
 #: The irrelevant density's spread is widened by N̄ times this (a nudge that barely moves
 #: the features is not a point mass).
 NUDGE_FLOOR = 1.0 / 16.0
-#: A waypoint counts as moved when it moved more than this (rad).
-MOVED = 1e-9
 #: The concentrations κ of a relevant move's direction about the predicted one (von
 #: Mises–Fisher), a uniform prior over them: from nearly any direction (1) to within about
 #: 0.3 rad of it (64) for a one-waypoint move. Up to 1024, a person whose plan is another
@@ -86,18 +85,21 @@ def _directions(dims: int) -> np.ndarray:
     return out
 
 
+def moved(robot: np.ndarray, corrected: np.ndarray):
+    """(the waypoints the person moved (T,) bool, the move there (7·m,)), or (None, None)
+    when nothing moved."""
+    move = np.asarray(corrected, float) - np.asarray(robot, float)
+    rows = np.linalg.norm(move, axis=1) > MOVED
+    return (rows, move[rows].ravel()) if rows.any() else (None, None)
+
+
 def nudge_density(
-    robot: np.ndarray, corrected: np.ndarray, env: Environment, names, floor: np.ndarray
-) -> tuple[np.ndarray, np.ndarray] | None:
-    """The irrelevant density's mean (k,) and covariance (k, k) of Φ after a nudge as large as
-    the move from ``robot`` to ``corrected`` (both (T, 7)) on the waypoints it moved, in a
-    random direction; None when nothing moved."""
+    robot: np.ndarray, rows: np.ndarray, size: float, env: Environment, names, floor: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The irrelevant density's mean (k,) and covariance (k, k) of Φ after a nudge of ``size``
+    on the waypoints ``rows`` (a mask (T,)) of ``robot`` (T, 7), in a random direction."""
     robot = np.asarray(robot, float)
-    move = np.asarray(corrected, float) - robot
-    rows = np.flatnonzero(np.linalg.norm(move, axis=1) > MOVED)
-    if rows.size == 0:
-        return None
-    size = float(np.linalg.norm(move[rows]))
+    rows = np.flatnonzero(rows)
     u = _directions(7 * rows.size) * size  # (m, 7·rows)
     params = env.params()
     nudged = robot[rows][None] + u.reshape(len(u), rows.size, 7)
@@ -125,17 +127,6 @@ class JudgedEntry(CorrectionEntry):
     log_irrelevant: float = -np.inf
     rows: np.ndarray | None = None
     direction: np.ndarray | None = None
-
-
-def moved_direction(robot: np.ndarray, corrected: np.ndarray):
-    """(the waypoints moved (T,) bool, the unit direction of the move there (7·m,)), or
-    (None, None) when nothing moved."""
-    move = np.asarray(corrected, float) - np.asarray(robot, float)
-    rows = np.linalg.norm(move, axis=1) > MOVED
-    if not rows.any():
-        return None, None
-    d = move[rows].ravel()
-    return rows, d / np.linalg.norm(d)
 
 
 def predicted_cosines(
@@ -197,12 +188,8 @@ class RelevantExact(ExactCorrectionAware):
         super().__post_init__()
         if self.noise != "learnt":
             raise ParameterError("noise", 'judging relevance needs noise = "learnt"')
-        p = self.relevance_prior
-        if not (isinstance(p, int | float) and not isinstance(p, bool) and 0 < p < 1):
-            raise ParameterError("relevance_prior", f"must be a number in (0, 1), got {p!r}")
-        c = self.relevance_count
-        if not (isinstance(c, int | float) and not isinstance(c, bool) and 0 < c < np.inf):
-            raise ParameterError("relevance_count", f"must be a number > 0, got {c!r}")
+        require_fraction("relevance_prior", self.relevance_prior)
+        require_positive("relevance_count", self.relevance_count)
 
     # -- the model ---------------------------------------------------------------------------
 
@@ -214,12 +201,13 @@ class RelevantExact(ExactCorrectionAware):
         k = prior.scale.shape[0]
         return prior.scale / (prior.dof - k - 1)
 
-    def _scale_terms(self, grid: GridPosterior, prior, history) -> np.ndarray:
+    def _scale_terms(self, left: np.ndarray, prior, history) -> np.ndarray:
         """log of a relevant correction's density (over the irrelevant direction's) at every
         node, (noise scale, concentration) and correction (n, S·K, t): N(rᵢ; 0, s N̄) times
         the von Mises–Fisher density of its direction over the uniform one."""
-        res = grid.scatter[:, :, :-1]  # (n, t, k): the residuals rᵢ = zᵢ − hᵢ(θ)
-        cos = grid.scatter[:, :, -1]  # (n, t): the moves' cosines
+        count = left.shape[1]
+        res = left[:, :, :-1]  # (n, t, k): the residuals rᵢ = zᵢ − hᵢ(θ)
+        cos = left[:, :, -1]  # (n, t): the moves' cosines
         centre = self._centre(prior)
         k = centre.shape[0]
         inv = np.linalg.inv(centre)
@@ -229,17 +217,18 @@ class RelevantExact(ExactCorrectionAware):
         norm = 0.5 * (logdet + k * np.log(s))
         gauss = -0.5 * quad[:, None, :] / s[None, :, None] - norm[None, :, None]  # (n, S, t)
         kappas = np.asarray(self.concentrations, float)
-        vmf = np.zeros((len(res), len(kappas), grid.count))
-        for i, seen in enumerate(history[1 : grid.count + 1]):
-            if getattr(seen, "direction", None) is not None:
+        vmf = np.zeros((len(res), len(kappas), count))
+        for i, seen in enumerate(history[1 : count + 1]):
+            if seen.direction is not None:
                 vmf[:, :, i] = log_vmf_ratio(kappas, seen.direction.size, cos[:, i])
         combos = len(s) * len(kappas)
-        out = (gauss[:, :, None, :] + vmf[:, None, :, :]).reshape(len(res), combos, grid.count)
+        out = (gauss[:, :, None, :] + vmf[:, None, :, :]).reshape(len(res), combos, count)
         return np.where(np.isfinite(out), out, -np.inf)
 
-    def _elementary(self, grid: GridPosterior, prior, history, log_q: np.ndarray, upto: int):
-        """log eⱼ over the first ``upto`` corrections (n, S, upto + 1) and the scale terms."""
-        terms = self._scale_terms(grid, prior, history)
+    def _elementary(self, left: np.ndarray, prior, history, log_q: np.ndarray, upto: int):
+        """log eⱼ over the first ``upto`` corrections (n, S, upto + 1) and the scale terms,
+        from what the corrections ``left`` at the nodes (:attr:`GridPosterior.left`)."""
+        terms = self._scale_terms(left, prior, history)
         n, S, _ = terms.shape
         e = np.full((n, S, upto + 1), -np.inf)
         e[:, :, 0] = 0.0
@@ -256,25 +245,25 @@ class RelevantExact(ExactCorrectionAware):
         j = np.arange(t + 1)
         return betaln(a + j, b + t - j) - betaln(a, b)
 
-    def _joint(self, grid: GridPosterior, prior, history) -> np.ndarray:
-        """log π p(z₁…zₜ | θ, s, κ) at every node and (scale, concentration) (n, S·K)."""
-        t = grid.count
-        e, _ = self._elementary(grid, prior, history, self._log_q(history), t)
+    def _joint(self, left: np.ndarray, prior, history) -> np.ndarray:
+        """log π p(z₁…zₜ | θ, s, κ) at each node and (scale, concentration) (n, S·K), from
+        what the corrections ``left`` there (n, t, k + 1)."""
+        t = left.shape[1]
+        e, _ = self._elementary(left, prior, history, self._log_q(history), t)
         out = logsumexp(e + self._count_weights(t)[None, None, :], axis=2)
         return out - np.log(len(self.noise_scales) * len(self.concentrations))
 
     # -- the grid -----------------------------------------------------------------------------
 
     def _log_q(self, history) -> np.ndarray:
-        return np.array([getattr(h, "log_irrelevant", -np.inf) for h in history[1:]], float)
+        return np.array([h.log_irrelevant for h in history[1:]], float)
 
     def state_log_posterior(self, state: ExactState) -> np.ndarray:
         return self._posterior(state.grid, state.noise, state.history)
 
     def _posterior(self, grid: GridPosterior, prior, history) -> np.ndarray:
         """The log posterior at every node (n,)."""
-        joint = self._joint(grid, prior, history)
-        return grid.log_density + logsumexp(joint, axis=1)
+        return grid.log_density + logsumexp(self._joint(grid.left, prior, history), axis=1)
 
     def _residuals(self, history, ctx: LearnerContext, thetas: np.ndarray):
         """(log prior, what each correction left at each node (n, t, k + 1): its residual and
@@ -300,9 +289,6 @@ class RelevantExact(ExactCorrectionAware):
         out[bad] = 0.0
         return out, bad
 
-    def _grid(self, thetas, log_d, res, count, cells) -> GridPosterior:
-        return _ResidualGrid(thetas, log_d, res, count, cells)
-
     def update(
         self, ctx: LearnerContext, belief: Belief, env: Environment, plan: Plan, phi_h: np.ndarray
     ) -> Step:
@@ -313,8 +299,9 @@ class RelevantExact(ExactCorrectionAware):
             g = atlas.grid
             cells = Cells.base(g.lows, g.highs, g.counts, self.max_level)
             log_d, res = self._residuals(history[:1], ctx, cells.thetas())
-            before = self._grid(cells.thetas(), log_d, res, 0, cells)
-        log_before = self._posterior(before, prior, history)
+            before = GridPosterior(cells.thetas(), log_d, None, 0, cells, left=res)
+        joint = self._joint(before.left, prior, history)
+        log_before = before.log_density + logsumexp(joint, axis=1)
         weights = ref.posterior(log_before, before.cells.coefficients)
         z = np.asarray(phi_h, float)
         k = z.size
@@ -327,29 +314,28 @@ class RelevantExact(ExactCorrectionAware):
                 f"{env.name}: the atlas has no plan where the posterior lives; update skipped"
             )
         centre = self._centre(prior)
-        found, rows, direction = None, None, None
+        rows, move, log_q = None, None, -np.inf
         if ctx.corrected is not None:
-            found = nudge_density(
-                plan.trajectory, ctx.corrected, env, ctx.features, NUDGE_FLOOR * centre
-            )
-            rows, direction = moved_direction(plan.trajectory, ctx.corrected)
-        log_q = -np.inf if found is None else _log_gaussian(z, *found)
-        entry = JudgedEntry(env, plan.trajectory, z, ctx.noise.observation, log_q, rows, direction)
+            rows, move = moved(plan.trajectory, ctx.corrected)
+        if rows is not None:
+            size = float(np.linalg.norm(move))
+            q = nudge_density(plan.trajectory, rows, size, env, ctx.features, NUDGE_FLOOR * centre)
+            log_q, move = _log_gaussian(z, *q), move / size
+        entry = JudgedEntry(env, plan.trajectory, z, ctx.noise.observation, log_q, rows, move)
         # What it expected before the correction (a relevant correction's predictive).
         w = weights[at][seen] / weights[at][seen].sum()
         expected = w @ h[seen]
         spread = (w[:, None] * (h[seen] - expected)).T @ (h[seen] - expected)
-        noise_mean = self._noise_mean(before, prior, history, weights)
+        noise_mean = self._noise_mean(joint, prior, weights)
         # Take it in: its residual and cosine at every node.
         r = np.zeros((len(before.thetas), k + 1))
         log_d = np.array(before.log_density)
         r[at], bad = self._left(plans, entry, ctx.features)
         log_d[at[bad]] = -np.inf
-        res = np.concatenate([before.scatter, r[:, None, :]], axis=1)
+        res = np.concatenate([before.left, r[:, None, :]], axis=1)
         history = (*history, entry)
-        after = self._grid(before.thetas, log_d, res, before.count + 1, before.cells)
-        after = self._refine(ctx, after, history, prior)
-        log_post = self._posterior(after, prior, history)
+        after = GridPosterior(before.thetas, log_d, None, before.count + 1, before.cells, left=res)
+        after, log_post = self._refine(ctx, after, history, prior)
         mean, cov = _moments(after.thetas, ref.posterior(log_post, after.cells.coefficients))
         kept = ExactState(noise=prior, grid=after, history=history)
         new = Belief(theta=mean, cov=cov, state=kept)
@@ -363,25 +349,23 @@ class RelevantExact(ExactCorrectionAware):
             expected=expected,
         )
 
-    def _refine(self, ctx, grid: GridPosterior, history, prior) -> GridPosterior:
+    def _refine(self, ctx, grid: GridPosterior, history, prior):
+        """``grid`` with its cells cut finer while the posterior needs it (as EX-C's), and
+        its log posterior (the sum over relevant subsets made once a node)."""
         refine = ref.Refinement(self.resolution, self.cut, self.axes)
-        while (
-            cells := refine.finer(grid.cells, self._posterior(grid, prior, history))
-        ) is not None:
+        mass = logsumexp(self._joint(grid.left, prior, history), axis=1)
+        while (cells := refine.finer(grid.cells, grid.log_density + mass)) is not None:
             new = cells.thetas()[len(grid.thetas) :]
             log_d, res = self._residuals(history, ctx, new)
-            grid = self._grid(
-                cells.thetas(),
-                np.concatenate([grid.log_density, log_d]),
-                np.concatenate([grid.scatter, res]),
-                grid.count,
-                cells,
-            )
-        return grid
+            mass = np.concatenate([mass, logsumexp(self._joint(res, prior, history), axis=1)])
+            log_d = np.concatenate([grid.log_density, log_d])
+            res = np.concatenate([grid.left, res])
+            grid = GridPosterior(cells.thetas(), log_d, None, grid.count, cells, left=res)
+        return grid, grid.log_density + mass
 
-    def _noise_mean(self, grid: GridPosterior, prior, history, weights: np.ndarray) -> np.ndarray:
-        """E[N | corrections] = Σ_s p(s | corrections) s N̄."""
-        joint = self._joint(grid, prior, history)  # (n, S·K)
+    def _noise_mean(self, joint: np.ndarray, prior, weights: np.ndarray) -> np.ndarray:
+        """E[N | corrections] = Σ_s p(s | corrections) s N̄, from the joint (n, S·K) of
+        :meth:`_joint` and the nodes' weights."""
         joint = logsumexp(joint.reshape(len(joint), len(self.noise_scales), -1), axis=2)
         with np.errstate(divide="ignore"):
             log_s = logsumexp(joint + np.log(weights)[:, None], axis=0)
@@ -394,7 +378,7 @@ class RelevantExact(ExactCorrectionAware):
         t = grid.count
         if not np.isfinite(log_q[-1]):
             return 1.0
-        e, terms = self._elementary(grid, prior, history, log_q, t - 1)  # (n, S·K, t)
+        e, terms = self._elementary(grid.left, prior, history, log_q, t - 1)  # (n, S·K, t)
         w = self._count_weights(t)
         on = logsumexp(e + w[None, None, 1:], axis=2) + terms[:, :, t - 1]
         off = logsumexp(e + w[None, None, :-1], axis=2) + log_q[-1]
@@ -402,21 +386,3 @@ class RelevantExact(ExactCorrectionAware):
             log_c = np.log(grid.cells.coefficients)[:, None] + grid.log_density[:, None]
         on, off = logsumexp(on + log_c), logsumexp(off + log_c)
         return float(np.exp(on - np.logaddexp(on, off)))
-
-
-@dataclass(frozen=True, eq=False)
-class _ResidualGrid(GridPosterior):
-    """A :class:`GridPosterior` whose ``scatter`` holds every correction's residual at every
-    node (n, t, k) instead of their sum of squares."""
-
-    def __post_init__(self) -> None:
-        res = None if self.scatter is None else np.array(self.scatter, float, copy=True)
-        object.__setattr__(self, "scatter", None)
-        super().__post_init__()
-        if res is None or res.shape[:2] != (len(self.thetas), self.count):
-            raise ValueError(
-                f"_ResidualGrid: expected residuals (n, t, k) for {len(self.thetas)} nodes and "
-                f"{self.count} corrections"
-            )
-        res.setflags(write=False)
-        object.__setattr__(self, "scatter", res)

@@ -29,6 +29,9 @@ class GridPosterior:
         cells: the nodes as cells (:class:`~corrections_sim.learning.exact.cells.Cells`;
             their trapezoid weights integrate the density), or None: every node weighs the
             same.
+        left: what each correction left at each node when the corrections are not summed
+            into ``scatter`` (EX-M judging relevance, :mod:`.relevance`): (n, t, k + 1), its
+            residual rᵢ and the cosine of its move against the predicted one; else None.
         known: how many of the ``count`` corrections each node's ``log_density`` and
             ``scatter`` hold (n,), or None: all. A node with fewer holds an upper bound of its
             log posterior, left so because that bound is more than
@@ -42,6 +45,7 @@ class GridPosterior:
     count: int = 0
     cells: Cells | None = None
     known: np.ndarray | None = None
+    left: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         thetas = np.array(self.thetas, dtype=float, copy=True)
@@ -61,6 +65,14 @@ class GridPosterior:
             if scatter.shape != (thetas.shape[0], k, k):
                 raise ValueError(f"GridPosterior.scatter: expected (n, k, k), got {scatter.shape}")
             object.__setattr__(self, "scatter", frozen(scatter))
+        if self.left is not None:
+            left = np.array(self.left, dtype=float, copy=True)
+            if left.ndim != 3 or left.shape[:2] != (thetas.shape[0], self.count):
+                raise ValueError(
+                    f"GridPosterior.left: expected (n, t, k + 1) for {thetas.shape[0]} nodes and "
+                    f"{self.count} corrections, got {left.shape}"
+                )
+            object.__setattr__(self, "left", frozen(left))
         if self.known is not None:
             known = np.array(self.known, dtype=np.int64, copy=True)
             if known.shape != log_d.shape or np.any((known < 0) | (known > self.count)):

@@ -45,8 +45,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from corrections_sim.components import ParameterError
+from corrections_sim.learning.params import require_fraction
 from corrections_sim.learning.relevance.state import PersonBelief
-from corrections_sim.people.corrections import CorrectionModel
+from corrections_sim.people.corrections import MOVED, CorrectionModel
 from corrections_sim.planning.planner import PlanningError
 from corrections_sim.plans.book import PlanBook
 from corrections_sim.scene.environments import Environment
@@ -56,8 +57,6 @@ from corrections_sim.scene.robot import cup_pose
 NUDGE_DIMENSIONS = 7
 #: Smallest β̂ handed to a learner: N / β̂ stays finite.
 MIN_RELEVANCE = 1e-6
-#: A waypoint counts as moved when it moved more than this (rad).
-MOVED = 1e-9
 #: Where a correction's residual is measured: the arm's joints (what a simulated person moves)
 #: or the cup's path (what a person at the page drags or pushes).
 SPACES = ("joint", "task")
@@ -383,13 +382,6 @@ def judge(
     )
 
 
-def _check_fraction(name: str, value) -> float:
-    number = isinstance(value, int | float) and not isinstance(value, bool)
-    if not (number and math.isfinite(value) and 0.0 < value < 1.0):
-        raise ParameterError(name, f"must lie in (0, 1), got {value!r}")
-    return float(value)
-
-
 @dataclass(frozen=True)
 class Relevance:
     """From ρ to β̂ = P(relevant | ρ).
@@ -408,7 +400,7 @@ class Relevance:
     dimensions: int = NUDGE_DIMENSIONS
 
     def __post_init__(self) -> None:
-        _check_fraction("relevance_prior", self.prior)
+        require_fraction("relevance_prior", self.prior)
         ok = isinstance(self.spread, int | float) and not isinstance(self.spread, bool)
         if not (ok and math.isfinite(self.spread) and self.spread > 0):
             raise ParameterError("relevance_spread", f"must be finite and > 0, got {self.spread!r}")
