@@ -14,8 +14,9 @@ import pytest
 from corrections_sim.cli import main as cli
 from corrections_sim.planning import cache
 from corrections_sim.planning.compiled import build_once
+from corrections_sim.plans import between
 from corrections_sim.plans.atlas import AtlasGrid, AtlasStore, EnvironmentAtlas
-from corrections_sim.plans.between import PlanShards
+from corrections_sim.plans.between import BetweenNodes, PlanShards
 
 DAY = 86_400.0
 LONG_AGO = time.time() - 100 * DAY
@@ -133,3 +134,69 @@ def test_a_bad_prune_is_one_line_naming_it(days, capsys):
     assert info.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--prune" in err[0]
+
+
+def _shards(root: Path, n: int, T: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """``n`` shards of the atlas "key", the i-th with the plans at θ_i and θ_(i+1) (so every
+    inner θ twice), the plan at θ_2 NaN (no start converged)."""
+    rng = np.random.default_rng(65)
+    thetas, plans = rng.normal(size=(n + 1, 2)), rng.normal(size=(n + 1, T, 7))
+    plans[2] = np.nan
+    for i in range(n):
+        PlanShards(root).save("key", thetas[i : i + 2], plans[i : i + 2])
+    return thetas, plans
+
+
+def _assert_known(root: Path, thetas: np.ndarray, plans: np.ndarray) -> None:
+    known = BetweenNodes(PlanShards(root), 3, 2).known(b"E", "key")
+    assert set(known) == {theta.tobytes() for theta in thetas}
+    for theta, plan in zip(thetas, plans, strict=True):
+        if np.isnan(plan).all():
+            assert known[theta.tobytes()] is None
+        else:
+            assert np.array_equal(known[theta.tobytes()], plan)
+
+
+def test_many_shards_of_an_atlas_are_merged_into_one_and_no_plan_is_lost(tmp_path):
+    thetas, plans = _shards(tmp_path, between.COMPACT_AT)
+    assert len(list(tmp_path.glob("key.extra-*.npz"))) == between.COMPACT_AT
+    read, _ = PlanShards(tmp_path).load("key", 3, 2)
+    assert len(read) == len(thetas)  # each θ once, though inner ones were in two shards
+    assert len(list(tmp_path.glob("key.extra-*.npz"))) == 1
+    _assert_known(tmp_path, thetas, plans)
+    assert len(list(tmp_path.glob("key.extra-*.npz"))) == 1  # one shard is not merged again
+
+
+def test_a_few_shards_are_left_as_they_are(tmp_path):
+    thetas, plans = _shards(tmp_path, between.COMPACT_AT - 1)
+    _assert_known(tmp_path, thetas, plans)
+    assert len(list(tmp_path.glob("key.extra-*.npz"))) == between.COMPACT_AT - 1
+
+
+def test_a_store_that_cannot_be_written_is_read_as_it_is(tmp_path, monkeypatch):
+    thetas, plans = _shards(tmp_path, between.COMPACT_AT)
+
+    def refused(*args, **kwargs):
+        raise PermissionError("read-only file system")
+
+    monkeypatch.setattr(between, "write_shard", refused)
+    _assert_known(tmp_path, thetas, plans)
+    assert len(list(tmp_path.glob("key.extra-*.npz"))) == between.COMPACT_AT
+
+
+def test_a_shard_merged_away_after_the_listing_is_skipped_without_a_word(tmp_path):
+    thetas, plans = _shards(tmp_path, 3)
+    gone = sorted(tmp_path.glob("key.extra-*.npz"))[1]
+    rejected: list[tuple[str, str]] = []
+    listing = iter(between.read_shards(tmp_path, "key.extra", rejected, lambda a: None))
+    first = next(listing)  # the folder is listed; then another process merges one away
+    gone.unlink()
+    assert len([first, *listing]) == 2 and rejected == []
+
+
+def test_distinct_tells_thetas_apart_by_their_bytes():
+    thetas = np.array([[0.0, 1.0], [-0.0, 1.0], [0.0, 1.0], [2.0, 3.0]])
+    plans = np.arange(4 * 3 * 7, dtype=float).reshape(4, 3, 7)
+    kept, kept_plans = between.distinct(thetas, plans)
+    assert kept.tobytes() == thetas[[0, 1, 3]].tobytes()
+    assert np.array_equal(kept_plans, plans[[0, 1, 3]])

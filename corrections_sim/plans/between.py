@@ -14,6 +14,7 @@ checksum is skipped and said, its plans solved again.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import tempfile
@@ -27,6 +28,10 @@ from corrections_sim.planning.cache import mark_used
 #: Plans between nodes kept per process (0.67 kB each at T = 12: 670 MB at most; past it,
 #: the unsaved ones are saved, all are dropped, and they are read again from disk when asked).
 MAX_KEPT = 1_000_000
+#: A process that reads at least this many shards of one atlas merges them into one shard
+#: (its plans once each) and removes the ones merged: a store that many runs added to stays a
+#: few files an atlas (fig. 4's had up to 174, read at 0.3 s an environment).
+COMPACT_AT = 16
 
 
 def write_shard(root: Path, prefix: str, arrays: dict[str, np.ndarray]) -> Path:
@@ -47,11 +52,14 @@ def read_shards(
     prefix: str,
     rejected: list[tuple[str, str]],
     check: Callable[[dict[str, np.ndarray]], None],
+    read: list[Path] | None = None,
 ) -> Iterator[dict[str, np.ndarray]]:
     """The arrays of every shard ``<prefix>-*.npz`` in ``root`` (:func:`write_shard`), each
-    marked as used; one whose bytes do not match its name's checksum, that lacks an array
-    or that ``check`` refuses (ValueError) is appended to ``rejected`` as (name, why) and
-    skipped."""
+    marked as used (and its path appended to ``read``); one whose bytes do not match its
+    name's checksum, that lacks an array or that ``check`` refuses (ValueError) is appended
+    to ``rejected`` as (name, why) and skipped. One gone since the folder was listed was
+    merged into another by a process that read it (:meth:`PlanShards.load`), and is skipped
+    without a word."""
     for path in sorted(root.glob(f"{prefix}-*.npz")):
         try:
             digest = path.name[len(prefix) + 1 : -len(".npz")]
@@ -60,10 +68,14 @@ def read_shards(
             with np.load(path) as data:
                 arrays = {name: data[name] for name in data.files}
             check(arrays)
+        except FileNotFoundError:
+            continue
         except (OSError, ValueError, KeyError) as exc:
             rejected.append((path.name, str(exc).splitlines()[0]))
             continue
         mark_used(path)
+        if read is not None:
+            read.append(path)
         yield arrays
 
 
@@ -78,24 +90,59 @@ class PlanShards:
     def load(self, key: str, T: int, k: int) -> tuple[np.ndarray, np.ndarray]:
         """Every plan kept for the atlas ``key``: θ (n, k) and trajectories (n, T, 7), NaN
         where no start converged; a shard whose content does not match its checksum, or of
-        another shape, is reported (:attr:`rejected`) and skipped."""
+        another shape, is reported (:attr:`rejected`) and skipped. Having read
+        :data:`COMPACT_AT` shards or more, it writes their plans (once each) as one shard and
+        removes them (not on a read-only store); a plan is a function of (θ, E) alone, so
+        nothing is lost however processes interleave."""
 
         def check(arrays: dict[str, np.ndarray]) -> None:
             t, p = arrays["thetas"], arrays["plans"]
             if t.shape[1:] != (k,) or p.shape != (len(t), T, 7):
                 raise ValueError(f"shapes {t.shape}, {p.shape}")
 
-        thetas, plans = [np.zeros((0, k))], [np.zeros((0, T, 7))]
-        for arrays in read_shards(self.root, f"{key}.extra", self.rejected, check):
+        thetas, plans, read = [np.zeros((0, k))], [np.zeros((0, T, 7))], []
+        for arrays in read_shards(self.root, f"{key}.extra", self.rejected, check, read):
             thetas.append(arrays["thetas"])
             plans.append(arrays["plans"])
-        return np.concatenate(thetas), np.concatenate(plans)
+        if len(read) == 1:  # as read: no copy
+            every, trajectories = thetas[1], plans[1]
+        else:
+            every, trajectories = np.concatenate(thetas), np.concatenate(plans)
+        if len(read) >= COMPACT_AT:
+            every, trajectories = distinct(every, trajectories)
+            with contextlib.suppress(OSError):  # a read-only store is read as it is
+                merged = self.save(key, every, trajectories)
+                for path in read:
+                    if path != merged:
+                        path.unlink(missing_ok=True)
+        return every, trajectories
 
     def save(self, key: str, thetas: np.ndarray, plans: np.ndarray) -> Path:
         """Plans of the atlas ``key`` (θ (n, k), trajectories (n, T, 7)) as a shard of their
         own (:func:`write_shard`)."""
         arrays = {"thetas": np.asarray(thetas, float), "plans": np.asarray(plans, float)}
         return write_shard(self.root, f"{key}.extra", arrays)
+
+
+def distinct(thetas: np.ndarray, plans: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Plans as stored (θ (n, k), trajectories (n, T, 7)) with each θ once (by its bytes,
+    so 0.0 and −0.0 stay apart as a lookup tells them apart), first found first."""
+    rows = np.ascontiguousarray(thetas, float)
+    keys = rows.view(np.dtype((np.void, rows.itemsize * rows.shape[1]))).ravel()
+    _, first = np.unique(keys, return_index=True)
+    first.sort()
+    return rows[first], plans[first]
+
+
+def _by_theta(thetas: np.ndarray, plans: np.ndarray) -> Iterator[tuple[bytes, np.ndarray | None]]:
+    """(θ's bytes, its trajectory, None where NaN marks that no start converged) for plans
+    as stored (θ (n, k), trajectories (n, T, 7)), judged in one array step."""
+    if len(thetas) != len(plans):
+        raise ValueError(f"{len(thetas)} thetas for {len(plans)} plans")
+    values: list[np.ndarray | None] = list(plans)
+    for i in np.flatnonzero(~np.isfinite(plans).all(axis=(1, 2))).tolist():
+        values[i] = None
+    return zip([theta.tobytes() for theta in thetas], values, strict=True)
 
 
 class BetweenNodes:
@@ -126,8 +173,7 @@ class BetweenNodes:
             self._keys[env_key] = atlas_key
             if self.shards is not None:
                 thetas, plans = self.shards.load(atlas_key, self.T, self.k)
-                for theta, plan in zip(thetas, plans, strict=True):
-                    found[theta.tobytes()] = plan if np.all(np.isfinite(plan)) else None
+                found.update(_by_theta(thetas, plans))
                 self._kept += len(thetas)
         return found
 
@@ -169,10 +215,9 @@ class BetweenNodes:
         plan this process would have solved."""
         known = self.known(env_key, atlas_key)
         new = 0
-        for theta, plan in zip(np.asarray(thetas, float), np.asarray(plans, float), strict=True):
-            memo = theta.tobytes()
+        for memo, plan in _by_theta(np.asarray(thetas, float), np.asarray(plans, float)):
             if memo not in known:
-                known[memo] = plan if np.all(np.isfinite(plan)) else None
+                known[memo] = plan
                 if save:
                     self._unsaved.setdefault(env_key, []).append(memo)
                 self._kept += 1
