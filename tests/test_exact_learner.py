@@ -219,6 +219,57 @@ def test_a_corrupt_atlas_file_is_built_again_and_says_so(small_atlas, tmp_path):
     assert spec.missing([env]) == []
 
 
+def test_the_reference_builds_the_atlases_it_lacks_before_its_runs(figure, tmp_path, monkeypatch):
+    """On a machine without the study's atlases, the reference command builds each
+    environment's atlas once, one task an environment, before any run starts (each run built
+    what it met before, so two workers built the same atlas at once); the records are those
+    made with the atlases on disk."""
+    from concurrent.futures import ThreadPoolExecutor
+    from contextlib import contextmanager
+
+    from corrections_sim.cli.commands import figure as command
+    from corrections_sim.figures import reference_figure
+    from corrections_sim.planning.planner import cache_dir
+    from corrections_sim.study.schema import load_study
+
+    argv = ["reference", str(figure), "--learner", "EX-C", "--runs", "1"]
+    assert cli.main([*argv, "--out", str(tmp_path / "warm")]) == 0
+    settings = load_study(figure.parent.parent / "tiny.toml", name="tiny", quick=False)
+    envs = {e.key(): e for e in settings.envs()}
+    keys = tuple(settings.atlas_spec().key(e) for e in envs.values())
+    cache = tmp_path / "cache"
+    (cache / "atlas").mkdir(parents=True)
+    for library in cache_dir().glob("*.so"):  # the compiled solvers, no atlas
+        (cache / library.name).symlink_to(library)
+    for shard in (cache_dir() / "atlas").glob("*.extra-*.npz"):  # its plans between nodes
+        if shard.name.startswith(keys):
+            (cache / "atlas" / shard.name).symlink_to(shard)
+    monkeypatch.setenv("CORRECTIONS_SIM_CACHE", str(cache))
+    built, at_first_run = [], []
+    build, judge_run = A.build, reference_figure.judge_run
+
+    def counted(planner, env, *args, **kwargs):
+        built.append(env.key())
+        return build(planner, env, *args, **kwargs)
+
+    def first_run(*args, **kwargs):
+        at_first_run.append(len(built))
+        return judge_run(*args, **kwargs)
+
+    @contextmanager
+    def here(workers):  # the command's pool as one thread of this process, to count builds
+        with ThreadPoolExecutor(1) as pool:  # (one: a planner is not for two threads at once)
+            yield pool
+
+    monkeypatch.setattr(A, "build", counted)
+    monkeypatch.setattr(reference_figure, "judge_run", first_run)
+    monkeypatch.setattr(command, "process_pool", here)
+    assert cli.main([*argv, "--workers", "1", "--out", str(tmp_path / "empty")]) == 0
+    assert sorted(built) == sorted(envs) and at_first_run == [len(envs)]
+    records = "reference-EX-C/records.csv"
+    assert (tmp_path / "empty" / records).read_bytes() == (tmp_path / "warm" / records).read_bytes()
+
+
 def test_an_atlas_study_gives_the_same_bytes_on_one_or_two_workers_and_on_dask(
     figure, tmp_path, monkeypatch
 ):

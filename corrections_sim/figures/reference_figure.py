@@ -107,16 +107,19 @@ def reference_job(
     return ReferenceJob(figure, settings, learner, rows, grid, options, check_grid)
 
 
-def judge_run(job: ReferenceJob, run: int, exchange=None) -> list[dict]:
+def judge_run(job: ReferenceJob, run: int, exchange=None, handed=None) -> list[dict]:
     """The records of ``job``'s run ``run`` (safe in a worker process): the plans it solved
     between the atlas's nodes and the particles' checked cells are kept for the next, and
     with the command's ``exchange`` (:class:`~corrections_sim.plans.spread.PlanExchange`)
-    plans between nodes pass between its workers as a study's runs pass them."""
+    plans between nodes pass between its workers as a study's runs pass them; ``handed``: the
+    study's atlases, to a worker that may not share the command's files (a cluster's)."""
     from corrections_sim.planning.planner import shared_planner
     from corrections_sim.plans import interpolation, spread
 
     settings = job.settings
     spec = settings.atlas_spec()
+    if handed is not None:
+        spread.receive(spec, handed)
     spread.attach(spec, exchange)
     planner = shared_planner(settings.planner_config())
     options = {**job.options, "seed": job.options["seed"] + run}
@@ -287,9 +290,12 @@ class ReferenceFigure:
         from corrections_sim.plans import spread
 
         spec = job.settings.atlas_spec()
-        exchange = spread.exchange_for(spec, executor)  # plans between nodes, shared
         todo = [run for run in job.rows if run not in by_run]
-        futures = {executor.submit(judge_run, job, run, exchange): run for run in todo}
+        # The atlases built first, one task an environment (else each run builds what it
+        # meets, two workers the same at once); a cluster's workers are handed them.
+        handed = spread.ready(spec, job.settings.envs(), executor) if todo else None
+        exchange = spread.exchange_for(spec, executor)  # plans between nodes, shared
+        futures = {executor.submit(judge_run, job, run, exchange, handed): run for run in todo}
         for future in as_completed(futures):
             run = futures[future]
             by_run[run] = future.result()

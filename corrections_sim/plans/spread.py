@@ -56,9 +56,11 @@ class AtlasSpec:
         return out
 
     def atlas(self) -> Atlas:
-        """This process's atlas of the spec (one per process, so its memory maps are shared
-        by every run the process executes)."""
-        return _shared_atlas(self)
+        """This process's atlas of the spec (one per process and store, so its memory maps
+        are shared by every run the process executes; a process pointed at another cache
+        meanwhile gets that cache's atlas, not one that writes to the first)."""
+        root = self.root if self.root is not None else str(AtlasStore(None).root)
+        return _shared_atlas(replace(self, root=root))
 
 
 @functools.cache
@@ -122,6 +124,24 @@ class Carried:
     (environment, atlas) pairs, the atlases in memory."""
 
     atlases: tuple[tuple[Environment, EnvironmentAtlas], ...]
+
+
+def ready(
+    spec: AtlasSpec | None,
+    envs: Sequence[Environment],
+    executor: Executor,
+    progress: Callable[[int, int], None] | None = None,
+) -> Carried | None:
+    """Before a command's runs: the atlases of ``envs`` its store lacks built, one task an
+    environment on ``executor`` (:func:`prepare`), so that no two runs build one at once; on an
+    executor whose workers may not share this machine's files (one with ``share``: a
+    cluster), the handle of the atlases handed to each worker (:func:`receive` them there),
+    else None. Nothing without an atlas."""
+    if spec is None:
+        return None
+    prepare(spec, envs, executor, progress)
+    share = getattr(executor, "share", None)
+    return None if share is None else share(carried(spec, envs))
 
 
 def carried(spec: AtlasSpec, envs: Sequence[Environment]) -> Carried:

@@ -247,15 +247,10 @@ def run(
         results.update((k, v) for k, v in cache.load_all().items() if k in wanted)
     resumed = len(results)
     spec = settings.atlas_spec()
-    handed = None
-    if spec is not None:  # the mean estimate plans from it even when every run is cached
-        phase = getattr(progress, "phase", None)
-        spread.prepare(
-            spec, settings.envs(), executor, phase("atlas", "environment") if phase else None
-        )
-        share = getattr(executor, "share", None)
-        if share is not None:  # workers that may not share this machine's files: hand it
-            handed = share(spread.carried(spec, settings.envs()))
+    # Even when every run is cached: the mean estimate plans from the atlas.
+    phase = getattr(progress, "phase", None)
+    atlas_progress = phase("atlas", "environment") if phase and spec is not None else None
+    handed = spread.ready(spec, settings.envs(), executor, atlas_progress)
     # Only a cluster's tasks are handed the atlases: a process pool's are called as ever.
     extra = {} if handed is None else {"handed": handed}
     shared = executor.submit(prepare, settings, **extra).result()
