@@ -51,6 +51,7 @@ SUBCOMMANDS = (
     "atlas",
     "particles",
     "exact",
+    "split",
 )
 
 #: A figure's study at a tiny size: its atlas at 3 points a weight (the paper's 31 would be
@@ -75,6 +76,7 @@ TINY: dict[str, list[str]] = {
     "atlas": ["--envs", "1", "--grid", "5", "--problems", "1", "--restarts", "1", "--lazy"],
     "particles": ["--particles", "20", "--problems", "1", "--envs", "1", "--moves", "1", *SMALL],
     "exact": ["--problems", "1", "--iterations", "2", "--learners", "EX-C", *SMALL],
+    "split": ["--slice-runs", "1", "--iterations", "1", "--learners", "KF,EX-C", *SMALL],
 }
 
 THETA_RANGE = (-1.5, 1.5)
@@ -436,7 +438,10 @@ def main(argv: Sequence[str] | None = None) -> None:
         "learner's update (EX-C, EX-CL, EX-M) on fig. 4's atlas (or --study FILE's), CPU s "
         "a correction (median, p90) in a fresh process with an empty store of plans "
         "between the atlas's nodes and then a full one (--problems runs, default 3; "
-        "--iterations; --learners).",
+        "--iterations; --learners). 'split': where a study's CPU goes, learner by learner "
+        "(fig. 4 or --study FILE at paper settings; --slice-runs runs of each, default 8): a "
+        "run, its regret metric, the learner's update, solves, and the study's runs at that "
+        "rate.",
     )
     parser.add_argument(
         "what",
@@ -531,7 +536,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         "--slice-runs",
         type=int,
         default=8,
-        help="fig4: runs of PP and KF in the slice for the speed-up and Dask (default 8)",
+        help="fig4: runs of PP and KF in the slice for the speed-up and Dask; split: runs of "
+        "each learner (default 8)",
     )
     parser.add_argument(
         "--iterations",
@@ -650,7 +656,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         parser.error(f"--pool: only exact compares a pool's sharing, not {args.what}")
     if args.pool and args.cluster:
         parser.error("--pool and --cluster: one at a time")
-    if args.study is not None and args.what not in ("exact", "atlas"):
+    if args.study is not None and args.what not in ("exact", "atlas", "split"):
         parser.error(f"--study: only exact and atlas take a study file, not {args.what}")
     if args.study_envs is not None and not 1 <= args.study_envs <= 48:
         parser.error("--study-envs: 1 to 48 paper environments")
@@ -743,6 +749,22 @@ def main(argv: Sequence[str] | None = None) -> None:
         seed = 0 if args.seed is None else args.seed
         lines = run_particles(args.particles, runs, args.bound, envs, seed, args.moves, smaller)
         print("\n".join(lines), flush=True)
+        return
+    if args.what == "split":
+        from benchmarks.bench_split import run_bench as run_split
+
+        if args.slice_runs < 1 or (args.iterations is not None and args.iterations < 1):
+            parser.error("split: --slice-runs and --iterations must be >= 1")
+        figure = "fig4"
+        if args.study is not None:
+            if not args.study.endswith(".toml") or not Path(args.study).is_file():
+                parser.error(f"--study {args.study}: not a study file (a .toml that exists)")
+            figure = args.study
+        overrides = dict(smaller)
+        if args.iterations is not None:
+            overrides["iterations"] = args.iterations
+        names = [n.strip() for n in (args.learners or "").split(",") if n.strip()] or None
+        print("\n".join(run_split(figure, args.slice_runs, overrides, names)), flush=True)
         return
     if args.what == "exact":
         from benchmarks.bench_exact import run_bench as run_exact

@@ -17,12 +17,12 @@ from benchmarks import bench
 def test_every_benchmark_has_a_tiny_size_and_a_test():
     """A new benchmark without a tiny size (or without a test here) fails at once."""
     assert set(bench.TINY) == set(bench.SUBCOMMANDS)
-    tested = set(SPLIT[0]) | set(SPLIT[1]) | set(IN_A_BROWSER) | {"exact"}
+    tested = set(SPLIT[0]) | set(SPLIT[1]) | set(IN_A_BROWSER) | {"exact", "split"}
     assert tested == set(bench.SUBCOMMANDS)
 
 
-#: The benchmarks run here, in two classes (each goes to a worker of its own; ``exact`` has
-#: a test of its own below).
+#: The benchmarks run here, in two classes (each goes to a worker of its own; ``exact`` and
+#: ``split`` have tests of their own below).
 SPLIT = (
     ("planner", "fig4", "warm", "learnt", "atlas"),
     ("physical", "relevance", "confidence", "study", "particles"),
@@ -50,6 +50,28 @@ def test_exact_reports_an_empty_and_a_full_store_per_learner(tmp_path):
     assert [(r[0], r[1]) for r in rows] == [("EX-C", "empty"), ("EX-C", "full")]
     for r in rows:
         assert all(float(v) >= 0 for v in r[2:6])
+
+
+def test_split_gives_each_learner_a_row_whose_parts_add_up(tmp_path):
+    """``bench split``'s table (KF and EX-C at the tiny size): a row per learner whose regret
+    metric and update are parts of its run (not counted twice: the rest is not negative), and
+    a total over the study's runs."""
+    out = run_tiny("split", tmp_path)
+    rows = {
+        cells[0]: cells[1:]
+        for cells in (
+            [c.strip() for c in line.strip("|").split("|")]
+            for line in out.splitlines()
+            if line.startswith("| ")
+        )
+    }
+    assert {"KF", "EX-C", "all"} <= set(rows)
+    for name in ("KF", "EX-C"):
+        runs, each, regret, update, other, solves, study = (float(v) for v in rows[name][:7])
+        assert runs == 1 and each > 0 and solves > 0 and study == 100
+        assert (
+            regret >= 0 and update > 0 and each == pytest.approx(regret + update + other, abs=0.02)
+        )
 
 
 def test_a_bad_tiny_request_is_one_line():
