@@ -184,14 +184,22 @@ def test_a_store_that_cannot_be_written_is_read_as_it_is(tmp_path, monkeypatch):
     assert len(list(tmp_path.glob("key.extra-*.npz"))) == between.COMPACT_AT
 
 
-def test_a_shard_merged_away_after_the_listing_is_skipped_without_a_word(tmp_path):
+def test_a_shard_merged_away_after_the_listing_is_found_in_the_merged_one(tmp_path):
+    """The folder is listed; then another process writes a merged shard and removes one the
+    listing named: the reader lists again and reads the merged one, without a word."""
     thetas, plans = _shards(tmp_path, 3)
     gone = sorted(tmp_path.glob("key.extra-*.npz"))[1]
     rejected: list[tuple[str, str]] = []
     listing = iter(between.read_shards(tmp_path, "key.extra", rejected, lambda a: None))
-    first = next(listing)  # the folder is listed; then another process merges one away
+    first = next(listing)
+    with np.load(gone) as data:  # merged with the one read: a shard of another name
+        merged = {n: np.concatenate([first[n], data[n]]) for n in ("thetas", "plans")}
+    between.write_shard(tmp_path, "key.extra", merged)
     gone.unlink()
-    assert len([first, *listing]) == 2 and rejected == []
+    read = [first, *listing]
+    assert len(read) == 3 and rejected == []
+    found = {t.tobytes() for a in read for t in a["thetas"]}
+    assert found == {t.tobytes() for t in thetas}
 
 
 def test_distinct_tells_thetas_apart_by_their_bytes():
@@ -200,3 +208,27 @@ def test_distinct_tells_thetas_apart_by_their_bytes():
     kept, kept_plans = between.distinct(thetas, plans)
     assert kept.tobytes() == thetas[[0, 1, 3]].tobytes()
     assert np.array_equal(kept_plans, plans[[0, 1, 3]])
+
+
+def _load_known(root: str, out) -> None:
+    known = BetweenNodes(PlanShards(Path(root)), 3, 2).known(b"E", "key")
+    out.put(len(known))
+
+
+def test_processes_that_merge_the_same_shards_at_once_lose_no_plan(tmp_path):
+    """Four processes read (and so merge) the same 3 × COMPACT_AT shards at once: each finds
+    every plan, and so does a reader after them, from what is left on disk."""
+    import multiprocessing
+
+    thetas, plans = _shards(tmp_path, 3 * between.COMPACT_AT)
+    context = multiprocessing.get_context("fork")
+    out = context.Queue()
+    workers = [context.Process(target=_load_known, args=(str(tmp_path), out)) for _ in range(4)]
+    for worker in workers:
+        worker.start()
+    for worker in workers:
+        worker.join(30)
+        assert worker.exitcode == 0
+    assert sorted(out.get() for _ in workers) == [len(thetas)] * 4
+    _assert_known(tmp_path, thetas, plans)
+    assert len(list(tmp_path.glob("key.extra-*.npz"))) < between.COMPACT_AT

@@ -58,25 +58,33 @@ def read_shards(
     marked as used (and its path appended to ``read``); one whose bytes do not match its
     name's checksum, that lacks an array or that ``check`` refuses (ValueError) is appended
     to ``rejected`` as (name, why) and skipped. One gone since the folder was listed was
-    merged into another by a process that read it (:meth:`PlanShards.load`), and is skipped
-    without a word."""
-    for path in sorted(root.glob(f"{prefix}-*.npz")):
-        try:
-            digest = path.name[len(prefix) + 1 : -len(".npz")]
-            if hashlib.sha256(path.read_bytes()).hexdigest()[:16] != digest:
-                raise ValueError("its data does not match its checksum (truncated or changed)")
-            with np.load(path) as data:
-                arrays = {name: data[name] for name in data.files}
-            check(arrays)
-        except FileNotFoundError:
-            continue
-        except (OSError, ValueError, KeyError) as exc:
-            rejected.append((path.name, str(exc).splitlines()[0]))
-            continue
-        mark_used(path)
-        if read is not None:
-            read.append(path)
-        yield arrays
+    merged into another by a process that read it (:meth:`PlanShards.load`), which wrote the
+    merged shard first: the folder is listed again and the shards not yet read are read."""
+    seen: set[str] = set()
+    gone = True
+    while gone:
+        gone = False
+        for path in sorted(root.glob(f"{prefix}-*.npz")):
+            if path.name in seen:
+                continue
+            seen.add(path.name)
+            try:
+                digest = path.name[len(prefix) + 1 : -len(".npz")]
+                if hashlib.sha256(path.read_bytes()).hexdigest()[:16] != digest:
+                    raise ValueError("its data does not match its checksum (truncated or changed)")
+                with np.load(path) as data:
+                    arrays = {name: data[name] for name in data.files}
+                check(arrays)
+            except FileNotFoundError:
+                gone = True
+                continue
+            except (OSError, ValueError, KeyError) as exc:
+                rejected.append((path.name, str(exc).splitlines()[0]))
+                continue
+            mark_used(path)
+            if read is not None:
+                read.append(path)
+            yield arrays
 
 
 class PlanShards:
