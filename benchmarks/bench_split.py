@@ -6,9 +6,9 @@ before the clock starts. For each learner: CPU seconds a run, of which the regre
 plans of θ̂ᵗ in every environment, after each correction) and the learner's own update, the
 planner solves a run, and what the study's own runs of it would cost at that rate (its
 ``runs`` runs, one for a learner whose run is deterministic). Apart, the command's fixed part:
-the person's plans (the shared plans every run is measured against). What a run costs does
-not depend on how many workers share the runs, so the table says where a study's CPU goes,
-not its wall time.
+the plans every run shares (the person's, which every run is measured against, and the
+prior's). What a run costs does not depend on how many workers share the runs, so the table
+says where a study's CPU goes, not its wall time.
 """
 
 from __future__ import annotations
@@ -68,15 +68,6 @@ def measure(figure: str, overrides: dict) -> tuple[dict, float, dict]:
 
         return wrapper
 
-    def run_one(settings_, shared, learner, run, *args, **kwargs):
-        current.append(learner)
-        try:
-            return timed(original["run_one"], "run")(
-                settings_, shared, learner, run, *args, **kwargs
-            )
-        finally:
-            current.pop()
-
     fixed = [0.0]
 
     def prepare_timed(*args, **kwargs):
@@ -93,6 +84,15 @@ def measure(figure: str, overrides: dict) -> tuple[dict, float, dict]:
         "step": correction.step,
         "solve": planner_module.Planner.solve,
     }
+    timed_run = timed(original["run_one"], "run")
+
+    def run_one(settings_, shared, learner, run, *args, **kwargs):
+        current.append(learner)
+        try:
+            return timed_run(settings_, shared, learner, run, *args, **kwargs)
+        finally:
+            current.pop()
+
     try:
         runner.prepare = prepare_timed
         runner.run_one = run_one
@@ -114,10 +114,10 @@ def run_bench(figure: str, runs: int, overrides: dict, learners: Sequence[str] |
     chosen = {**overrides, "runs": runs}
     if learners:
         chosen["learners"] = list(learners)
-    tally, person, study_runs = measure(figure, chosen)
+    tally, shared, study_runs = measure(figure, chosen)
     lines = [
         f"{figure}, up to {runs} run(s) of each learner, one thread, CPU seconds; the plans "
-        f"every run shares (the person's, the prior's; once a command): {person:.1f} s",
+        f"every run shares (the person's, the prior's; once a command): {shared:.1f} s",
         "",
         "| learner | runs | a run | regret metric | update | other | solves a run "
         "| the study's runs | at this rate |",
@@ -136,5 +136,5 @@ def run_bench(figure: str, runs: int, overrides: dict, learners: Sequence[str] |
             f"| {name} | {n} | {each:.2f} | {regret:.2f} | {update:.2f} | {other:.2f} "
             f"| {solves:.0f} | {study} | {each * study:.0f} s |"
         )
-    lines.append(f"| all | | | | | | | | {total:.0f} s (+ {person:.0f} s the shared plans) |")
+    lines.append(f"| all | | | | | | | | {total:.0f} s (+ {shared:.0f} s the shared plans) |")
     return lines

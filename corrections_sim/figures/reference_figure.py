@@ -134,13 +134,16 @@ def judge_run(job: ReferenceJob, run: int, exchange=None, handed=None) -> list[d
     return records
 
 
-def grid_check(job: ReferenceJob, first: list[dict]) -> tuple[int, int, float, float]:
+def grid_check(job: ReferenceJob, first: list[dict], handed=None) -> tuple[int, int, float, float]:
     """How much the first run's reference (its records ``first``) moves on the halved grid:
     points per axis before and after, the largest move of a mean in its sd and of a
-    variance, relative."""
+    variance, relative; ``handed`` as :func:`judge_run`'s."""
     from corrections_sim.planning.planner import shared_planner
+    from corrections_sim.plans import spread
 
     settings, fine = job.settings, job.grid.halved()
+    if handed is not None:
+        spread.receive(settings.atlas_spec(), handed)
     planner = shared_planner(settings.planner_config())
     rows = job.rows[min(job.rows)]
     finer = judge.reference_run(
@@ -293,7 +296,8 @@ class ReferenceFigure:
         todo = [run for run in job.rows if run not in by_run]
         # The atlases built first, one task an environment (else each run builds what it
         # meets, two workers the same at once); a cluster's workers are handed them.
-        handed = spread.ready(spec, job.settings.envs(), executor) if todo else None
+        needs_atlas = todo or job.check_grid
+        handed = spread.ready(spec, job.settings.envs(), executor) if needs_atlas else None
         exchange = spread.exchange_for(spec, executor)  # plans between nodes, shared
         futures = {executor.submit(judge_run, job, run, exchange, handed): run for run in todo}
         for future in as_completed(futures):
@@ -309,7 +313,7 @@ class ReferenceFigure:
         moved = None
         if job.check_grid:
             first = min(by_run)
-            moved = executor.submit(grid_check, job, by_run[first]).result()
+            moved = executor.submit(grid_check, job, by_run[first], handed).result()
         return judged(job, by_run, moved)
 
     def write(self, settings: ReferenceSettings, result: judge.Judged, folder: Path) -> dict:
