@@ -130,3 +130,62 @@ def test_bad_feature_names_raise(names):
 def test_wrong_trajectory_shape_raises():
     with pytest.raises(ValueError, match="trajectory"):
         feature_counts(np.zeros((3, 6)), np.zeros(n_env_params()), ALL)
+
+
+@pytest.mark.parametrize("names", [ALL, ("coffee", "laptop"), ("table",)])
+def test_compiled_waypoint_features_are_casadis_own_to_the_bit(rng, names):
+    """The compiled loop (what every learner's features of many plans go through) and
+    CasADi's evaluation of the same function give the same doubles, laid out alike (so the
+    sums over waypoints agree to the bit too)."""
+    from corrections_sim.planning.features import _mapped
+
+    names = check_feature_names(names)
+    lo, hi = robot.joint_limits()
+    for _ in range(3):
+        e = _random_env_params(rng)
+        q = np.concatenate(
+            [
+                rng.uniform(lo, hi, size=(200, robot.N_ARM_JOINTS)),
+                [
+                    configuration_at(p)
+                    for p in rng.uniform([0.4, -0.3, 0.05], [0.6, 0.3, 0.3], (50, 3))
+                ],
+            ]
+        )
+        compiled = waypoint_features(q, e, names)
+        casadi = np.asarray(_mapped(names, n_env_params(), len(q))(q.T, e)).T
+        assert compiled.shape == casadi.shape == (len(q), len(names))
+        assert np.array_equal(compiled, casadi)
+        if len(names) > 1:  # weight-major, as CasADi's; one column is contiguous either way
+            assert compiled.strides == casadi.strides
+        assert np.array_equal(compiled.sum(axis=0), casadi.sum(axis=0))
+        assert np.array_equal(waypoint_features(q[:1], e, names), casadi[:1])
+
+
+def test_the_compiled_loop_refuses_rows_of_the_wrong_size():
+    from corrections_sim.planning.features import _rows
+
+    rows = _rows(ALL, n_env_params())
+    assert rows is not None
+    with pytest.raises(ValueError, match=r"expected rows \(n, 7\)"):
+        rows(np.zeros((3, 6)), np.zeros(n_env_params()))
+    with pytest.raises(ValueError, match="parameters"):
+        rows(np.zeros((3, 7)), np.zeros(n_env_params() + 1))
+
+
+def test_a_cache_that_cannot_hold_the_library_leaves_the_features_to_casadi(
+    tmp_path, monkeypatch, rng
+):
+    """Where the compiled loop cannot be built (here the cache's path runs through a file),
+    one warning says so and CasADi gives the same numbers."""
+    from corrections_sim.planning.features import _rows
+
+    blocked = tmp_path / "a-file"
+    blocked.write_text("")
+    monkeypatch.setenv("CORRECTIONS_SIM_CACHE", str(blocked / "cache"))
+    with pytest.warns(RuntimeWarning, match="not compiled"):
+        assert _rows.__wrapped__(ALL, n_env_params()) is None
+    lo, hi = robot.joint_limits()
+    q, e = rng.uniform(lo, hi, size=(5, robot.N_ARM_JOINTS)), _random_env_params(rng)
+    per_waypoint = np.array([_phi(one, e) for one in q])
+    assert np.array_equal(waypoint_features(q, e, ALL), per_waypoint)

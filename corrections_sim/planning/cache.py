@@ -1,4 +1,4 @@
-"""What the machine's cache (:func:`~corrections_sim.planning.planner.cache_dir`) holds, when
+"""What the machine's cache (:func:`cache_dir`) holds, when
 each thing in it was last used, and pruning of what no run has used for a while.
 
 Every key the cache is read by covers the code and settings its content depends on, so a
@@ -6,8 +6,8 @@ change of code leaves the old files unread, never wrong; they stay until pruned.
 marks what it reads as used (:func:`mark_used`: the file's modification time), so an entry's
 last use is the newest modification time of its files. Kinds:
 
-- ``compiled``: a gcc-built library (the planner's NLP, Newton's loop, the clearance check),
-  ``<name>-<key>.so`` with its build lock;
+- ``compiled``: a gcc-built library (the planner's NLP, Newton's loop, the clearance check,
+  the features of many waypoints at once), ``<name>-<key>.so`` with its build lock;
 - ``atlas``: a plan atlas, ``atlas/<key>.npy`` and ``.json``;
 - ``between``: a shard of plans solved between an atlas's nodes, ``atlas/*.extra-*.npz``;
 - ``cells``: a shard of interpolation cells checked on an atlas, ``atlas/*.cells-*.npz``;
@@ -31,6 +31,12 @@ KINDS = ("compiled", "atlas", "between", "cells", "reference", "unfinished", "ot
 PRUNABLE = KINDS[:-1]
 
 _TEMPORARY = re.compile(r"tmp[\w-]*(\..*)?|.*\.tmp(\..*)?")
+
+
+def cache_dir() -> Path:
+    """Where compiled solvers live: ``$CORRECTIONS_SIM_CACHE`` or ``~/.cache/corrections_sim``."""
+    env = os.environ.get("CORRECTIONS_SIM_CACHE")
+    return Path(env) if env else Path.home() / ".cache" / "corrections_sim"
 
 
 def mark_used(*paths: Path) -> None:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import ctypes
 import fcntl
+import hashlib
 import os
 import subprocess
 import tempfile
@@ -20,6 +21,9 @@ import casadi as ca
 import numpy as np
 
 from corrections_sim.planning.cache import mark_used
+
+#: How gcc builds every library here.
+GCC_FLAGS = ("-O1", "-fPIC", "-shared")
 
 
 class Compiled:
@@ -114,8 +118,93 @@ def build_shared_library(sources: Path | list[Path], library: Path) -> None:
     sources = [sources] if isinstance(sources, Path) else sources
     tmp = sources[0].parent / library.name
     subprocess.run(
-        ["gcc", "-O1", "-fPIC", "-shared", *map(str, sources), "-o", str(tmp), "-lm"],
+        ["gcc", *GCC_FLAGS, *map(str, sources), "-o", str(tmp), "-lm"],
         check=True,
         capture_output=True,
     )
     os.replace(tmp, library)
+
+
+#: The C loop of :class:`Rows`: the function ``%(name)s`` at each of ``n`` rows of ``x``
+#: (``%(m)d`` doubles each), the parameters ``p`` the same for every row, each row's ``%(k)d``
+#: outputs written column by column (output j of row i at ``out[j * n + i]``).
+_ROWS_SOURCE = """\
+typedef long long int casadi_int;
+int %(name)s(const double** arg, double** res, casadi_int* iw, double* w, int mem);
+int %(name)s_rows(const double* x, const double* p, double* out, casadi_int n,
+              const double** arg, double** res, casadi_int* iw, double* w) {
+  double row[%(k)d];
+  for (casadi_int i = 0; i < n; ++i) {
+    arg[0] = x + %(m)d * i;
+    arg[1] = p;
+    res[0] = row;
+    if (%(name)s(arg, res, iw, w, 0)) return 1;
+    for (int j = 0; j < %(k)d; ++j) out[j * n + i] = row[j];
+  }
+  return 0;
+}
+"""
+
+
+class Rows:
+    """A CasADi function ``fn`` (x (m,), p (q,)) -> y (k,), all dense, compiled by gcc with a
+    C loop over many x: ``rows(xs (n, m), p)`` -> (k, n), column i ``fn``'s output at row i.
+    The generated C performs ``fn``'s operations in the order CasADi's own evaluation does,
+    so the answers are the same bits (tested); about ten times faster than ``fn.map(n)``.
+    The library is ``<root>/rows-<name>-<hash of its C source>.so``, built once per machine.
+    Each call has its own work arrays, so threads may share one."""
+
+    def __init__(self, fn: ca.Function, root: Path) -> None:
+        if fn.n_in() != 2 or fn.n_out() != 1:
+            raise ValueError(f"{fn.name()}: Rows compiles a function (x, p) -> y")
+        dense = [fn.sparsity_in(0), fn.sparsity_in(1), fn.sparsity_out(0)]
+        if not all(s.is_dense() and s.is_column() for s in dense):
+            raise ValueError(f"{fn.name()}: Rows compiles dense column inputs and output only")
+        self.name = fn.name()
+        self._m, self._q, self._k = fn.nnz_in(0), fn.nnz_in(1), fn.nnz_out(0)
+        with tempfile.TemporaryDirectory() as scratch:
+            generator = ca.CodeGenerator("generated.c", {"with_header": False})
+            generator.add(fn)
+            generator.generate(f"{scratch}{os.sep}")
+            generated = (Path(scratch) / "generated.c").read_bytes()
+        fields = {"name": self.name, "m": self._m, "k": self._k}
+        loop = (_ROWS_SOURCE % fields).encode()
+        key = hashlib.sha256(generated + b"\0" + loop + b"\0" + " ".join(GCC_FLAGS).encode())
+        library = Path(root) / f"rows-{self.name}-{key.hexdigest()[:20]}.so"
+
+        def build(path: Path) -> None:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            with tempfile.TemporaryDirectory(dir=path.parent) as scratch:
+                sources = [Path(scratch) / "generated.c", Path(scratch) / "rows.c"]
+                sources[0].write_bytes(generated)
+                sources[1].write_bytes(loop)
+                build_shared_library(sources, path)
+
+        build_once(library, build)
+        lib = ctypes.CDLL(str(library))
+        sizes = [ctypes.c_longlong() for _ in range(4)]
+        if getattr(lib, f"{self.name}_work")(*(ctypes.byref(s) for s in sizes)) != 0:
+            raise RuntimeError(f"{library}: the compiled function refused its work sizes")
+        self._work = [max(s.value, 2) for s in sizes]
+        call = getattr(lib, f"{self.name}_rows")
+        call.restype = ctypes.c_int
+        call.argtypes = [ctypes.c_void_p] * 3 + [ctypes.c_longlong] + [ctypes.c_void_p] * 4
+        self._lib, self._call, self.library = lib, call, library
+
+    def __call__(self, xs: np.ndarray, p: np.ndarray) -> np.ndarray:
+        xs = np.ascontiguousarray(xs, dtype=float)
+        p = np.ascontiguousarray(p, dtype=float)
+        if xs.ndim != 2 or xs.shape[1] != self._m or p.shape != (self._q,):
+            raise ValueError(
+                f"{self.name}: expected rows (n, {self._m}) and parameters ({self._q},), got "
+                f"{xs.shape} and {p.shape}"
+            )
+        n = len(xs)
+        out = np.empty((self._k, n))
+        n_arg, n_res, n_iw, n_w = self._work
+        arg, res = (ctypes.c_void_p * n_arg)(), (ctypes.c_void_p * n_res)()
+        iw, w = np.zeros(n_iw, dtype=np.int64), np.zeros(n_w)
+        data = (xs.ctypes.data, p.ctypes.data, out.ctypes.data)
+        if self._call(*data, n, arg, res, iw.ctypes.data, w.ctypes.data) != 0:
+            raise RuntimeError(f"{self.name}: the compiled evaluation failed")
+        return out

@@ -46,6 +46,7 @@ import casadi as ca
 import numpy as np
 
 from corrections_sim.planning import compiled
+from corrections_sim.planning.cache import cache_dir
 from corrections_sim.planning.clearance import CertifiedChecker
 from corrections_sim.planning.clearance import library_key as clearance_library_key
 from corrections_sim.planning.compiled import build_once, build_shared_library
@@ -276,12 +277,6 @@ def check_theta(theta, k: int) -> np.ndarray:
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"theta: all weights must be finite, got {arr.tolist()}")
     return arr
-
-
-def cache_dir() -> Path:
-    """Where compiled solvers live: ``$CORRECTIONS_SIM_CACHE`` or ``~/.cache/corrections_sim``."""
-    env = os.environ.get("CORRECTIONS_SIM_CACHE")
-    return Path(env) if env else Path.home() / ".cache" / "corrections_sim"
 
 
 #: The settings that shape the compiled functions (the others are solver options, given when
