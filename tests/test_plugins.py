@@ -102,6 +102,17 @@ def test_the_papers_learners_are_registered_in_the_figures_order():
     assert list(LEARNERS)[:9] == ["PP", "KF", "EKF", "AL", "PP-C", "KF-C", "AL-C", "KF-A", "BP"]
 
 
+def test_no_two_registered_learners_are_drawn_alike():
+    """A figure tells its learners apart by colour and line style: no two share both (EX-M
+    was drawn as AL was, red and solid)."""
+    drawn: dict[tuple, str] = {}
+    for name, cls in LEARNERS.items():
+        if cls.style is None:  # a plug-in without one (a test's): the next free colour
+            continue
+        assert cls.style not in drawn, f"{name} is drawn as {drawn.get(cls.style)} is"
+        drawn[cls.style] = name
+
+
 @pytest.mark.parametrize("name", list(LEARNERS))
 def test_every_learner_describes_itself_and_owns_its_parameters(name):
     cls = LEARNERS[name]

@@ -48,7 +48,7 @@ def headline(root: Path) -> str:
     """Fig. 4's learners after the last correction: error, regret and mean NEES, with the
     band a calibrated mean NEES lies in (95%), for the learners the README discusses."""
     summary = _summary(root, "fig4")
-    names = ["PP", "KF", "KF-C", "KF-CL", "KF-CI", "PF-C", "EX-C", "EX-CL"]
+    names = ["PP", "KF", "KF-C", "KF-CL", "KF-CI", "PF-C", "EX-C", "EX-CL", "EX-M"]
     final, calib = summary["final"], summary["calibration"]
     (n_runs,) = {final[n]["runs"] for n in names}
     iterations = summary["settings"]["iterations"]
