@@ -213,7 +213,7 @@ class ExactPersonModel(Learner):
     """
 
     label = "Exact posterior over θ, N and how the person corrects (EX-M)"
-    style = ("#000000", "-")  # black and solid: no other learner's, AL's red was
+    style = ("#000000", "-")  # black and solid, as no other learner (it was drawn as AL)
     needs_atlas = True  # its grids are the study's plan atlas
 
     models: tuple[CorrectionModel, ...] = components.nested_many(CORRECTIONS, DEFAULT_MODELS)
