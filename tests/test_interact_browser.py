@@ -145,6 +145,7 @@ def test_a_drag_into_the_table_is_refused_with_the_reason_and_not_logged(
 
 def test_a_second_tab_is_told_the_server_is_busy_and_garbage_is_refused(playwright_browser, served):
     import websockets.sync.client as ws
+    from websockets.exceptions import ConnectionClosed
 
     session, page, url, _ = served
     first = drive.open_page(playwright_browser, url)
@@ -153,10 +154,15 @@ def test_a_second_tab_is_told_the_server_is_busy_and_garbage_is_refused(playwrig
         second.goto(url)
         second.get_by_text("The server is busy").wait_for(timeout=60_000)
         assert page.owner is not None
-        # Malformed messages on the websocket: the server drops them and goes on serving.
-        with ws.connect(url.replace("http", "ws"), subprotocols=["viser-v1.1.1"]) as sock:
-            sock.send(b"\x00\x01 not msgpack")
-            sock.send("{not json")
+        # Malformed messages on the websocket: the server may drop the message or close that
+        # one connection (viser closes it with 1011, sooner or later: a race), and goes on
+        # serving everyone else. Each on a connection of its own, so the race cannot decide.
+        for garbage in (b"\x00\x01 not msgpack", "{not json"):
+            with ws.connect(url.replace("http", "ws"), subprotocols=["viser-v1.1.1"]) as sock:
+                try:
+                    sock.send(garbage)
+                except ConnectionClosed:
+                    pass
         with urllib.request.urlopen(url, timeout=30) as answer:
             assert answer.status == 200
         assert session.proposal() is not None
