@@ -7,6 +7,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from corrections_sim.figures import quotes
@@ -111,6 +112,36 @@ def test_a_value_quote_formats_the_files_number():
     assert quotes.value(ROOT, "fig4", "calibration.KF.mean_nees.-1", ".3g") == format(
         summary["calibration"]["KF"]["mean_nees"][-1], ".3g"
     )
+
+
+def test_a_pooled_pair_is_the_mean_of_each_study_s_paired_difference(tmp_path):
+    """Two studies of the same person (one of them in two folders): the paired difference at
+    the last correction in each, their mean, and 1.96 · √(Σ SE²) / m either side."""
+    import csv
+
+    def study(folder, rows):
+        (tmp_path / "results" / folder).mkdir(parents=True)
+        with open(tmp_path / "results" / folder / "curves.csv", "w", newline="") as f:
+            out = csv.writer(f)
+            out.writerow(["user", "learner", "run", "iteration", "estimate_error"])
+            for learner, values in rows.items():
+                for run, value in enumerate(values):
+                    out.writerow(["p q", learner, run, 0, 9.0])  # not the last correction
+                    out.writerow(["p q", learner, run, 2, value])
+
+    study("one", {"A": [1.0, 2.0, 4.0], "B": [0.0, 0.0, 0.0]})  # differences 1, 2, 4
+    study("two", {"A": [1.0, 1.0]})
+    study("two_more", {"B": [2.0, 4.0]})  # differences −1, −3
+    said = quotes.pooled_pair(tmp_path, "one,two+two_more", "A/B", "p_q", "estimate_error", "3")
+    mean = (7 / 3 + -2.0) / 2
+    se2 = np.var([1, 2, 4], ddof=1) / 3 + np.var([-1, -3], ddof=1) / 2
+    low, high = mean - 1.96 * np.sqrt(se2) / 2, mean + 1.96 * np.sqrt(se2) / 2
+    assert said == f"{mean:+.3f} [{low:.3f}, {high:.3f}]".replace("-", "−")
+    study("uneven", {"A": [1.0, 2.0], "B": [1.0]})
+    with pytest.raises(KeyError, match="do not share"):
+        quotes.pooled_pair(tmp_path, "one,uneven", "A/B", "p_q", "estimate_error")
+    with pytest.raises(KeyError, match="no B"):
+        quotes.pooled_pair(tmp_path, "one,two", "A/B", "p_q", "estimate_error")
 
 
 def _anchors(page: Path) -> set[str]:

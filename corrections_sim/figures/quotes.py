@@ -231,6 +231,43 @@ def aggregate(root: Path, table: str, where: str, column: str, stat: str, spec: 
     return format(reduce(values), spec)
 
 
+def _final_by_run(root: Path, folders: str, user: str, learner: str, metric: str) -> dict:
+    """{run: ``metric`` at the last correction} of ``learner`` for ``user`` in the first of
+    ``folders`` (figure folders under ``results/`` joined by ``+``) whose ``curves.csv`` has it."""
+    for folder in folders.split("+"):
+        with open(root / "results" / folder / "curves.csv", newline="") as f:
+            rows = [r for r in csv.DictReader(f) if r["user"] == user and r["learner"] == learner]
+        if rows:
+            last = max(int(r["iteration"]) for r in rows)
+            return {int(r["run"]): float(r[metric]) for r in rows if int(r["iteration"]) == last}
+    raise KeyError(f"no {learner} for {user!r} in {folders}")
+
+
+def pooled_pair(
+    root: Path, studies: str, names: str, user: str, metric: str, digits: str = "3"
+) -> str:
+    """The mean over ``studies`` (the same people in independent studies, e.g. at other θ*:
+    comma-separated, each one or more figure folders joined by ``+``) of the paired difference
+    a − b (``names``: ``a/b``) of ``metric`` at the last correction for one ``user`` (``_`` for
+    spaces), paired by run within each study, with a 95% interval: mean ± 1.96 · √(Σ SEᵢ²) / m
+    over the m studies (the studies are independent; each SEᵢ over its runs)."""
+    a, b = names.split("/")
+    user = user.replace("_", " ")
+    means, variances = [], []
+    for study in studies.split(","):
+        first = _final_by_run(root, study, user, a, metric)
+        second = _final_by_run(root, study, user, b, metric)
+        if sorted(first) != sorted(second) or len(first) < 2:
+            raise KeyError(f"{a} and {b} do not share two or more runs in {study}")
+        d = [first[r] - second[r] for r in sorted(first)]
+        mean = sum(d) / len(d)
+        means.append(mean)
+        variances.append(sum((x - mean) ** 2 for x in d) / (len(d) - 1) / len(d))
+    mean = sum(means) / len(means)
+    half = 1.96 * sum(variances) ** 0.5 / len(means)
+    return _difference({"mean": mean, "ci95": (mean - half, mean + half)}, int(digits))
+
+
 def _table(make: Callable[..., list[str]]) -> Callable[..., str]:
     def quote(root: Path, figure: str, *args: str) -> str:
         return "\n".join(make(_summary(root, figure), *args))
@@ -248,6 +285,7 @@ QUOTES: dict[str, Callable[..., str]] = {
     "final": final,
     "pair": pair,
     "user-pair": user_pair,
+    "pooled-pair": pooled_pair,
     "cell": cell,
     "find": find,
     "theta": final_theta,
