@@ -4,6 +4,7 @@ from the code, the presets and the examples leads somewhere."""
 
 from __future__ import annotations
 
+import csv
 import re
 from pathlib import Path
 
@@ -117,7 +118,6 @@ def test_a_value_quote_formats_the_files_number():
 def test_a_pooled_pair_is_the_mean_of_each_study_s_paired_difference(tmp_path):
     """Two studies of the same person (one of them in two folders): the paired difference at
     the last correction in each, their mean, and 1.96 · √(Σ SE²) / m either side."""
-    import csv
 
     def study(folder, rows):
         (tmp_path / "results" / folder).mkdir(parents=True)

@@ -23,6 +23,7 @@ runs the check, so a page and its file cannot disagree unnoticed.
 from __future__ import annotations
 
 import csv
+import functools
 import json
 import re
 from collections.abc import Callable
@@ -231,15 +232,31 @@ def aggregate(root: Path, table: str, where: str, column: str, stat: str, spec: 
     return format(reduce(values), spec)
 
 
+@functools.lru_cache(maxsize=32)
+def _last_rows(path: str, stamp: tuple[int, int]) -> dict[tuple[str, str], dict[int, dict]]:
+    """{(user, learner): {run: row}} at each pair's last correction, of the ``curves.csv`` at
+    ``path``; read once per version of the file (``stamp``: its mtime and size)."""
+    last: dict[tuple[str, str], dict[int, dict]] = {}
+    at: dict[tuple[str, str], int] = {}
+    with open(path, newline="") as f:
+        for r in csv.DictReader(f):
+            key, t = (r["user"], r["learner"]), int(r["iteration"])
+            if t > at.get(key, -1):
+                at[key], last[key] = t, {}
+            if t == at[key]:
+                last[key][int(r["run"])] = r
+    return last
+
+
 def _final_by_run(root: Path, folders: str, user: str, learner: str, metric: str) -> dict:
     """{run: ``metric`` at the last correction} of ``learner`` for ``user`` in the first of
     ``folders`` (figure folders under ``results/`` joined by ``+``) whose ``curves.csv`` has it."""
     for folder in folders.split("+"):
-        with open(root / "results" / folder / "curves.csv", newline="") as f:
-            rows = [r for r in csv.DictReader(f) if r["user"] == user and r["learner"] == learner]
+        path = root / "results" / folder / "curves.csv"
+        info = path.stat()
+        rows = _last_rows(str(path), (info.st_mtime_ns, info.st_size)).get((user, learner))
         if rows:
-            last = max(int(r["iteration"]) for r in rows)
-            return {int(r["run"]): float(r[metric]) for r in rows if int(r["iteration"]) == last}
+            return {run: float(r[metric]) for run, r in rows.items()}
     raise KeyError(f"no {learner} for {user!r} in {folders}")
 
 
