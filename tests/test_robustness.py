@@ -80,6 +80,33 @@ def test_bad_overrides_are_refused_by_name(overrides, match):
         robustness.load_settings(quick=True, overrides=overrides)
 
 
+def test_a_column_is_set_by_index_or_label_and_a_study_theta_never_skips_one_silently():
+    def load(*items, **options):
+        return robustness.load_settings(
+            quick=True, overrides={**options, "set": list(items)}, figure="relevance"
+        )
+
+    moved = load(
+        "columns.1.theta_star=[2.0, -2.0, -3.0]",
+        "columns.minds only the person.theta_star=[0.0, 0.0, -4.0]",
+        theta_star=(2.0, -2.0),
+    )
+    persons = {c.label: c.settings.study.user_theta for c in moved.columns}
+    assert persons["also minds the person"] == pytest.approx([2.0, -2.0, -3.0])
+    assert persons["minds only the person"] == pytest.approx([0.0, 0.0, -4.0])
+    assert moved.columns[0].settings.study.theta_star == (2.0, -2.0)  # the study-wide θ*
+    assert moved.columns[2].settings.study.theta_star == (2.0, -2.0)
+    # Without the two columns' own θ*, the study-wide one would leave them at the file's.
+    with pytest.raises(ValueError, match=r"theta_star: column 1 \(also minds the person\)"):
+        load(theta_star=(2.0, -2.0))
+    with pytest.raises(ValueError, match=r"theta_star: column 3 "):
+        load("columns.1.theta_star=[2.0, -2.0, -2.0]", "theta_star=[2.0, -2.0]")
+    with pytest.raises(ValueError, match=r"--set columns\.9\.theta_star=\[1\]: expected"):
+        load("columns.9.theta_star=[1]")
+    with pytest.raises(ValueError, match=r"columns\[1\] \(also minds the person\): theta_star"):
+        load("columns.1.theta_star=[1.0, 2.0]")
+
+
 def test_the_summary_is_strict_json(quick):
     _, folder = quick
 

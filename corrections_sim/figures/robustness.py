@@ -93,6 +93,10 @@ def load_settings(
         )
     if "user" in values:
         raise ValueError(f"user: {figure}'s columns are its users; give each [[columns]] its user")
+    columns, shared = _column_overrides(
+        columns, given.get("set") or (), figure, study_theta="theta_star" in given
+    )
+    given = {**given, "set": shared} if "set" in given else given
     values = schema.apply_overrides(values, given)
     out, labels = [], set()
     for i, column in enumerate(columns):
@@ -116,6 +120,61 @@ def load_settings(
             raise ValueError(f"columns[{i}] ({label}): {exc}") from None
         out.append(Column(label=label, settings=settings))
     return RobustnessSettings(columns=tuple(out))
+
+
+def _column_overrides(
+    columns: list, items: Sequence[str], figure: str, *, study_theta: bool
+) -> tuple[list, list[str]]:
+    """The file's columns with ``--set columns.C.KEY=VALUE`` applied (C a column's index from
+    0 or its label) and the ``--set`` items left for every column. A study-wide θ*
+    (``--theta-star``, ``--set theta_star=…``) does not reach a column that sets its own (a
+    person who also weighs what the robot lacks): such a column's θ* must then be given too,
+    or the command refuses, rather than run that person at the file's θ* unannounced.
+
+    Raises:
+        ValueError: an unknown column, a malformed item, or a column whose own θ* a
+            study-wide θ* would silently leave as it is.
+    """
+    columns = [dict(c) if isinstance(c, dict) else c for c in columns]
+    shared, touched = [], set()
+    for item in items:
+        path, sep, text = item.partition("=")
+        head, _, rest = path.strip().partition(".")
+        if head != "columns":
+            shared.append(item)
+            continue
+        which, _, key = rest.partition(".")
+        index = next(
+            (
+                i
+                for i, c in enumerate(columns)
+                if isinstance(c, dict) and (which == str(i) or which == c.get("label"))
+            ),
+            None,
+        )
+        if index is None or not sep or not key:
+            raise ValueError(
+                f"--set {item}: expected columns.C.KEY=VALUE with C one of {figure}'s columns "
+                f"(0 to {len(columns) - 1}, or a label), e.g. columns.1.theta_star=[2, -2, -2]"
+            )
+        files.set_path(columns[index], key, files.parse_value(text.strip()))
+        touched.add((index, key))
+    study_theta = study_theta or any(
+        item.partition("=")[0].strip().partition(".")[0] == "theta_star" for item in shared
+    )
+    for i, column in enumerate(columns):
+        if (
+            study_theta
+            and isinstance(column, dict)
+            and "theta_star" in column
+            and (i, "theta_star") not in touched
+        ):
+            raise ValueError(
+                f"theta_star: column {i} ({column.get('label')}) sets its own θ* "
+                f"{column['theta_star']}, which a study-wide θ* does not change; give it too, "
+                f"e.g. --set columns.{i}.theta_star=[...]"
+            )
+    return columns, shared
 
 
 def run(
