@@ -14,10 +14,13 @@ import numpy as np
 import pytest
 
 from corrections_sim.figures.presets import EXPERIMENTS_DIR
+from corrections_sim.planning.planner import shared_planner, smoothness_cost
+from corrections_sim.plans.book import PlanBook
 from corrections_sim.session.log import StudyError, StudyLog
+from corrections_sim.study import schema
 from corrections_sim.userstudy import statistics
 from corrections_sim.userstudy.cohort import open_run, power_table, simulate_cohort
-from corrections_sim.userstudy.participant import StudyRun, simulate_participant
+from corrections_sim.userstudy.participant import StudyRun, experienced, simulate_participant
 from corrections_sim.userstudy.protocol import (
     TLX_SCALES,
     balance,
@@ -310,6 +313,24 @@ def test_a_log_of_one_protocol_refuses_another(short, tmp_path):
         open_run(other, db)
 
 
+def test_a_trial_s_regret_is_the_planner_s_full_objective_never_below_zero(tmp_path):
+    # A robot that shows the plan of 3 θ* buys more of θ*'s features than θ*'s own plan with a
+    # less smooth path: θ*·Φ alone calls that negative regret (the committed pilot had a trial
+    # at -0.49); under θ*·Φ − λS, what the planner maximizes for the person, it costs them.
+    settings = schema.load_study(write_study(tmp_path), name="fig4-small", quick=False)
+    book = PlanBook(shared_planner(settings.planner_config()), atlas=settings.atlas())
+    lam = book.planner.config.smoothness
+    theta = np.array([1.0, -1.0])
+    env = settings.envs()[0]
+    star, robot = book.plan(theta, env), book.plan(3 * theta, env)
+    row = {"env_index": 0, "phi_robot": robot.features, "xi_robot": robot.trajectory}
+    felt = experienced(settings, [{**row, "theta_after": theta}], theta)
+    assert theta @ (star.features - robot.features) < -1.0  # θ*·Φ's regret
+    full = star.reward - (theta @ robot.features - lam * smoothness_cost(robot.trajectory))
+    assert felt["regret"] == pytest.approx(full, abs=1e-9) and full > 1.0
+    assert felt["error"] == 0.0
+
+
 def test_a_cohort_analysed_says_it_is_simulated_and_leaves_out_the_withdrawn(short, tmp_path):
     db = tmp_path / "study.sqlite"
     run = open_run(short, db)
@@ -324,6 +345,7 @@ def test_a_cohort_analysed_says_it_is_simulated_and_leaves_out_the_withdrawn(sho
         theirs = tidy(shard)["trials"]
         assert [t["final_error"] for t in mine] == [t["final_error"] for t in theirs]
         assert [t["mean_regret"] for t in mine] == [t["mean_regret"] for t in theirs]
+        assert min(t["mean_regret"] for t in tidy(log)["trials"]) >= 0.0
     other.log.close()
     out = tmp_path / "analysis"
     paths = analyze(db, out)

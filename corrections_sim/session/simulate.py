@@ -28,8 +28,11 @@ def simulate(session: Session, user: User, theta_star, corrections: int) -> list
     theta_star = np.asarray(theta_star, dtype=float)
     session.state(theta_star)
     rng = np.random.default_rng(np.random.SeedSequence([session.seed, 22]))
-    # The user's plans stay out of the session's history, over the study's features.
-    own = PlanBook(shared_planner(session.settings.planner_config()))
+    # The user's plans stay out of the session's history, over the study's features; with
+    # the study's plan atlas they are the atlas's (global) plans, as the robot's are, so no
+    # person is held to a local optimum of a book the robot's plans beat (negative regret).
+    settings = session.settings
+    own = PlanBook(shared_planner(settings.planner_config()), atlas=settings.atlas())
     rows = []
     while len(rows) < corrections:
         pending = session.proposal()

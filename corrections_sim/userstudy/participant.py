@@ -40,8 +40,9 @@ from typing import Any
 
 import numpy as np
 
+from corrections_sim.metrics import regret_terms
 from corrections_sim.people.users import make_user
-from corrections_sim.planning.planner import PlanningError, shared_planner
+from corrections_sim.planning.planner import PlanningError, shared_planner, smoothness_cost
 from corrections_sim.plans.book import PlanBook
 from corrections_sim.session.log import StudyError, StudyLog, check_participant, now
 from corrections_sim.session.session import Session, physical_learner
@@ -531,18 +532,31 @@ def _user(spec):
 
 def experienced(settings: FigureSettings, rows: list[dict], theta_star: np.ndarray) -> dict:
     """What a participant with preference ``theta_star`` experienced in a trial (its logged
-    ``rows``): the mean regret θ*·(Φ* − Φᵗ) of the plans shown (Φ* of their own optimal plan
-    in each environment) and the final error ‖θ̂ − θ*‖₁ / ‖θ*‖₁."""
-    book = PlanBook(shared_planner(settings.planner_config()))
+    ``rows``): the mean regret of the plans shown under the planner's full objective, as the
+    studies' ``regret`` (:mod:`corrections_sim.metrics`): R*(ξ) = θ*·Φ(ξ, E) − λ·S(ξ), regret
+    R*(ξ*) − R*(ξᵗ) ≥ 0 with ξ* their own optimal plan in each environment (from the study's
+    plan atlas when it has one, as the robot's plans are). θ*·Φ alone goes below zero
+    wherever the robot's plan buys θ*'s features with a less smooth path. Also the final
+    error ‖θ̂ − θ*‖₁ / ‖θ*‖₁."""
+    book = PlanBook(shared_planner(settings.planner_config()), atlas=settings.atlas())
+    lam = book.planner.config.smoothness
     envs = settings.envs()
     regrets = []
     for row in rows:
         env = envs[int(row["env_index"])]
         try:
-            best = book.plan(theta_star, env).features
+            best = book.plan(theta_star, env)
         except PlanningError:
             continue
-        regrets.append(float(theta_star @ (best - np.asarray(row["phi_robot"]))))
+        full, _ = regret_terms(
+            theta_star,
+            best.features,
+            smoothness_cost(best.trajectory),
+            np.asarray(row["phi_robot"]),
+            smoothness_cost(np.asarray(row["xi_robot"])),
+            lam,
+        )
+        regrets.append(full)
     theta = rows[-1]["theta_after"] if rows else np.zeros_like(theta_star)
     scale = max(float(np.sum(np.abs(theta_star))), 1e-12)
     error = float(np.sum(np.abs(np.asarray(theta) - theta_star)) / scale)
