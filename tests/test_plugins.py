@@ -119,6 +119,8 @@ def test_every_learner_describes_itself_and_owns_its_parameters(name):
     assert issubclass(cls, Learner) and dataclasses.is_dataclass(cls)
     assert cls.label and cls.style is not None
     assert cls.rate_from is None or cls.rate_from in LEARNERS
+    if cls.__module__.startswith("corrections_sim."):  # its own question, not its parent's
+        assert "question" in vars(cls) and cls.question.endswith("?"), name
     learner = make_learner(name)
     assert isinstance(learner, cls)
     # Its parameters as data build the same learner again (what summary.json records).

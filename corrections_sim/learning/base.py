@@ -148,9 +148,13 @@ class Learner(abc.ABC):
             its runs go after that learner's, and ``ctx.alphas`` holds the rate.
         needs_atlas: it reads the study's plan atlas (``ctx.book.atlas``; an exact learner
             on its grid), so a study without one refuses it.
+        question: the one question a study answers by running it, in a sentence ending in
+            "?" (the study-file reference lists it beside the learner); every built-in
+            learner states its own, a plug-in's may.
     """
 
     label: ClassVar[str] = ""
+    question: ClassVar[str] = ""
     style: ClassVar[tuple[str, str] | None] = None
     stream: ClassVar[int] = 0
     active: ClassVar[bool] = False

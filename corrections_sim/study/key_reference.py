@@ -77,7 +77,10 @@ def reference_markdown() -> str:
                 )
                 or "none"
             )
-            lines.append(f"| `{where.format(name=name)}` | {params} | {_first_line(cls)} |")
+            what = _first_line(cls)
+            if getattr(cls, "question", ""):
+                what += f" *Answers:* {cls.question}"
+            lines.append(f"| `{where.format(name=name)}` | {params} | {what} |")
     lines += [
         "",
         "### Keys of older study files",

@@ -38,6 +38,10 @@ class BoltzmannPosterior(Learner):
     """
 
     label = "Boltzmann preference posterior (BP)"
+    question = (
+        "How well does a learner do that needs no plans at all: the correction preferred to "
+        "the robot's plan, Boltzmann-rational with its rationality integrated out?"
+    )
     style = ("#8c564b", ":")
 
     beta_min: float = 0.3

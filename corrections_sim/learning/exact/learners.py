@@ -57,6 +57,10 @@ class ExactCorrectionAware(CorrectionAwareKalman):
     """
 
     label = "Exact posterior, KF-C's model (EX-C)"
+    question = (
+        "What does KF-C's model give when computed exactly, the reference that KF-C, KF-CI "
+        "and PF-C, its approximations, are judged against?"
+    )
     style = ("#393b79", "-")
     needs_atlas = True  # its grid is the study's plan atlas
 
@@ -279,6 +283,10 @@ class ExactCorrectionAwareLearntNoise(ExactCorrectionAware):
     """EX-C with N integrated out under KF-CL's prior (``noise = "learnt"``)."""
 
     label = "Exact posterior, KF-CL's model (EX-CL)"
+    question = (
+        "What does KF-CL's model give when computed exactly (N integrated out), the "
+        "reference KF-CL is judged against, and how much does exactness gain over the filters?"
+    )
     style = ("#5254a3", ":")
 
     noise: str = "learnt"

@@ -55,6 +55,10 @@ class ActiveLearning(ActiveMixin, UnscentedKalman):
     """KF with environments chosen by eq. (A1)."""
 
     label = "Active learning (AL)"
+    question = (
+        "The paper's active learning: does choosing the environment that minimizes the "
+        "predicted covariance (eq. (A1)) learn faster than random environments?"
+    )
     style = ("#d62728", "-")
 
 
@@ -63,6 +67,10 @@ class CorrectionAwareActive(ActiveMixin, CorrectionAwareKalman):
     """KF-C with environments chosen by eq. (A1)."""
 
     label = "Correction-aware AL (AL-C)"
+    question = (
+        "Does the paper's active learning still help once the filter models how the person "
+        "corrects?"
+    )
     style = ("#d62728", "--")
 
 
@@ -71,4 +79,5 @@ class CorrectionAwareActiveLearntNoise(ActiveMixin, CorrectionAwareKalmanLearntN
     """AL-C that learns the person's observation noise N: environments by eq. (A1) with N̂."""
 
     label = "AL-C, N learnt (AL-CL)"
+    question = "Does active learning help a filter that also learns how noisy the person is?"
     style = ("#ff7f0e", "--")

@@ -36,6 +36,9 @@ class AttenuatedKalman(Learner):
     """
 
     label = "Attenuated-correction KF (KF-A)"
+    question = (
+        "Can a filter learn what fraction of the way to their plan the person moves the robot?"
+    )
     style = ("#9467bd", "-.")
 
     attenuation_min: float = 0.05

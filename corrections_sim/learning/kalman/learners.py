@@ -68,6 +68,10 @@ class UnscentedKalman(Learner):
     """
 
     label = "Kalman filter (KF)"
+    question = (
+        "The paper's question: does a learner that tracks its uncertainty (a UKF reading a "
+        "correction's features as Φ(ξ*) plus noise) learn faster than PP?"
+    )
     style = ("#1f77b4", "-")
 
     noise: str = "fixed"
@@ -159,6 +163,10 @@ class ExtendedKalman(Learner):
     """
 
     label = "Extended Kalman filter (EKF)"
+    question = (
+        "Does the unscented transform matter, or does a linearization of the planner (central "
+        "differences) learn as well?"
+    )
     style = ("#2ca02c", "-")
 
     step: float = 0.05
@@ -201,6 +209,10 @@ class CorrectionAwareKalman(UnscentedKalman):
     """
 
     label = "Correction-aware KF (KF-C)"
+    question = (
+        "Does modelling how the person corrects (the worst waypoint moved toward their plan) "
+        "remove the bias of the paper's KF?"
+    )
     style = ("#1f77b4", "--")
 
     model: CorrectionModel = components.nested(CORRECTIONS, WaypointCorrection())
@@ -221,6 +233,10 @@ class CorrectionAwareKalmanLearntNoise(CorrectionAwareKalman):
     """KF-C that learns the person's observation noise N (``noise = "learnt"``)."""
 
     label = "KF-C, N learnt (KF-CL)"
+    question = (
+        "Does learning how noisy the person is (N) make a correction-aware filter's "
+        "confidence honest?"
+    )
     style = ("#17becf", "--")
 
     noise: str = "learnt"
@@ -232,6 +248,10 @@ class IteratedCorrectionAwareKalman(CorrectionAwareKalman):
     it settles (IPLF, ``iterate = "each"``)."""
 
     label = "KF-C, iterated (KF-CI)"
+    question = (
+        "Does linearizing each correction again around the posterior it gives (an iterated "
+        "filter) close KF-C's gap to its exact posterior?"
+    )
     style = ("#9467bd", "--")
 
     iterate: str = "each"

@@ -60,6 +60,10 @@ class ParticleCorrectionAware(CorrectionAwareKalman):
     """
 
     label = "Particle filter, KF-C's model (PF-C)"
+    question = (
+        "Does a particle posterior under KF-C's model, its likelihood read off the plan "
+        "atlas, reach the exact posterior at a filter's price?"
+    )
     style = ("#bcbd22", "--")
 
     particles: int = 200
@@ -188,6 +192,9 @@ class ParticleActive(ActiveMixin, ParticleCorrectionAware):
     own predicted posterior would cost a plan per particle per environment)."""
 
     label = "AL on PF-C's belief (AL-PF)"
+    question = (
+        "Does active learning help when the belief it predicts from is the particle posterior?"
+    )
     style = ("#ff7f0e", ":")
 
 

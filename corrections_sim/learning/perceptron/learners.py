@@ -26,6 +26,10 @@ class Perceptron(Learner):
     """
 
     label = "Preference Perceptron (PP)"
+    question = (
+        "The paper's baseline: how far does a learner get that keeps no uncertainty (a step "
+        "toward the correction's features at the rate KF's gains give)?"
+    )
     style = ("#7f7f7f", "-")
     has_covariance = False
     rate_from = "KF"
@@ -54,6 +58,9 @@ class PerceptronFromCorrectionAware(Perceptron):
     """PP with αᵗ from KF-C's gains."""
 
     label = "PP, α from KF-C's gains (PP-C)"
+    question = (
+        "Is it the covariance or the step size that helps: PP stepping at KF-C's Kalman gains?"
+    )
     style = ("#7f7f7f", "--")
     rate_from = "KF-C"
 
@@ -66,6 +73,10 @@ class OneFeaturePerceptron(Perceptron):
     changes are compared as they are."""
 
     label = "One feature at a time (PP-MAX)"
+    question = (
+        "FERL's MAX baseline: does a perceptron that steps on one feature a correction (the "
+        "one it changed most) drift less?"
+    )
     style = ("#7f7f7f", ":")
 
     def update(

@@ -48,6 +48,10 @@ class ExpandingRelevanceKalman(PersonRelevanceKalman):
     """
 
     label = "KF-CRP with feature expansion (KF-CRX)"
+    question = (
+        "When most corrections are unexplained, can the robot ask for feature traces, learn "
+        "the feature it lacks (FERL) and go on learning with it?"
+    )
     style = ("#17becf", "-")
 
     expand_traces: int = 10

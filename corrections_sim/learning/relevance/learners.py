@@ -75,6 +75,10 @@ class RelevanceAwareKalman(_RelevanceAware, CorrectionAwareKalman):
     """
 
     label = "Relevance-aware KF-C (KF-CR)"
+    question = (
+        "Can a filter tell, one correction at a time, whether a correction is about what it "
+        "can represent (β̂, Bobu et al. 2018), and learn only from those?"
+    )
     style = ("#e377c2", "--")
 
     relevance_prior: float = 0.5
@@ -121,6 +125,11 @@ class PersonRelevanceKalman(CorrectionAwareKalman):
     """
 
     label = "Person-level relevance KF-C (KF-CRP)"
+    question = (
+        "Judged across a person's corrections (one belief over how often and how precisely "
+        "they correct relevantly), does relevance keep a person who minds only what the robot "
+        "lacks from moving it?"
+    )
     style = ("#d62728", "-.")
 
     relevance_prior: float = 0.5
@@ -245,6 +254,10 @@ class RelevanceAwarePerceptron(_RelevanceAware, Perceptron):
     """
 
     label = "Relevance-aware PP (PP-R)"
+    question = (
+        "FERL's BETA baseline: does scaling the perceptron's step by β̂ keep it from drifting "
+        "under corrections it cannot explain?"
+    )
     style = ("#bcbd22", "-")
 
     model: CorrectionModel = components.nested(CORRECTIONS, WaypointCorrection())
