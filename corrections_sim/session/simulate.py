@@ -29,8 +29,7 @@ def simulate(session: Session, user: User, theta_star, corrections: int) -> list
     session.state(theta_star)
     rng = np.random.default_rng(np.random.SeedSequence([session.seed, 22]))
     # The user's plans stay out of the session's history, over the study's features; with
-    # the study's plan atlas they are the atlas's (global) plans, as the robot's are, so no
-    # person is held to a local optimum of a book the robot's plans beat (negative regret).
+    # the study's plan atlas they are the atlas's, as the robot's are (a function of (θ, E)).
     settings = session.settings
     own = PlanBook(shared_planner(settings.planner_config()), atlas=settings.atlas())
     rows = []

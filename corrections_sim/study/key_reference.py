@@ -78,7 +78,7 @@ def reference_markdown() -> str:
                 or "none"
             )
             what = _first_line(cls)
-            if getattr(cls, "question", ""):
+            if vars(cls).get("question"):  # its own, not a parent's
                 what += f" *Answers:* {cls.question}"
             lines.append(f"| `{where.format(name=name)}` | {params} | {what} |")
     lines += [

@@ -448,9 +448,9 @@ class Participant:
         felt = []
         for step, sid in self.trial_sessions(condition):
             if sid not in self._felt:
-                logged = self.log.events(sid, "experienced")
-                if logged:
-                    self._felt[sid] = logged[-1]["detail"]
+                logged = logged_experience(self.log.events(sid, "experienced"))
+                if logged is not None:
+                    self._felt[sid] = logged
                 else:
                     settings = self.run.settings_of[step.condition]
                     rows = self.log.corrections(sid)
@@ -530,6 +530,19 @@ def _user(spec):
     return make_user(spec["name"], {k: v for k, v in spec.items() if k != "name"})
 
 
+#: What a logged ``experienced`` event's regret measures: events without it (logged before
+#: the regret was the planner's full objective, 2026-11-30, θ*·Φ alone) are not read but
+#: computed again, so a resumed pool or an old log never mixes the two.
+REGRET_MEASURE = "full objective"
+
+
+def logged_experience(events: list[dict]) -> dict | None:
+    """The last of a trial's ``experienced`` events whose regret is today's measure
+    (:data:`REGRET_MEASURE`), or None."""
+    kept = [e["detail"] for e in events if e["detail"].get("measure") == REGRET_MEASURE]
+    return kept[-1] if kept else None
+
+
 def experienced(settings: FigureSettings, rows: list[dict], theta_star: np.ndarray) -> dict:
     """What a participant with preference ``theta_star`` experienced in a trial (its logged
     ``rows``): the mean regret of the plans shown under the planner's full objective, as the
@@ -560,7 +573,8 @@ def experienced(settings: FigureSettings, rows: list[dict], theta_star: np.ndarr
     theta = rows[-1]["theta_after"] if rows else np.zeros_like(theta_star)
     scale = max(float(np.sum(np.abs(theta_star))), 1e-12)
     error = float(np.sum(np.abs(np.asarray(theta) - theta_star)) / scale)
-    return {"regret": float(np.mean(regrets)) if regrets else float("nan"), "error": error}
+    regret = float(np.mean(regrets)) if regrets else float("nan")
+    return {"regret": regret, "error": error, "measure": REGRET_MEASURE}
 
 
 def simulated_answers(

@@ -39,7 +39,7 @@ import numpy as np
 from corrections_sim.session.log import StudyLog
 from corrections_sim.session.session import settings_from_log
 from corrections_sim.userstudy import statistics
-from corrections_sim.userstudy.participant import experienced
+from corrections_sim.userstudy.participant import experienced, logged_experience
 from corrections_sim.userstudy.plots import plot
 from corrections_sim.userstudy.protocol import OUTCOMES, TLX_SCALES, Protocol, parse_protocol
 from corrections_sim.userstudy.typed import as_typed
@@ -159,9 +159,9 @@ def tidy(log: StudyLog, *, regret: bool = True) -> dict:
                 "mean_regret": math.nan,
                 "seconds": float(np.mean([c["seconds"] for c in logged])) if logged else math.nan,
             }
-            felt = log.events(sid, "experienced")
-            if felt:  # a simulated participant's, computed when they answered
-                trial["mean_regret"] = float(felt[-1]["detail"]["regret"])
+            felt = logged_experience(log.events(sid, "experienced"))
+            if felt is not None:  # a simulated participant's, computed when they answered
+                trial["mean_regret"] = float(felt["regret"])
             elif regret and reference is not None and logged:
                 settings = settings_from_log(session.settings)
                 trial["mean_regret"] = experienced(settings, logged, reference)["regret"]
