@@ -250,6 +250,49 @@ def test_the_scale_mixture_is_the_integral_over_n():
     assert weights[0, 0] > 0.99 and weights[1, 0] < 0.01  # small residuals: small N, not large
 
 
+def test_a_grid_keeps_its_noise_marginals_and_a_grid_made_from_it_reuses_them(monkeypatch):
+    """The log-determinants and noise marginals are kept with a grid: a grid made from it
+    (made_from: some scatters changed, nodes appended) computes determinants only at the
+    nodes whose scatter changed or that are new, and every value is the same bits as a grid
+    computed afresh; a pickled grid leaves them behind."""
+    import pickle
+
+    from corrections_sim.learning.exact.mixture import DEFAULT_NOISE_SCALES, ScaledNoiseExact
+    from corrections_sim.learning.exact.state import GridPosterior
+    from corrections_sim.learning.kalman.state import NoisePosterior
+
+    rng = np.random.default_rng(4)
+    prior = NoisePosterior.around(0.25 * np.eye(2), 4.0)
+    part = ScaledNoiseExact(
+        model=make_learner("KF-C").model, noise="learnt", noise_scales=DEFAULT_NOISE_SCALES
+    )
+    r = rng.normal(size=(9, 2))
+    scatter = np.einsum("ni,nj->nij", r, r)
+    thetas = rng.normal(size=(9, 2))
+    parent = GridPosterior(thetas, np.zeros(9), scatter, count=1)
+    first = part._noise_log_marginal(parent, prior)
+    assert part._noise_log_marginal(parent, prior) is first  # kept, not computed again
+
+    changed = scatter.copy()
+    changed[[2, 5]] += np.einsum("ni,nj->nij", r[:2], r[:2])
+    grown = np.concatenate([changed, scatter[:3]])
+    new_thetas = np.concatenate([thetas, rng.normal(size=(3, 2))])
+    computed = []
+    slogdet = np.linalg.slogdet
+    monkeypatch.setattr(np.linalg, "slogdet", lambda a: computed.append(len(a)) or slogdet(a))
+    child = GridPosterior(new_thetas, np.zeros(12), grown, count=2).made_from(parent)
+    reused = part._noise_log_marginal(child, prior)
+    assert computed == [5] * len(DEFAULT_NOISE_SCALES)  # nodes 2 and 5, and the 3 new ones
+    afresh = GridPosterior(new_thetas, np.zeros(12), grown, count=2)
+    np.testing.assert_array_equal(reused, part._noise_log_marginal(afresh, prior))
+    np.testing.assert_array_equal(part._noise_means(child, prior), part._noise_means(afresh, prior))
+    assert not reused.flags.writeable
+
+    thawed = pickle.loads(pickle.dumps(child))
+    assert "_memo" not in vars(thawed) and "_parent" not in vars(thawed)
+    np.testing.assert_array_equal(part._noise_log_marginal(thawed, prior), reused)
+
+
 def test_an_exact_learner_refuses_a_noise_prior_without_a_mean():
     from corrections_sim.belief import Belief, KalmanNoise
     from corrections_sim.components import ParameterError

@@ -150,7 +150,14 @@ def _by_theta(thetas: np.ndarray, plans: np.ndarray) -> Iterator[tuple[bytes, np
     values: list[np.ndarray | None] = list(plans)
     for i in np.flatnonzero(~np.isfinite(plans).all(axis=(1, 2))).tolist():
         values[i] = None
-    return zip([theta.tobytes() for theta in thetas], values, strict=True)
+    return zip(row_keys(thetas), values, strict=True)
+
+
+def row_keys(thetas: np.ndarray) -> list[bytes]:
+    """``θ.tobytes()`` of each row of ``thetas`` (n, k), the key a plan between nodes is kept
+    under, in one array step (a row's bytes, read as one opaque item)."""
+    rows = np.ascontiguousarray(thetas, dtype=float)
+    return rows.view(np.dtype((np.void, rows.shape[1] * rows.itemsize))).ravel().tolist()
 
 
 class BetweenNodes:

@@ -170,7 +170,8 @@ class ExactCorrectionAware(CorrectionAwareKalman):
         self._weighed_at(log_d, scatter, at, z, h, noise)
         known = grid.counts()
         known[at] = grid.count + 1
-        return GridPosterior(grid.thetas, log_d, scatter, grid.count + 1, grid.cells, known)
+        after = GridPosterior(grid.thetas, log_d, scatter, grid.count + 1, grid.cells, known)
+        return after.made_from(grid)
 
     def _settled(
         self,
@@ -194,7 +195,8 @@ class ExactCorrectionAware(CorrectionAwareKalman):
                 h = self.observation().at_plans(plans, seen.robot, seen.env, ctx.features)
                 self._weighed_at(log_d, scatter, at, seen.phi_h, h, seen.noise)
             known[need] = grid.count
-            grid = GridPosterior(grid.thetas, log_d, scatter, grid.count, grid.cells, known)
+            settled = GridPosterior(grid.thetas, log_d, scatter, grid.count, grid.cells, known)
+            grid = settled.made_from(grid)
         return grid
 
     def _refined(
@@ -216,7 +218,8 @@ class ExactCorrectionAware(CorrectionAwareKalman):
                 scatter = np.concatenate([grid.scatter, scatter])
             log_d = np.concatenate([grid.log_density, log_d])
             known = np.concatenate([grid.counts(), np.full(len(new), grid.count)])
-            grid = GridPosterior(cells.thetas(), log_d, scatter, grid.count, cells, known)
+            finer = GridPosterior(cells.thetas(), log_d, scatter, grid.count, cells, known)
+            grid = finer.made_from(grid)
         return grid
 
     def _fresh(self, history: tuple, ctx: LearnerContext, thetas: np.ndarray):
@@ -269,8 +272,10 @@ class ExactCorrectionAware(CorrectionAwareKalman):
 
     def _noise_log_marginal(self, grid: GridPosterior, prior: NoisePosterior) -> np.ndarray:
         """log p(r₁…rₜ | θ) at every node with N integrated out under IW(ν₀, V₀), up to the
-        constants that are the same at every node (:func:`iw_log_marginal`)."""
-        return iw_log_marginal(grid, prior)
+        constants that are the same at every node (:func:`iw_log_marginal`), kept with the
+        grid (:meth:`GridPosterior.memo`)."""
+        key = ("noise_log_marginal", (1.0,), prior.scale.tobytes(), prior.dof)
+        return grid.memo(key, lambda: iw_log_marginal(grid, prior))
 
     def _noise_means(self, grid: GridPosterior, prior: NoisePosterior) -> np.ndarray:
         """E[N | θ, corrections] = (V₀ + Σ r rᵀ) / (ν₀ + t − k − 1) at every node."""
@@ -309,11 +314,46 @@ def iw_log_marginal(grid: GridPosterior, prior: NoisePosterior, scale: float = 1
     c = ``scale``, up to the constants that are the same at every node and every c:
     (kν₀/2) log c − (ν₀ + t)/2 log|c V₀ + Σ r rᵀ| (an upper bound where some rᵢ wait: the
     determinant only grows with them)."""
+    logdet = scatter_logdets(grid, prior, (scale,))[:, 0]
+    return iw_log_term(grid, prior, scale, logdet)
+
+
+def iw_log_term(
+    grid: GridPosterior, prior: NoisePosterior, scale: float, logdet: np.ndarray
+) -> np.ndarray:
+    """:func:`iw_log_marginal` from the log-determinants ``logdet`` (n,) of c V₀ + Σ r rᵀ."""
     k = grid.thetas.shape[1]
-    sign, logdet = np.linalg.slogdet(scale * prior.scale[None, :, :] + grid.scatter)
-    if np.any(sign <= 0):
-        raise ValueError("EX-CL: c V0 + sum r r^T must stay positive definite")
     return 0.5 * k * prior.dof * np.log(scale) - 0.5 * (prior.dof + grid.count) * logdet
+
+
+def scatter_logdets(
+    grid: GridPosterior, prior: NoisePosterior, scales: tuple[float, ...]
+) -> np.ndarray:
+    """log|c V₀ + Σ r rᵀ| at every node of ``grid`` for each c of ``scales`` (n, C), kept with
+    the grid. A node whose scatter is the one it had in the grid this one was made from
+    (:meth:`GridPosterior.made_from`) takes that grid's value: a node's determinant depends
+    on its own matrix alone, so the bits are those of computing it again, and an update
+    computes it only where a correction was weighed or a node is new."""
+    key = ("scatter_logdets", tuple(scales), prior.scale.tobytes())
+
+    def make() -> np.ndarray:
+        scatter = grid.scatter
+        out = np.empty((len(scatter), len(scales)))
+        todo = np.ones(len(scatter), bool)
+        if (parent := grid.parent_memo(key)) is not None:
+            old, values = parent
+            same = np.all(scatter[: len(old)] == old, axis=(1, 2))
+            out[: len(old)][same] = values[same]
+            todo[: len(old)] = ~same
+        if todo.any():
+            for j, c in enumerate(scales):
+                sign, logdet = np.linalg.slogdet(c * prior.scale[None, :, :] + scatter[todo])
+                if np.any(sign <= 0):
+                    raise ValueError("EX-CL: c V0 + sum r r^T must stay positive definite")
+                out[todo, j] = logdet
+        return out
+
+    return grid.memo(key, make)
 
 
 def _moments(thetas: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

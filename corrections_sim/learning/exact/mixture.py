@@ -42,7 +42,8 @@ from corrections_sim.learning.base import Learner, LearnerContext, Likelihood, S
 from corrections_sim.learning.exact.learners import (
     ExactCorrectionAware,
     ExactStep,
-    iw_log_marginal,
+    iw_log_term,
+    scatter_logdets,
 )
 from corrections_sim.learning.exact.relevance import DEFAULT_CONCENTRATIONS, RelevantExact
 from corrections_sim.learning.exact.state import ExactState
@@ -115,12 +116,20 @@ class ScaledNoiseExact(ExactCorrectionAware):
     noise_scales: tuple[float, ...] = (1.0,)
 
     def _log_marginals(self, grid, prior) -> np.ndarray:
-        """log π_c p(r₁…rₜ | θ, c) at every node and scale (n, C), up to the shared constants."""
-        out = np.stack([iw_log_marginal(grid, prior, c) for c in self.noise_scales], axis=1)
-        return out - np.log(len(self.noise_scales))
+        """log π_c p(r₁…rₜ | θ, c) at every node and scale (n, C), up to the shared constants;
+        kept with the grid (:meth:`GridPosterior.memo`)."""
+        scales = self.noise_scales
+
+        def make() -> np.ndarray:
+            logdets = scatter_logdets(grid, prior, scales)
+            terms = [iw_log_term(grid, prior, c, logdets[:, j]) for j, c in enumerate(scales)]
+            return np.stack(terms, axis=1) - np.log(len(scales))
+
+        return grid.memo(("log_marginals", scales, prior.scale.tobytes(), prior.dof), make)
 
     def _noise_log_marginal(self, grid, prior) -> np.ndarray:
-        return logsumexp(self._log_marginals(grid, prior), axis=1)
+        key = ("noise_log_marginal", self.noise_scales, prior.scale.tobytes(), prior.dof)
+        return grid.memo(key, lambda: logsumexp(self._log_marginals(grid, prior), axis=1))
 
     def _noise_means(self, grid, prior) -> np.ndarray:
         """E[N | θ, corrections] = Σ_c p(c | θ, corrections) (c V₀ + Σ r rᵀ) / (ν₀ + t − k − 1)."""

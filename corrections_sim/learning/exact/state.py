@@ -4,6 +4,7 @@ weighs again at a new node and, for EX-CL, N's prior (:class:`ExactState`). Plai
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -85,6 +86,35 @@ class GridPosterior:
             raise ValueError(
                 f"GridPosterior.cells: {len(self.cells.coords)} nodes for {thetas.shape[0]} θ"
             )
+
+    def memo(self, key, make: Callable[[], np.ndarray]) -> np.ndarray:
+        """``make()``, a read-only value that depends on this grid alone (and on ``key``, which
+        names it with whatever else it depends on), computed once and kept with the grid: a
+        grid is never changed, so its log-determinants and noise marginals, asked for several
+        times by an update and again by the next, are the same bits each time. Not pickled."""
+        cache = self.__dict__.setdefault("_memo", {})
+        if key not in cache:
+            cache[key] = frozen(make())
+        return cache[key]
+
+    def made_from(self, parent: GridPosterior) -> GridPosterior:
+        """This grid, noted as made from ``parent`` (the same first nodes, some of them with
+        a new scatter, new nodes after them): a memo may take ``parent``'s values at the nodes
+        whose scatter is unchanged (:meth:`parent_memo`). Returns this grid."""
+        self.__dict__["_parent"] = (parent.scatter, parent.__dict__.get("_memo", {}))
+        return self
+
+    def parent_memo(self, key) -> tuple[np.ndarray, np.ndarray] | None:
+        """(the scatter, the memo under ``key``) of the grid this one was made from
+        (:meth:`made_from`), or None: not made from one, or that one never computed it."""
+        scatter, memo = self.__dict__.get("_parent", (None, {}))
+        return None if key not in memo else (scatter, memo[key])
+
+    def __getstate__(self) -> dict:
+        state = dict(self.__dict__)
+        state.pop("_memo", None)
+        state.pop("_parent", None)
+        return state
 
     def counts(self) -> np.ndarray:
         """How many corrections each node holds (n,) (:attr:`known`, or ``count`` for all)."""
