@@ -67,7 +67,7 @@ TINY: dict[str, list[str]] = {
     "interact": ["--corrections", "1", "--learners", "KF-C", *SMALL],
     "warm": ["--problems", "2", "--iterations", "2"],
     "physical": ["--problems", "1"],
-    "relevance": ["--problems", "1", "--learners", "KF-C"],
+    "relevance": ["--problems", "1", "--learners", "KF-C", *SMALL],
     "learnt": ["--problems", "2"],
     "confidence": ["--problems", "1", "--learners", "KF-CI", "--iterations", "2", *SMALL],
     "study": ["--problems", "1", *SMALL],
@@ -455,7 +455,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         "--grid",
         type=int,
         help="atlas: points a weight (default 31); confidence, exact, particles, fig4, interact, "
-        "study: "
+        "study, relevance: "
         "the study's plan atlas at N points a weight (default the study's own)",
     )
     parser.add_argument(
@@ -485,8 +485,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument(
         "--study-envs",
         type=int,
-        help="confidence, exact, particles, fig4, interact, study: the study's first N paper "
-        "environments (default: its own)",
+        help="confidence, exact, particles, fig4, interact, study, relevance: the study's "
+        "first N paper environments (default: its own)",
     )
     parser.add_argument(
         "--lazy",
@@ -844,7 +844,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         if runs < 1:
             parser.error("--problems: relevance takes the runs per person and learner, >= 1")
         names = tuple(n.strip() for n in (args.learners or "KF-C,KF-CR,KF-CRP").split(","))
-        print("\n".join(run_relevance(tuple(n for n in names if n), runs)))
+        print("\n".join(run_relevance(tuple(n for n in names if n), runs, smaller)))
         return
     if args.what == "physical":
         from benchmarks.bench_physical import run_bench as run_physical

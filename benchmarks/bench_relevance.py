@@ -16,8 +16,12 @@ from corrections_sim.figures import robustness
 from corrections_sim.study import runner
 
 
-def run_bench(learners: tuple[str, ...], runs: int) -> list[str]:
-    settings = robustness.load_settings(quick=False, overrides={"runs": runs}, figure="relevance")
+def run_bench(learners: tuple[str, ...], runs: int, smaller: dict | None = None) -> list[str]:
+    """The table for ``learners``, ``runs`` runs each; ``smaller``: overrides that shrink the
+    study (:mod:`benchmarks.sizes`: its plan atlas, which the study plans from, and its
+    environments; a fresh machine builds the atlas first)."""
+    overrides = {"runs": runs, **(smaller or {})}
+    settings = robustness.load_settings(quick=False, overrides=overrides, figure="relevance")
     lines = [
         f"relevance study, {runs} runs x {settings.columns[0].settings.study.iterations} "
         "corrections per person and learner, one process",
