@@ -287,6 +287,13 @@ def test_a_grid_keeps_its_noise_marginals_and_a_grid_made_from_it_reuses_them(mo
     np.testing.assert_array_equal(reused, part._noise_log_marginal(afresh, prior))
     np.testing.assert_array_equal(part._noise_means(child, prior), part._noise_means(afresh, prior))
     assert not reused.flags.writeable
+    # A parent whose values are kept only after the child was made from it is read as well.
+    late = GridPosterior(thetas, np.zeros(9), scatter, count=1)
+    after = GridPosterior(new_thetas, np.zeros(12), grown, count=2).made_from(late)
+    part._noise_log_marginal(late, prior)
+    computed.clear()
+    np.testing.assert_array_equal(part._noise_log_marginal(after, prior), reused)
+    assert computed == [5] * len(DEFAULT_NOISE_SCALES)
 
     thawed = pickle.loads(pickle.dumps(child))
     assert "_memo" not in vars(thawed) and "_parent" not in vars(thawed)

@@ -136,8 +136,7 @@ def distinct(thetas: np.ndarray, plans: np.ndarray) -> tuple[np.ndarray, np.ndar
     """Plans as stored (θ (n, k), trajectories (n, T, 7)) with each θ once (by its bytes,
     so 0.0 and −0.0 stay apart as a lookup tells them apart), first found first."""
     rows = np.ascontiguousarray(thetas, float)
-    keys = rows.view(np.dtype((np.void, rows.itemsize * rows.shape[1]))).ravel()
-    _, first = np.unique(keys, return_index=True)
+    _, first = np.unique(_row_items(rows), return_index=True)
     first.sort()
     return rows[first], plans[first]
 
@@ -155,9 +154,14 @@ def _by_theta(thetas: np.ndarray, plans: np.ndarray) -> Iterator[tuple[bytes, np
 
 def row_keys(thetas: np.ndarray) -> list[bytes]:
     """``θ.tobytes()`` of each row of ``thetas`` (n, k), the key a plan between nodes is kept
-    under, in one array step (a row's bytes, read as one opaque item)."""
+    under, in one array step."""
+    return _row_items(thetas).tolist()
+
+
+def _row_items(thetas: np.ndarray) -> np.ndarray:
+    """Each row of ``thetas`` (n, k) as one opaque item of its bytes (n,), as floats."""
     rows = np.ascontiguousarray(thetas, dtype=float)
-    return rows.view(np.dtype((np.void, rows.shape[1] * rows.itemsize))).ravel().tolist()
+    return rows.view(np.dtype((np.void, rows.shape[1] * rows.itemsize))).ravel()
 
 
 class BetweenNodes:

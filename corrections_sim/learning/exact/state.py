@@ -100,8 +100,9 @@ class GridPosterior:
     def made_from(self, parent: GridPosterior) -> GridPosterior:
         """This grid, noted as made from ``parent`` (the same first nodes, some of them with
         a new scatter, new nodes after them): a memo may take ``parent``'s values at the nodes
-        whose scatter is unchanged (:meth:`parent_memo`). Returns this grid."""
-        self.__dict__["_parent"] = (parent.scatter, parent.__dict__.get("_memo", {}))
+        whose scatter is unchanged (:meth:`parent_memo`), whether it kept them before or after
+        this call. Returns this grid."""
+        self.__dict__["_parent"] = (parent.scatter, parent.__dict__.setdefault("_memo", {}))
         return self
 
     def parent_memo(self, key) -> tuple[np.ndarray, np.ndarray] | None:
