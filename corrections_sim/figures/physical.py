@@ -134,7 +134,8 @@ def example(settings) -> dict:
         ),
     )
     agent = study.learners[names[0]]
-    book = PlanBook(planner, warm_start=study.warm_start)
+    # Planned as the study's runs plan: from its atlas when it has one (an exact learner needs it).
+    book = PlanBook(planner, warm_start=study.warm_start, atlas=figure.atlas())
     belief = agent.initial(study.prior(), study.noise())
     mine = book.plan(belief.theta, env)
     person = figure.person_target([env])
