@@ -330,3 +330,20 @@ def test_a_push_that_holds_the_arm_at_a_joint_limit_stays_finite_and_is_found(ta
     assert np.all(np.isfinite(deformed)) and np.all(np.isfinite(trace.q))
     assert np.all(np.isfinite(trace.tau_sensed[: len(trace.times) // 2]))
     assert np.all(np.isfinite(feature_counts(deformed, task.env, FEATURES)))
+
+
+def test_the_example_push_plans_from_the_atlas_as_the_runs_do():
+    """A study with an atlas and only an exact learner (which needs it): the example push
+    drawn beside the study plans from the study's atlas (it once planned from a book and
+    failed after every run had finished). A small atlas (7 points a weight, as
+    test_regression's exact check), the first environment only."""
+    from corrections_sim.figures import physical as figure
+
+    settings = figure.PhysicalFigure().load(
+        quick=True, overrides={"learners": ["EX-C"], "set": ["atlas={ points = 7 }"]}
+    )
+    out = figure.example(settings)
+    assert out["learner"] == "EX-C"
+    before, after = (np.asarray(theta) for theta in out["theta"])
+    assert np.all(np.isfinite(after)) and not np.allclose(before, after)
+    assert out["new_plan"] is not None and np.all(np.isfinite(out["new_plan"]))
