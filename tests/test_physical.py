@@ -347,3 +347,50 @@ def test_the_example_push_plans_from_the_atlas_as_the_runs_do():
     before, after = (np.asarray(theta) for theta in out["theta"])
     assert np.all(np.isfinite(after)) and not np.allclose(before, after)
     assert out["new_plan"] is not None and np.all(np.isfinite(out["new_plan"]))
+
+
+def test_the_physical_figure_keeps_its_legend_off_every_panel(monkeypatch, tmp_path):
+    """Five learners and two people (the committed study's size): the one legend sits below
+    the panels, covering none of them, and the recommended robot is drawn in black, as no
+    other learner is."""
+    from matplotlib.colors import to_hex
+
+    from corrections_sim.figures import physical as figure
+    from corrections_sim.figures import style
+
+    learners = ("PP", "KF", "KF-C", "KF-CL", "EX-M")
+    rng = np.random.default_rng(0)
+    curves = {
+        user: {
+            n: {key: rng.random((3, 13)) + 1.0 for key in ("estimate_error", "regret", "nees")}
+            for n in learners
+        }
+        for user in ("biased (kinematic)", "physical, online")
+    }
+    tasks = {
+        user: {
+            n: {
+                key: rng.random((3, 12)) if user.startswith("physical") else np.empty((0, 0))
+                for key in ("executed_regret", "executed_regret_kept")
+            }
+            for n in learners
+        }
+        for user in curves
+    }
+    seen = {}
+
+    def keep(fig, paths, dpi, rect=None):
+        fig.tight_layout(rect=rect)
+        fig.canvas.draw()
+        renderer = fig.canvas.get_renderer()
+        seen["legend"] = fig.legends[0].get_window_extent(renderer)
+        seen["axes"] = [ax.get_tightbbox(renderer) for ax in fig.axes]
+        seen["black"] = sum(to_hex(line.get_color()) == "#000000" for line in fig.axes[0].lines)
+        style.plt.close(fig)
+
+    monkeypatch.setattr(style, "save_and_close", keep)
+    figure.plot_physical(curves, tasks, 2, "test", [tmp_path / "p.png"])
+    legend = seen["legend"]
+    for box in seen["axes"]:
+        assert legend.y1 <= box.y0 or not legend.overlaps(box), (legend, box)
+    assert seen["black"] == 2  # EX-M's two people, in the error panel

@@ -248,8 +248,10 @@ def plot_physical(curves: dict, tasks: dict, k: int, title: str, paths) -> None:
         tasks: user label -> learner -> per-task column -> (runs, T).
         k: θ's dimension (NEES's calibrated mean).
     """
+    from matplotlib.lines import Line2D
+
     from corrections_sim.calibration import mean_band
-    from corrections_sim.figures.style import learner_label, plt, save_and_close
+    from corrections_sim.figures.style import learner_label, learner_style, plt, save_and_close
     from corrections_sim.metrics import mean_sem
 
     users = list(curves)
@@ -264,9 +266,12 @@ def plot_physical(curves: dict, tasks: dict, k: int, title: str, paths) -> None:
     ]
     learners = list(dict.fromkeys(n for u in users for n in curves[u]))
     # One colour per learner (learner_style gives KF-C KF's colour, dashed; here dashes mark
-    # the user).
-    palette = {n: plt.cm.tab10(i % 10) for i, n in enumerate(learners)}
-    fig, axes = plt.subplots(2, 2, figsize=(13, 8.6))
+    # the user); a learner drawn in black by its own style (the recommended robot) keeps it.
+    free = iter(plt.cm.tab10(i) for i in range(10))
+    palette = {
+        n: "#000000" if learner_style(n)[0] == "#000000" else next(free, "0.5") for n in learners
+    }
+    fig, axes = plt.subplots(2, 2, figsize=(13, 9.4))
     panels = (
         (axes[0, 0], "estimate_error", "estimate error ‖θ̂ − θ*‖₁"),
         (axes[0, 1], "regret", "regret of the next plans, Σ over environments"),
@@ -278,14 +283,11 @@ def plot_physical(curves: dict, tasks: dict, k: int, title: str, paths) -> None:
                 colour = palette[learner]
                 mean, sem = mean_sem(values[key])
                 x = np.arange(mean.size)
-                ax.plot(
-                    x, mean, dashes, color=colour, lw=1.8, label=f"{learner_label(learner)}, {user}"
-                )
+                ax.plot(x, mean, dashes, color=colour, lw=1.8)
                 ax.fill_between(x, mean - sem, mean + sem, color=colour, alpha=0.15, lw=0)
         ax.set_xlabel("corrections")
         ax.set_title(label, fontsize=10)
         ax.grid(alpha=0.3)
-    axes[0, 0].legend(fontsize=7, ncol=2, loc="upper right")
     ax = axes[1, 0]
     for user in physical:
         for learner, columns in tasks[user].items():
@@ -295,17 +297,16 @@ def plot_physical(curves: dict, tasks: dict, k: int, title: str, paths) -> None:
             mean, sem = mean_sem(online - kept)
             x = np.arange(1, mean.size + 1)
             colour = palette[learner]
-            ax.plot(x, mean, "-o", color=colour, lw=1.8, ms=3, label=learner_label(learner))
+            ax.plot(x, mean, "-o", color=colour, lw=1.8, ms=3)
             ax.fill_between(x, mean - sem, mean + sem, color=colour, alpha=0.15, lw=0)
     ax.axhline(0.0, color="0.3", lw=1)
     ax.set_xlabel("correction (task)")
     ax.set_title(
-        "regret of the executed motion: online replanning − plan kept (same push; < 0: "
-        "online helps)",
+        "regret of the motion the person got, a task: online replanning − plan kept\n"
+        "(the same push; below 0: replanning helps)",
         fontsize=10,
     )
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, ncol=2)
     ax = axes[1, 1]
     for user in users:
         dashes = "-" if user in physical else "--"
@@ -318,14 +319,26 @@ def plot_physical(curves: dict, tasks: dict, k: int, title: str, paths) -> None:
             ax.plot(np.arange(mean.size), mean, dashes, color=colour, lw=1.8)
         runs = next(iter(curves[user].values()))["nees"].shape[0]
     low, high = mean_band(k, runs)
-    ax.axhspan(low, high, color="0.6", alpha=0.25, lw=0, label="calibrated band (95%)")
+    band = ax.axhspan(low, high, color="0.6", alpha=0.25, lw=0)
     ax.set_yscale("log")
     ax.set_xlabel("corrections")
-    ax.set_title("mean NEES (solid: physical person, dashed: kinematic user)", fontsize=10)
+    ax.set_title(
+        "mean NEES (log): calibrated inside the grey band,\nover-confident above it, "
+        "under-confident below",
+        fontsize=10,
+    )
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    # One legend for the figure, below the panels: colours are learners, dashes are people.
+    handles = [Line2D([], [], color=palette[n], lw=2.2) for n in learners]
+    labels = [learner_label(n) for n in learners]
+    for user in users:
+        handles.append(Line2D([], [], color="0.3", lw=1.8, ls="-" if user in physical else "--"))
+        labels.append(f"{'solid' if user in physical else 'dashed'}: {user}")
+    handles.append(band)
+    labels.append(f"calibrated band of the mean NEES (95%, {runs} runs)")
+    fig.legend(handles, labels, loc="lower center", ncol=4, fontsize=8, frameon=False)
     fig.suptitle(title, fontsize=11)
-    save_and_close(fig, paths, dpi=110)
+    save_and_close(fig, paths, dpi=110, rect=(0, 0.07, 1, 1))
 
 
 def plot_push(example: dict, paths) -> None:

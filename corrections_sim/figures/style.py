@@ -30,10 +30,12 @@ def save_atomically(fig: plt.Figure, path: Path, **kwargs) -> Path:
     return path
 
 
-def save_and_close(fig: plt.Figure, paths, dpi: int) -> None:
-    """Lay out ``fig``, write it to every path (atomically) and free it, even on failure."""
+def save_and_close(fig: plt.Figure, paths, dpi: int, rect=None) -> None:
+    """Lay out ``fig`` (its axes within ``rect``, (left, bottom, right, top) in figure
+    fractions, if given: room for a figure legend), write it to every path (atomically) and
+    free it, even on failure."""
     try:
-        fig.tight_layout()
+        fig.tight_layout(rect=rect)
         for path in paths:
             save_atomically(fig, path, dpi=dpi)
     finally:
