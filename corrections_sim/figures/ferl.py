@@ -44,8 +44,9 @@ from corrections_sim.study.runner import FigureResult
 FIGURE = "ferl"
 #: A column is a person, and may give the robot other features and learners (the upper
 #: bound: a robot that knows the person's feature from the start), and plan without the
-#: study's atlas (``atlas = false``: the upper bound's features have none).
-COLUMN_KEYS = (*robustness.COLUMN_KEYS, "features", "learners", "atlas")
+#: study's atlas (``atlas = false``: the upper bound's features have none), its person then
+#: planned as the other columns' (``person_restarts``).
+COLUMN_KEYS = (*robustness.COLUMN_KEYS, "features", "learners", "atlas", "person_restarts")
 #: The quality sweep: traces per feature, the teacher's noise (relative to the study's
 #: teacher: none, as set, twice), seeds per cell; the quick preset's in brackets.
 TRACES, QUICK_TRACES = (1, 2, 5, 10, 20), (2, 10)

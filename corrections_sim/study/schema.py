@@ -123,6 +123,12 @@ STUDY_KEYS: dict[str, tuple[Any, str]] = {
         "or a table of width (the box θ̂⁰ ± width sd, 5), points (a weight, 31), cold_stride "
         "(cold starts on every n-th node, 10); false: each run's own plan book",
     ),
+    "person_restarts": (
+        None,
+        "random starts of the person's own plans ξ*(θ*, E), what regret is measured against, "
+        "beside the planner's cold starts (an integer >= 0; default 30 with an atlas, 0 "
+        "without)",
+    ),
     "online": (
         False,
         "learn during the motion: when a physical user's push ends, the learner updates and "
@@ -356,6 +362,11 @@ def parse_study(
         raise ValueError(f"online = {online!r}: expected true or false")
     teacher = _teacher(values.get("teacher", {}))
     atlas = _atlas(values.get("atlas"))
+    restarts = values.get("person_restarts")
+    if restarts is not None and (
+        isinstance(restarts, bool) or not isinstance(restarts, int) or not 0 <= restarts <= 1000
+    ):
+        raise ValueError(f"person_restarts = {restarts!r}: expected an integer from 0 to 1000")
     study = StudySettings(
         theta_star=theta_star,
         user_theta=person,
@@ -372,6 +383,7 @@ def parse_study(
         online=online,
         teacher=teacher,
         atlas=atlas,
+        person_restarts=restarts,
     )
     return FigureSettings(
         study=study,

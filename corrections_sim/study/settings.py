@@ -37,7 +37,8 @@ DEFAULT_LEARNERS = DEFAULTS["study"]
 #: far beyond a week on one machine, and refusing them up front beats running out of memory.
 MAX_COUNT = {"runs": 100_000, "iterations": 10_000}
 #: Random starts of the person's plans ξ*(θ*, E) in a study with a plan atlas, beside the
-#: planner's cold starts and the atlas's answer (issue 52: "≥ 30 starts").
+#: planner's cold starts and the atlas's answer (issue 52: "≥ 30 starts"); a study without one
+#: gives them none unless it sets ``person_restarts``.
 PERSON_RESTARTS = 30
 #: Records (learner × run × iteration) a study may hold in memory (≈ 2 kB each).
 MAX_RECORDS = 2_000_000
@@ -140,6 +141,10 @@ class StudySettings:
         atlas: plans from a plan atlas over the prior's box (:class:`AtlasSettings`): every
             plan a function of (θ, E) alone, and ``warm_start`` moot; None: each run's own
             plan book.
+        person_restarts: random starts of the person's own plans beside the planner's cold
+            starts (what regret is measured against); None: :data:`PERSON_RESTARTS` with an
+            atlas, none without (see :meth:`restarts`). A matrix whose columns plan with and
+            without an atlas sets it so that every column's person is planned alike.
     """
 
     theta_star: tuple[float, ...]
@@ -157,6 +162,14 @@ class StudySettings:
     user_theta: tuple[float, ...] = ()
     teacher: Teacher = field(default_factory=Teacher)
     atlas: AtlasSettings | None = None
+    person_restarts: int | None = None
+
+    def restarts(self) -> int:
+        """The random starts the person's own plans get (``person_restarts``, or its
+        default: :data:`PERSON_RESTARTS` with an atlas, none without)."""
+        if self.person_restarts is not None:
+            return self.person_restarts
+        return PERSON_RESTARTS if self.atlas is not None else 0
 
     def __post_init__(self) -> None:
         if not np.all(np.isfinite(np.asarray(self.user_theta, float))):
@@ -273,6 +286,12 @@ class StudySettings:
             **({"online": True} if self.online else {}),
             **({"teacher": asdict(self.teacher)} if self.teacher != Teacher() else {}),
             **({"atlas": asdict(self.atlas)} if self.atlas is not None else {}),
+            # Only where it differs from its default (the atlas's 30, else none): the same.
+            **(
+                {"person_restarts": self.restarts()}
+                if self.restarts() != (PERSON_RESTARTS if self.atlas is not None else 0)
+                else {}
+            ),
         }
 
 
@@ -358,14 +377,13 @@ class FigureSettings:
         them here, so a person with features of their own is planned alike everywhere."""
         planner = shared_planner(self.user_planner_config())
         envs = self.envs() if envs is None else envs
+        restarts = self.study.restarts()
         if self.study.atlas is None:
-            return Target.solve(planner, self.study.person(), envs)
+            return Target.solve(planner, self.study.person(), envs, restarts=restarts)
         # With an atlas, the person's plans get the atlas (when the person weighs the robot's
         # features) and the restarts a global answer needs.
         atlas = self.atlas() if planner.config == self.planner_config() else None
-        return Target.solve(
-            planner, self.study.person(), envs, atlas=atlas, restarts=PERSON_RESTARTS
-        )
+        return Target.solve(planner, self.study.person(), envs, atlas=atlas, restarts=restarts)
 
     def envs(self) -> tuple[Environment, ...]:
         """The study's environments (memoized per process)."""
