@@ -256,6 +256,9 @@ def _replace(text: str, old: str, new: str) -> str:
             ["planner solves", "environments"],
         ),
         (GOOD.replace("theta_star = [1.0, -1.0]\n", ""), ["theta_star", "missing"]),
+        (GOOD + "person_restarts = -1\n", ["person_restarts", "integer"]),
+        (GOOD + "person_restarts = 2.5\n", ["person_restarts", "integer"]),
+        (GOOD + "person_restarts = true\n", ["person_restarts", "integer"]),
     ],
 )
 def test_bad_study_files_are_one_line_naming_the_key_and_file(earlier, capsys, content, names):
@@ -439,3 +442,34 @@ def test_the_shipped_study_files_are_in_the_nested_spelling(name):
     with warnings.catch_warnings():
         warnings.simplefilter("error", OlderSpelling)
         note_older_spellings(values, str(path))
+
+
+def test_the_persons_restarts_default_with_the_atlas_and_enter_the_key_only_when_set(
+    monkeypatch,
+):
+    """``person_restarts``: 30 with an atlas, none without, unless set; the settings (and so a
+    run's key) name it only where it differs from that default, so studies that do not set
+    it keep their keys; set without an atlas, the person's plans get those restarts."""
+    from corrections_sim.study.settings import PERSON_RESTARTS
+
+    base = {"theta_star": [1.0, -1.0], "runs": 1, "iterations": 1, "learners": ["KF"]}
+    books = study_file.parse_study(dict(base))
+    atlas = study_file.parse_study({**base, "atlas": True})
+    assert books.study.restarts() == 0 and atlas.study.restarts() == PERSON_RESTARTS
+    assert "person_restarts" not in books.as_dict() and "person_restarts" not in atlas.as_dict()
+    same = study_file.parse_study({**base, "atlas": True, "person_restarts": PERSON_RESTARTS})
+    assert same.as_dict() == atlas.as_dict()
+    assert study_file.parse_study({**base, "person_restarts": 0}).as_dict() == books.as_dict()
+    mine = study_file.parse_study({**base, "person_restarts": 2})
+    assert mine.study.restarts() == 2 and mine.as_dict()["person_restarts"] == 2
+    from corrections_sim.plans import book
+
+    asked = []
+    own = book.own_starts
+    monkeypatch.setattr(book, "own_starts", lambda *a: asked.append(a[-1]) or own(*a))
+    envs = mine.envs()[:1]
+    cold = books.person_target(envs)
+    assert asked == []
+    searched = mine.person_target(envs)
+    assert asked == [2]
+    assert searched.plans[0].reward >= cold.plans[0].reward - 1e-12
