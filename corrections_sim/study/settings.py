@@ -167,8 +167,9 @@ class StudySettings:
     def restarts(self) -> int:
         """The random starts the person's own plans get (``person_restarts``, or its
         default: :data:`PERSON_RESTARTS` with an atlas, none without)."""
-        if self.person_restarts is not None:
-            return self.person_restarts
+        return self._default_restarts() if self.person_restarts is None else self.person_restarts
+
+    def _default_restarts(self) -> int:
         return PERSON_RESTARTS if self.atlas is not None else 0
 
     def __post_init__(self) -> None:
@@ -289,7 +290,7 @@ class StudySettings:
             # Only where it differs from its default (the atlas's 30, else none): the same.
             **(
                 {"person_restarts": self.restarts()}
-                if self.restarts() != (PERSON_RESTARTS if self.atlas is not None else 0)
+                if self.restarts() != self._default_restarts()
                 else {}
             ),
         }
