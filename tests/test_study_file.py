@@ -257,6 +257,7 @@ def _replace(text: str, old: str, new: str) -> str:
         ),
         (GOOD.replace("theta_star = [1.0, -1.0]\n", ""), ["theta_star", "missing"]),
         (GOOD + "person_restarts = -1\n", ["person_restarts", "integer"]),
+        (GOOD + "person_restarts = 5000\n", ["person_restarts", "1,000"]),
         (GOOD + "person_restarts = 2.5\n", ["person_restarts", "integer"]),
         (GOOD + "person_restarts = true\n", ["person_restarts", "integer"]),
     ],

@@ -146,6 +146,7 @@ INTEGER_LIMITS: dict[str, tuple[int, int]] = {
     "runs": (1, MAX_COUNT["runs"]),
     "iterations": (1, MAX_COUNT["iterations"]),
     "seed": (0, 2**63 - 1),
+    "person_restarts": (0, 1000),
 }
 #: Planner solves a study may need, ≈ runs × learners × iterations × (environments + 2k + 2):
 #: about a week on one machine at 5 ms a solve. Refused beyond, before anything runs.
@@ -362,11 +363,6 @@ def parse_study(
         raise ValueError(f"online = {online!r}: expected true or false")
     teacher = _teacher(values.get("teacher", {}))
     atlas = _atlas(values.get("atlas"))
-    restarts = values.get("person_restarts")
-    if restarts is not None and (
-        isinstance(restarts, bool) or not isinstance(restarts, int) or not 0 <= restarts <= 1000
-    ):
-        raise ValueError(f"person_restarts = {restarts!r}: expected an integer from 0 to 1000")
     study = StudySettings(
         theta_star=theta_star,
         user_theta=person,
@@ -383,7 +379,7 @@ def parse_study(
         online=online,
         teacher=teacher,
         atlas=atlas,
-        person_restarts=restarts,
+        person_restarts=values.get("person_restarts"),
     )
     return FigureSettings(
         study=study,
