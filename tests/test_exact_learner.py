@@ -7,6 +7,7 @@ without an atlas, or for a bad atlas, is refused in one line."""
 from __future__ import annotations
 
 import csv
+import json
 
 import numpy as np
 import pytest
@@ -74,6 +75,31 @@ def test_the_exact_learner_is_its_reference_on_the_atlas_grid(figure, learner, c
     # It learns: the first correction moves the mean and shrinks the covariance.
     assert float(curves[1]["cov_00"]) < float(curves[0]["cov_00"])
     assert "ref NEES" in capsys.readouterr().out
+
+
+def test_the_reference_cuts_its_cells_as_axes_says(figure, capsys):
+    """``--axes``: a reference's cells cut otherwise than its learner cuts its own (what makes
+    a filter's reference affordable at k = 3) hold the same posterior to within their
+    integration error, but not the same bits; ``--axes all`` for EX-C, which cuts in 2^k, is
+    its default to the bit."""
+    argv = ["reference", str(figure), "--learner", "EX-C", "--runs", "1", "--force"]
+    assert cli.main(argv) == 0
+    own = _rows(figure / "reference-EX-C" / "records.csv")
+    assert cli.main([*argv, "--axes", "all"]) == 0
+    assert _rows(figure / "reference-EX-C" / "records.csv") == own
+    assert cli.main([*argv, "--axes", "narrow"]) == 0
+    narrow = _rows(figure / "reference-EX-C" / "records.csv")
+    summary = json.loads((figure / "reference-EX-C" / "summary.json").read_text())
+    assert summary["settings"]["axes"] == "narrow"
+    keys = ("ref_cov_00", "ref_cov_01", "ref_cov_11")
+    assert any(a[key] != b[key] for a, b in zip(own, narrow, strict=True) for key in keys)
+    for a, b in zip(own, narrow, strict=True):
+        sd = np.sqrt([float(a["ref_cov_00"]), float(a["ref_cov_11"])])
+        for i in range(2):
+            gap = abs(float(a[f"ref_theta_{i}"]) - float(b[f"ref_theta_{i}"]))
+            assert gap < 0.05 * sd[i]
+            var = float(a[f"ref_cov_{i}{i}"])
+            assert float(b[f"ref_cov_{i}{i}"]) == pytest.approx(var, rel=0.05)
 
 
 def test_the_exact_learner_without_an_atlas_is_one_line(tmp_path, capsys):

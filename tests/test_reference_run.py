@@ -129,6 +129,11 @@ def test_a_learner_the_figure_did_not_run_is_one_line(figure, capsys):
     assert cli.main(["reference", str(figure), "--learner", "KF"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: --learner KF: not in this figure") and err.count("\n") == 1
+    assert cli.main(["reference", str(figure), "--learner", "KF-C", "--axes", "narrow"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: --axes narrow: cuts only a refined grid's cells") and (
+        err.count("\n") == 1
+    )
 
 
 def test_one_filter_step_from_the_reference(figure, capsys):

@@ -327,6 +327,13 @@ def catalogue() -> argparse.ArgumentParser:
         "0: never)",
     )
     r.add_argument(
+        "--axes",
+        choices=("all", "narrow"),
+        help="on a refined reference: how its cells are cut, 'all' (in 2^k) or 'narrow' (along "
+        "the posterior's narrow axes, as the exact learners of the three-feature study cut "
+        "theirs); default: as the learner cuts its own, 'all' for a filter",
+    )
+    r.add_argument(
         "--one-step",
         action="store_true",
         help="also the learner's update from the reference before each correction (a Kalman "

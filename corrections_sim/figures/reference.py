@@ -136,6 +136,7 @@ def check_reference(
     one_step: bool = False,
     restarts: tuple[int, ...] = (),
     resolution: float | None = None,
+    axes: str | None = None,
 ):
     """What :func:`reference_run` checks before anything is solved, in one line naming what
     does not fit (a random user, a learner without a covariance or a model, an option its
@@ -176,6 +177,14 @@ def check_reference(
             f"--resolution {resolution:g}: refines only a KF/KF-C-type model's grid on a study "
             "with a plan atlas"
         )
+    if axes is not None:
+        if axes not in ref.REFINED_AXES:
+            raise ValueError(f"--axes {axes}: expected one of {', '.join(ref.REFINED_AXES)}")
+        if not refinable:
+            raise ValueError(
+                f"--axes {axes}: cuts only a refined grid's cells (a KF/KF-C-type model's, on "
+                "a study with a plan atlas)"
+            )
     return model, likelihood, kind, engine
 
 
@@ -191,6 +200,7 @@ def reference_run(
     particles: int = 0,
     seed: int = 0,
     resolution: float | None = None,
+    axes: str | None = None,
 ) -> list[dict]:
     """The reference after every correction of one run (``rows``: its records, t = 0 … T).
 
@@ -215,10 +225,13 @@ def reference_run(
     has fewer than ``resolution`` nodes in its narrowest sd (None: 2, twice the exact
     learners' default; 0: never), as an exact learner's is
     (:class:`~corrections_sim.learning.exact.bayes.Refinement`): every correction so far
-    weighed again at the finer nodes, ξ*(θ, E) there from the atlas over ``grid``."""
+    weighed again at the finer nodes, ξ*(θ, E) there from the atlas over ``grid``; its cells
+    cut as ``axes`` says ("all" or "narrow"; None: as the learner cuts its own, "all" for a
+    filter, whose cells are not its own: "narrow" makes a filter's reference at k = 3
+    affordable, as it makes the exact learners there)."""
     model, likelihood, kind, engine = check_reference(
         settings, learner, grid, particles=particles, one_step=one_step, restarts=restarts,
-        resolution=resolution,
+        resolution=resolution, axes=axes,
     )  # fmt: skip
     study = settings.study
     k, names = study.k, planner.config.features
@@ -246,7 +259,7 @@ def reference_run(
         # The core to e^−13.8 = 1e-6 of the peak, not an exact learner's 1e-4; its cells cut
         # as the learner cuts its own.
         resolution = 2.0 if resolution is None else resolution
-        refine = ref.Refinement(resolution, cut=13.8, axes=likelihood.axes)
+        refine = ref.Refinement(resolution, cut=13.8, axes=axes or likelihood.axes)
         # One level finer than an exact learner may go: at twice its resolution, it is at
         # half its finest spacing.
         depth = likelihood.max_level + 1

@@ -65,6 +65,7 @@ def reference_job(
     seed: int = 0,
     one_step: bool = False,
     resolution: float | None = None,
+    axes: str | None = None,
     check_grid: bool = False,
 ) -> ReferenceJob:
     """The reference of the first ``runs`` runs of ``learner`` in the finished figure in
@@ -99,9 +100,11 @@ def reference_job(
         "seed": seed,
         "resolution": resolution,
     }
+    if axes is not None:  # named only when given: earlier references' settings stay as they were
+        options["axes"] = axes
     judge.check_reference(
         settings, learner, grid, particles=particles, one_step=one_step, restarts=restarts,
-        resolution=resolution,
+        resolution=resolution, axes=axes,
     )  # fmt: skip
     rows = {run: recorded[run] for run in sorted(recorded)[:runs]}
     return ReferenceJob(figure, settings, learner, rows, grid, options, check_grid)
@@ -147,7 +150,13 @@ def grid_check(job: ReferenceJob, first: list[dict], handed=None) -> tuple[int, 
     planner = shared_planner(settings.planner_config())
     rows = job.rows[min(job.rows)]
     finer = judge.reference_run(
-        settings, job.learner, rows, fine, planner, resolution=job.options["resolution"]
+        settings,
+        job.learner,
+        rows,
+        fine,
+        planner,
+        resolution=job.options["resolution"],
+        axes=job.options.get("axes"),
     )
     pairs = list(zip(first, finer, strict=True))
     k = settings.study.k
@@ -203,6 +212,7 @@ class ReferenceFigure:
         "runs",
         "points",
         "resolution",
+        "axes",
         "one_step",
         "restart",
         "particles",
@@ -245,6 +255,7 @@ class ReferenceFigure:
                 seed=overrides.get("seed") or 0,
                 one_step=bool(overrides.get("one_step")),
                 resolution=overrides.get("resolution"),
+                axes=overrides.get("axes"),
                 check_grid=bool(overrides.get("check_grid")),
             )
             preset = json.loads((source / "summary.json").read_text()).get("preset", "paper")
