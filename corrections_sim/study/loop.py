@@ -23,7 +23,7 @@ Everything random flows from ``np.random.Generator`` objects made from the study
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
@@ -47,6 +47,7 @@ from corrections_sim.plans.book import PlanBook, PlanEntries, Target, evaluate
 from corrections_sim.scene.environments import Environment
 
 if TYPE_CHECKING:
+    from corrections_sim.belief import Belief
     from corrections_sim.study.settings import StudySettings
 
 
@@ -72,6 +73,7 @@ def run_learner(
     known: PlanEntries | None = None,
     plan_book: type[PlanBook] = PlanBook,
     atlas: Atlas | None = None,
+    watch: Callable[[int, Belief], None] | None = None,
 ) -> RunResult:
     """One run of ``learner`` (a name in :data:`LEARNERS`) for ``settings.iterations``
     corrections.
@@ -87,6 +89,9 @@ def run_learner(
         atlas: the study's plan atlas (every plan over the study's features from it), or
             None. A learner that learns a feature plans over features the atlas lacks: those
             plans come from a book of their own, warm-started as ``settings.warm_start`` says.
+        watch: called as watch(t, belief) with the belief after every correction t (and the
+            prior, t = 0): what simulation-based calibration draws its posterior samples from
+            (:mod:`corrections_sim.figures.sbc`); nothing it does changes the run.
     """
     cls = LEARNERS[learner]
     if cls.needs_rates() and alphas is None:
@@ -142,6 +147,8 @@ def run_learner(
         rec |= expansion.columns(belief, step, learnt, k)
         rec |= task
         records.append(rec)
+        if watch is not None:
+            watch(t, belief)
 
     record(0, "", "", None, {})
     for t in range(n_iter):
