@@ -119,8 +119,27 @@ def run(
 
 
 def summary_of(settings: SBCSettings, rows: list[dict]) -> dict:
+    """:func:`~corrections_sim.study.sbc.summarize`'s summary, with EX-M's mean probability of
+    each group's own model (``mean_p_model``) in ``by_model``, each model's tag there with its
+    dots written as underscores (``waypoint_step0_5``: a key a dotted path, as the
+    docs' quotes use, can name)."""
     study = settings.base.study
-    return core.summarize(list(study.learners), study.k, rows)
+    summary = core.summarize(list(study.learners), study.k, rows)
+    for learner, by_t in summary.items():
+        for t, entry in by_t.items():
+            for tag, found in entry["by_model"].items():
+                p = [
+                    r["p_model"]
+                    for r in rows
+                    if r["learner"] == learner and str(r["iteration"]) == t and r["model"] == tag
+                    if r.get("p_model") is not None
+                ]
+                if p:  # how often the robot holds these people's own model
+                    found["mean_p_model"] = float(np.mean(p))
+            entry["by_model"] = {
+                tag.replace(".", "_"): found for tag, found in entry["by_model"].items()
+            }
+    return summary
 
 
 def write(settings: SBCSettings, result: SBCResult, folder: Path) -> dict:
@@ -156,7 +175,7 @@ def plot(settings: SBCSettings, summary: dict, path: Path) -> Path:
     panels = [(t, i) for t in core.AT for i in range(k)]
     fig, axes = plt.subplots(
         len(learners), len(panels), figsize=(3.1 * len(panels), 2.3 * len(learners) + 0.8),
-        squeeze=False, sharex=True,
+        squeeze=False, sharex=True, sharey=True,
     )  # fmt: skip
     edges = np.arange(core.BINS + 1) * (core.SAMPLES + 1) // core.BINS
     for row, learner in enumerate(learners):
@@ -184,7 +203,7 @@ def plot(settings: SBCSettings, summary: dict, path: Path) -> Path:
         "a ∪ shape: over-confident; a ∩ shape: under-confident; a slope: biased",
         fontsize=10,
     )
-    style.save_and_close(fig, [path], dpi=110, rect=(0, 0, 1, 0.92))
+    style.save_and_close(fig, [path], dpi=110, rect=(0, 0, 1, 0.95))
     return path
 
 
@@ -194,7 +213,7 @@ class SBCFigure:
     name = FIGURE
     help = "simulation-based calibration: people drawn from the recommended robot's prior"
     options = ("set", "runs", "seed", "learners")
-    unit = "person"
+    unit = "draw"
     in_all = False
     option_help: ClassVar[dict[str, str]] = {"runs": "how many people to draw (default 200)"}
 
