@@ -144,6 +144,24 @@ def test_a_pooled_pair_is_the_mean_of_each_study_s_paired_difference(tmp_path):
         quotes.pooled_pair(tmp_path, "one,two", "A/B", "p_q", "estimate_error")
 
 
+def test_a_mean_with_its_interval_from_a_study_of_one_person(tmp_path):
+    """``mean-ci``: the mean at each run's last correction and 1.96 SEM either side, from a
+    study's curves without a ``user`` column (``-``); a paired difference there too."""
+    (tmp_path / "results" / "one").mkdir(parents=True)
+    with open(tmp_path / "results" / "one" / "curves.csv", "w", newline="") as f:
+        out = csv.writer(f)
+        out.writerow(["learner", "run", "iteration", "nees"])
+        for run, (a, b) in enumerate([(1.0, 0.5), (2.0, 1.0), (4.0, 1.5)]):
+            out.writerows([["A", run, 0, 9.0], ["A", run, 3, a], ["B", run, 3, b]])
+    said = quotes.mean_ci(tmp_path, "one", "A", "-", "nees", "2")
+    half = 1.96 * np.sqrt(np.var([1, 2, 4], ddof=1) / 3)
+    assert said == f"{7 / 3:.2f} [{7 / 3 - half:.2f}, {7 / 3 + half:.2f}]".replace("-", "−")
+    paired = quotes.pooled_pair(tmp_path, "one", "A/B", "-", "nees", "2")
+    assert paired.startswith("+1.33 [")
+    with pytest.raises(KeyError, match="no C"):
+        quotes.mean_ci(tmp_path, "one", "C", "-", "nees", "2")
+
+
 def _anchors(page: Path) -> set[str]:
     """The heading anchors MkDocs makes (toc's slugify: lowercase, words joined by '-')."""
     found = set()

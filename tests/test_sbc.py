@@ -115,6 +115,29 @@ def test_the_people_come_from_the_robots_prior():
     assert np.array_equal(again.noise, people[0].noise)
 
 
+def test_the_person_corrects_exactly_as_each_of_the_robots_models_predicts():
+    """Without noise, the features a drawn person shows are, to the bit, what the matching part
+    of EX-M predicts at θ* (its plans read from the atlas there): the generative process SBC
+    needs."""
+    from corrections_sim.planning.features import feature_counts
+
+    base = figure.load_settings(quick=True, overrides={}).base
+    atlas, envs = base.atlas(), base.envs()
+    robot = sbc.robot(base)
+    rng = np.random.default_rng(5)
+    for _ in range(3):
+        env = envs[int(rng.integers(len(envs)))]
+        theta_star, theta = rng.normal(size=2), rng.normal(size=2)
+        intended = atlas.solve(theta_star, env).trajectory
+        mine = atlas.solve(theta, env).trajectory
+        for model, part in zip(robot.models, robot.parts(), strict=True):
+            person = sbc.PriorPerson(correction=model, noise=np.zeros((2, 2)))
+            shown = feature_counts(person.corrected_trajectory(mine, intended), env, base.features)
+            h = part.observation().at_plans(atlas.plans(theta_star[None], env), mine, env,
+                                            base.features)  # fmt: skip
+            assert np.array_equal(shown, h[0])
+
+
 def test_bad_settings_are_one_line(tmp_path, capsys):
     for option, message in [
         ("iterations=3", "iterations: SBC judges the posterior at t = 4, 12: needs at least 12"),

@@ -240,7 +240,7 @@ def _last_rows(path: str, stamp: tuple[int, int]) -> dict[tuple[str, str], dict[
     at: dict[tuple[str, str], int] = {}
     with open(path, newline="") as f:
         for r in csv.DictReader(f):
-            key, t = (r["user"], r["learner"]), int(r["iteration"])
+            key, t = (r.get("user", ""), r["learner"]), int(r["iteration"])
             if t > at.get(key, -1):
                 at[key], last[key] = t, {}
             if t == at[key]:
@@ -250,7 +250,8 @@ def _last_rows(path: str, stamp: tuple[int, int]) -> dict[tuple[str, str], dict[
 
 def _final_by_run(root: Path, folders: str, user: str, learner: str, metric: str) -> dict:
     """{run: ``metric`` at the last correction} of ``learner`` for ``user`` in the first of
-    ``folders`` (figure folders under ``results/`` joined by ``+``) whose ``curves.csv`` has it."""
+    ``folders`` (figure folders under ``results/`` joined by ``+``) whose ``curves.csv`` has it
+    (``user`` "" in a study of one person, whose curves have no ``user`` column)."""
     for folder in folders.split("+"):
         path = root / "results" / folder / "curves.csv"
         info = path.stat()
@@ -266,10 +267,11 @@ def pooled_pair(
     """The mean over ``studies`` (the same people in independent studies, e.g. at other θ*:
     comma-separated, each one or more figure folders joined by ``+``) of the paired difference
     a − b (``names``: ``a/b``) of ``metric`` at the last correction for one ``user`` (``_`` for
-    spaces), paired by run within each study, with a 95% interval: mean ± 1.96 · √(Σ SEᵢ²) / m
+    spaces; ``-`` for studies of one person), paired by run within each study, with a 95%
+    interval: mean ± 1.96 · √(Σ SEᵢ²) / m
     over the m studies (the studies are independent; each SEᵢ over its runs)."""
     a, b = names.split("/")
-    user = user.replace("_", " ")
+    user = _user(user)
     means, variances = [], []
     for study in studies.split(","):
         first = _final_by_run(root, study, user, a, metric)
@@ -283,6 +285,24 @@ def pooled_pair(
     mean = sum(means) / len(means)
     half = 1.96 * sum(variances) ** 0.5 / len(means)
     return _difference({"mean": mean, "ci95": (mean - half, mean + half)}, int(digits))
+
+
+def _user(text: str) -> str:
+    """A quote's user argument: ``_`` for spaces, ``-`` for a study of one person."""
+    return "" if text == "-" else text.replace("_", " ")
+
+
+def mean_ci(root: Path, folder: str, learner: str, user: str, metric: str, digits: str) -> str:
+    """The mean over runs of ``learner``'s ``metric`` at the last correction in
+    ``results/<folder>/curves.csv`` for ``user`` (``-``: a study of one person), with its 95%
+    interval, mean ± 1.96 SEM."""
+    values = list(_final_by_run(root, folder, _user(user), learner, metric).values())
+    if len(values) < 2:
+        raise KeyError(f"{learner} has fewer than two runs in {folder}")
+    mean = sum(values) / len(values)
+    sem = (sum((x - mean) ** 2 for x in values) / (len(values) - 1) / len(values)) ** 0.5
+    n = int(digits)
+    return f"{mean:.{n}f} [{mean - 1.96 * sem:.{n}f}, {mean + 1.96 * sem:.{n}f}]".replace("-", "−")
 
 
 def _table(make: Callable[..., list[str]]) -> Callable[..., str]:
@@ -303,6 +323,7 @@ QUOTES: dict[str, Callable[..., str]] = {
     "pair": pair,
     "user-pair": user_pair,
     "pooled-pair": pooled_pair,
+    "mean-ci": mean_ci,
     "cell": cell,
     "find": find,
     "theta": final_theta,
