@@ -119,27 +119,8 @@ def run(
 
 
 def summary_of(settings: SBCSettings, rows: list[dict]) -> dict:
-    """:func:`~corrections_sim.study.sbc.summarize`'s summary, with EX-M's mean probability of
-    each group's own model (``mean_p_model``) in ``by_model``, each model's tag there with its
-    dots written as underscores (``waypoint_step0_5``: a key a dotted path, as the
-    docs' quotes use, can name)."""
     study = settings.base.study
-    summary = core.summarize(list(study.learners), study.k, rows)
-    for learner, by_t in summary.items():
-        for t, entry in by_t.items():
-            for tag, found in entry["by_model"].items():
-                p = [
-                    r["p_model"]
-                    for r in rows
-                    if r["learner"] == learner and str(r["iteration"]) == t and r["model"] == tag
-                    if r.get("p_model") is not None
-                ]
-                if p:  # how often the robot holds these people's own model
-                    found["mean_p_model"] = float(np.mean(p))
-            entry["by_model"] = {
-                tag.replace(".", "_"): found for tag, found in entry["by_model"].items()
-            }
-    return summary
+    return core.summarize(list(study.learners), study.k, rows)
 
 
 def write(settings: SBCSettings, result: SBCResult, folder: Path) -> dict:

@@ -12,7 +12,7 @@ model reads), and shows the features of their correction plus noise drawn from N
 learner of the study meets the same person, environments and noise (common random numbers).
 
 After t = :data:`AT` corrections, :data:`SAMPLES` draws are taken from each learner's
-posterior (:func:`~corrections_sim.learning.exact.draws.posterior_draws`: an exact learner's
+posterior (:func:`~corrections_sim.learning.exact.draws.mixture_draws`: an exact learner's
 within its refined cells, a Gaussian's from N(θ̂, P)) and the rank of each true weight among
 them is recorded: for the Bayes posterior of the person's generative process the ranks are
 uniform over 0 … :data:`SAMPLES`. Also the posterior mass denser than θ* (``level``: θ* lies
@@ -32,7 +32,7 @@ from scipy import stats
 
 from corrections_sim.belief import Belief
 from corrections_sim.learning.base import LEARNERS
-from corrections_sim.learning.exact.draws import posterior_density, posterior_draws
+from corrections_sim.learning.exact.draws import mixture_density, mixture_draws, posterior_parts
 from corrections_sim.learning.exact.mixture import ExactPersonModel, model_tag
 from corrections_sim.people.corrections import CorrectionModel
 from corrections_sim.people.users import CorrectingUser, Situation
@@ -146,17 +146,21 @@ class PriorPerson(CorrectingUser):
 
 def judge(learner, belief: Belief, theta_star: np.ndarray, rng: np.random.Generator) -> dict:
     """The rank of each true weight among :data:`SAMPLES` posterior draws (``rank_i``) and
-    the posterior mass denser than θ* (``level``)."""
+    the posterior mass denser than θ* (``level``): an exact learner's from
+    :data:`LEVEL_SAMPLES` more draws within its cells, a Gaussian's χ²ₖ's CDF at its NEES."""
     k = len(theta_star)
-    draws = posterior_draws(learner, belief, SAMPLES, rng)
-    more = posterior_draws(learner, belief, LEVEL_SAMPLES, rng)
-    found = posterior_density(learner, belief, np.vstack([more, theta_star]))
-    if found is None:
+    parts = posterior_parts(learner, belief)
+    if parts:
+        draws = mixture_draws(parts, SAMPLES, rng)
+        found = mixture_density(
+            parts, np.vstack([mixture_draws(parts, LEVEL_SAMPLES, rng), theta_star])
+        )
+        level = float(np.mean(found[:-1] > found[-1]))
+    else:
+        draws = rng.multivariate_normal(belief.theta, belief.cov, size=SAMPLES)
         e = belief.theta[:k] - theta_star
         nees = float(e @ np.linalg.solve(belief.cov[:k, :k], e))
         level = float(stats.chi2.cdf(nees, k))
-    else:
-        level = float(np.mean(found[:-1] > found[-1]))
     ranks = (draws[:, :k] < theta_star[None, :]).sum(axis=0)
     return {**{f"rank_{i}": int(ranks[i]) for i in range(k)}, "level": level}
 
@@ -246,8 +250,9 @@ def summarize(learners: Sequence[str], k: int, rows: Sequence[dict]) -> dict:
     """Per learner and t: each weight's ranks' χ² p-value (``chi2_p``) and histogram, the
     coverage of the 50% and 90% highest-density regions with their 95% (Wilson) intervals,
     the mean NEES, for EX-M the mean posterior probability of the person's own model, and per
-    correction model of the people each weight's χ² p-value (a diagnostic: a sixth of the
-    people each)."""
+    correction model of the people (its tag's dots written as underscores) each weight's χ²
+    p-value and EX-M's mean probability of that model (a diagnostic: a sixth of the people
+    each)."""
     out: dict = {}
     for learner in learners:
         mine = [r for r in rows if r["learner"] == learner]
@@ -276,9 +281,11 @@ def summarize(learners: Sequence[str], k: int, rows: Sequence[dict]) -> dict:
             for tag in sorted({r["model"] for r in at}):
                 group = [r for r in at if r["model"] == tag]
                 ranks = {i: [r[f"rank_{i}"] for r in group] for i in range(k)}
-                models[tag] = {"draws": len(group)} | {
-                    f"chi2_p_{i}": chi2_p(ranks[i]) for i in range(k)
-                }
+                found = {"draws": len(group)} | {f"chi2_p_{i}": chi2_p(ranks[i]) for i in range(k)}
+                if "p_model" in group[0]:  # how often the robot holds these people's model
+                    found["mean_p_model"] = float(np.mean([r["p_model"] for r in group]))
+                # A tag's dots as underscores (waypoint_step0_5): a key a dotted path names.
+                models[tag.replace(".", "_")] = found
             entry["by_model"] = models
             by_t[str(t)] = entry
         out[learner] = by_t

@@ -53,10 +53,15 @@ def _corner_densities(cells: Cells, log_density: np.ndarray) -> np.ndarray:
     return nodes[cells.corners]
 
 
+def _masses(widths: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """Each leaf's unnormalized mass (m,): its volume times the mean of its corners."""
+    return np.prod(widths, axis=1) * corners.mean(axis=1)
+
+
 def leaf_masses(cells: Cells, log_density: np.ndarray) -> np.ndarray:
     """Each leaf's share of the posterior's mass (m,), summing to 1."""
     _, widths = _leaf_boxes(cells)
-    mass = np.prod(widths, axis=1) * _corner_densities(cells, log_density).mean(axis=1)
+    mass = _masses(widths, _corner_densities(cells, log_density))
     return mass / mass.sum()
 
 
@@ -69,7 +74,7 @@ def cell_draws(
     k = cells.k
     corners = _corner_densities(cells, log_density)
     lower, widths = _leaf_boxes(cells)
-    mass = np.prod(widths, axis=1) * corners.mean(axis=1)
+    mass = _masses(widths, corners)
     leaf = rng.choice(len(mass), size=n, p=mass / mass.sum())
     within = corners[leaf] / corners[leaf].sum(axis=1, keepdims=True)
     pick = (rng.random(n)[:, None] > np.cumsum(within, axis=1)).sum(axis=1)
@@ -88,7 +93,7 @@ def density_at(cells: Cells, log_density: np.ndarray, thetas: np.ndarray) -> np.
     k = cells.k
     corners = _corner_densities(cells, log_density)
     lower, widths = _leaf_boxes(cells)
-    total = float(np.sum(np.prod(widths, axis=1) * corners.mean(axis=1)))
+    total = float(np.sum(_masses(widths, corners)))
     bits = _corner_bits(k)
     out = np.zeros(len(thetas))
     tol = 1e-12 * np.max(widths)
@@ -123,12 +128,9 @@ def posterior_parts(learner, belief) -> list[tuple[float, Cells, np.ndarray]]:
     return []
 
 
-def posterior_draws(learner, belief, n: int, rng: np.random.Generator) -> np.ndarray:
-    """``n`` draws (n, k) from ``learner``'s posterior ``belief``: an exact learner's within
-    its cells (a part drawn by its weight first), any other's from N(θ̂, P)."""
-    parts = posterior_parts(learner, belief)
-    if not parts:
-        return rng.multivariate_normal(belief.theta, belief.cov, size=n)
+def mixture_draws(parts, n: int, rng: np.random.Generator) -> np.ndarray:
+    """``n`` draws (n, k) from a posterior given as :func:`posterior_parts`: a part drawn by
+    its weight, then a point within its cells."""
     weights = np.array([w for w, _, _ in parts])
     counts = rng.multinomial(n, weights / weights.sum())
     found = [
@@ -140,11 +142,8 @@ def posterior_draws(learner, belief, n: int, rng: np.random.Generator) -> np.nda
     return out[rng.permutation(len(out))]
 
 
-def posterior_density(learner, belief, thetas: np.ndarray) -> np.ndarray | None:
-    """``learner``'s normalized posterior density at ``thetas`` (n, k) (an exact learner's,
-    its parts' mixture); None for any other learner (its Gaussian's is known in closed form)."""
-    parts = posterior_parts(learner, belief)
-    if not parts:
-        return None
+def mixture_density(parts, thetas: np.ndarray) -> np.ndarray:
+    """The normalized density at ``thetas`` (n, k) of a posterior given as
+    :func:`posterior_parts`: its parts' densities, weighed."""
     total = sum(w for w, _, _ in parts)
     return sum(w / total * density_at(cells, log_d, thetas) for w, cells, log_d in parts)
