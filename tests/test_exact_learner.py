@@ -104,7 +104,7 @@ def test_the_reference_cuts_its_cells_as_axes_says(figure, capsys):
 
 def test_the_exact_learner_without_an_atlas_is_one_line(tmp_path, capsys):
     path = tmp_path / "bare.toml"
-    path.write_text(STUDY.replace("atlas = { points = 9 }\n", ""))
+    path.write_text(STUDY.replace("atlas = { points = 9 }\n", "atlas = false\n"))
     assert cli.main(["study", str(path), "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "learners.EX-C: its grid is the study's plan atlas" in err
@@ -127,7 +127,7 @@ def test_a_bad_atlas_is_one_line(tmp_path, capsys, value, message):
 
 
 def test_the_run_key_names_the_atlas_only_when_there_is_one():
-    values = {"theta_star": [1.0, -1.0], "environments": ["s0-t0-l1"]}
+    values = {"theta_star": [1.0, -1.0], "environments": ["s0-t0-l1"], "learners": ["KF"]}
     bare = run_key(schema.parse_study(values))
     assert "atlas" not in bare and "atlas_identity" not in bare
     mine = run_key(schema.parse_study({**values, "atlas": {"points": 9}}))

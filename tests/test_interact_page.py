@@ -246,3 +246,31 @@ def test_a_click_while_the_server_stops_ends_quietly_and_logs_nothing(served, ca
     with pytest.raises(sqlite3.ProgrammingError), log.unless_closed():
         other.execute("SELECT 1")
     log.close()
+
+
+def test_a_connection_closed_before_its_request_is_not_logged_as_a_failure():
+    """websockets logs "opening handshake failed" with a traceback when a client (a
+    browser's speculative connection) closes before sending a request line; the server's
+    filter drops exactly that, and keeps every other failure."""
+    import logging
+    import sys
+
+    from corrections_sim.pages.server import _ClosedBeforeRequest
+
+    def record(exc: BaseException | None, message: str = "opening handshake failed"):
+        info = None
+        if exc is not None:
+            try:
+                raise exc
+            except BaseException:
+                info = sys.exc_info()
+        return logging.LogRecord("websockets.server", logging.ERROR, "", 0, message, (), info)
+
+    closed = ValueError("did not receive a valid HTTP request")
+    closed.__cause__ = EOFError("connection closed while reading HTTP request line")
+    keep = _ClosedBeforeRequest()
+    assert not keep.filter(record(closed))
+    assert not keep.filter(record(EOFError("stream ends after 0 bytes")))
+    assert keep.filter(record(ValueError("invalid Connection header")))
+    assert keep.filter(record(None))
+    assert keep.filter(record(EOFError("x"), "connection handler failed"))

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from corrections_sim.defaults import DEFAULTS
 from corrections_sim.learning.observation import CorrectedPlanFeatures
 from corrections_sim.people.users import BiasedUser, NoisyOptimalUser
 from corrections_sim.planning.planner import Plan, Planner, PlannerConfig, PlanningError
@@ -151,7 +152,7 @@ def test_settings_build_the_filters_values():
     np.testing.assert_array_equal(s.noise().process, 1e-3 * np.eye(2))
     np.testing.assert_array_equal(s.noise().observation, 0.5 * np.eye(2))
     assert tuple(s.learners) == tuple(BUILT_IN)
-    assert tuple(schema.parse_study({"theta_star": [1, -1]}).study.learners) == ("PP", "KF", "AL")
+    assert tuple(schema.parse_study({"theta_star": [1, -1]}).study.learners) == DEFAULTS["study"]
     settings(process_noise=0.0)  # preferences exactly constant is allowed
 
 

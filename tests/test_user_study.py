@@ -189,7 +189,7 @@ def test_a_bad_protocol_is_one_line_naming_the_key(change, message):
 
 def test_the_example_protocol_parses_and_its_study_keys_are_checked(tmp_path):
     protocol = load_protocol(EXPERIMENTS_DIR / "protocol.toml")
-    assert protocol.names == ("C", "CL") and protocol.simulation is not None
+    assert protocol.names == ("C", "M") and protocol.simulation is not None
     write_study(tmp_path)
     bad = tmp_path / "bad.toml"
     bad.write_text(SHORT.replace('name = "CL"', 'name = "CL"\nset = { runz = 3 }'))

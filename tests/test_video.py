@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from corrections_sim.cli import main as run
+from corrections_sim.defaults import RECOMMENDED
 from corrections_sim.figures import video
 from corrections_sim.scene.environments import paper_environments
 
@@ -17,7 +18,8 @@ SIZE = {"width": 160, "height": 120}
 
 @pytest.fixture()
 def recorded(tmp_path):
-    """A finished fig4 folder with one KF run of two corrections (as the figure writes it)."""
+    """A finished fig4 folder with one run of the recommended robot (the video's default) of
+    two corrections (as the figure writes it)."""
     folder = tmp_path / "fig4"
     folder.mkdir()
     envs = paper_environments()
@@ -25,9 +27,9 @@ def recorded(tmp_path):
     (folder / "summary.json").write_text(json.dumps({"settings": settings}))
     rows = [
         "learner,run,iteration,environment,theta_0,theta_1",
-        "KF,0,0,,0.0,0.0",
-        f"KF,0,1,{envs[1].name},0.4,-0.3",
-        f"KF,0,2,{envs[21].name},0.8,-0.6",
+        f"{RECOMMENDED},0,0,,0.0,0.0",
+        f"{RECOMMENDED},0,1,{envs[1].name},0.4,-0.3",
+        f"{RECOMMENDED},0,2,{envs[21].name},0.8,-0.6",
     ]
     (folder / "curves.csv").write_text("\n".join(rows) + "\n")
     return tmp_path
@@ -81,7 +83,7 @@ def test_video_has_every_frame_and_none_is_blank(recorded, suffix, corrections):
 def test_episode_is_the_robot_plan_corrected_at_its_worst_waypoint(recorded):
     from corrections_sim.planning.planner import shared_planner
 
-    record = video.load_run(recorded, "fig4", "KF", 0)
+    record = video.load_run(recorded, "fig4", RECOMMENDED, 0)
     (episode,) = video.plan_episodes(record, (2,), shared_planner(video.planner_config(record)))
     assert episode.env.name == paper_environments()[21].name
     np.testing.assert_array_equal(episode.theta_before, [0.4, -0.3])
@@ -101,8 +103,8 @@ def _cli(capsys, *argv) -> tuple[int, str]:
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["--run", "3"], "--run 3: KF has only run 0"),
-        (["--corrections", "0,2"], "--corrections 0: KF run 0 has corrections 1-2"),
+        (["--run", "3"], f"--run 3: {RECOMMENDED} has only run 0"),
+        (["--corrections", "0,2"], f"--corrections 0: {RECOMMENDED} run 0 has corrections 1-2"),
         (["--corrections", "13"], "--corrections 13"),
         (["--corrections", "a"], "--corrections 'a': expected comma-separated integers"),
         (["--learner", "AL"], "--learner AL: not in"),
@@ -111,7 +113,7 @@ def _cli(capsys, *argv) -> tuple[int, str]:
     ],
 )
 def test_bad_input_is_one_line_exit_2_and_keeps_earlier_output(recorded, capsys, argv, message):
-    earlier = recorded / "video" / "fig4-KF-run0.mp4"
+    earlier = recorded / "video" / f"fig4-{RECOMMENDED}-run0.mp4"
     earlier.parent.mkdir()
     earlier.write_bytes(b"an earlier video")
     code, err = _cli(capsys, "--out", str(recorded), *argv)

@@ -12,6 +12,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+from corrections_sim.defaults import DEFAULTS
+
 
 def positive_int(text: str) -> int:
     try:
@@ -235,7 +237,8 @@ def catalogue() -> argparse.ArgumentParser:
     v.add_argument("--from", dest="source", metavar="FIG", help="fig4 or fig5 (default fig4)")
     v.add_argument(
         "--learner",
-        help="video: whose run to show (default KF); interact: who learns (default KF-CL)",
+        help=f"video: whose run to show (default {DEFAULTS['video'][0]}); interact: who learns "
+        f"(default {DEFAULTS['session'][0]})",
     )
     v.add_argument("--run", type=int, help="the run's index (default 0)")
     v.add_argument(

@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import io
+import logging
 import os
 import socket
 import threading
@@ -88,6 +89,21 @@ def check_address(host: str, port: int) -> str:
     return address
 
 
+class _ClosedBeforeRequest(logging.Filter):
+    """Drops websockets' "opening handshake failed" when the client closed the connection
+    before sending a request line (a browser's speculative connection, a tab closed while it
+    connected): nothing failed, and its traceback on stderr read as a crash. Every other
+    handshake failure is still logged."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.getMessage() != "opening handshake failed" or not record.exc_info:
+            return True
+        cause = record.exc_info[1]
+        while cause is not None and not isinstance(cause, EOFError):
+            cause = cause.__cause__
+        return cause is None
+
+
 def open_server(host: str = "127.0.0.1", port: int = 8080):
     """A viser server on ``host:port``, checked first (see the module); no page on it yet.
 
@@ -103,6 +119,9 @@ def open_server(host: str = "127.0.0.1", port: int = 8080):
             'interact needs viser: pip install -e ".[interact]" (or pip install viser==1.1.1)'
         ) from None
     address = check_address(host, port)
+    quiet = logging.getLogger("websockets.server")
+    if not any(isinstance(f, _ClosedBeforeRequest) for f in quiet.filters):
+        quiet.addFilter(_ClosedBeforeRequest())
     # viser prints a panel of its URLs whatever verbose says; the command line prints its own.
     with contextlib.redirect_stdout(io.StringIO()):
         server = viser.ViserServer(host=address, port=port, verbose=False)

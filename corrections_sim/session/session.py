@@ -685,6 +685,12 @@ class Session(Teaching):
                 row["label"] = asked
                 self.log.add_event(self.id, self.iteration, "label", asked)
             self.log.add_correction(self.id, row)  # committed before anyone sees the update
+            if self.book.atlas is not None:
+                # The plans the update solved between the atlas's nodes (an exact learner's
+                # refined cells), kept for every later session and study on this machine: a
+                # plan is a function of (θ, E) alone, so this changes no number, only the time
+                # the next participant whose posterior goes there waits.
+                self.book.atlas.save()
             if step is not None and step.relevance is not None:
                 # A relevance-aware learner's β̂ and ρ: an event beside the row (the
                 # corrections table keeps its schema; a replay recomputes both).

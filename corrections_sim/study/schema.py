@@ -51,6 +51,7 @@ from corrections_sim.study.settings import (
     DEFAULT_LEARNERS,
     MAX_COUNT,
     MAX_RECORDS,
+    NEEDED,
     PLANNER_SETTINGS,
     AtlasSettings,
     FigureSettings,
@@ -118,10 +119,11 @@ STUDY_KEYS: dict[str, tuple[Any, str]] = {
     ),
     "warm_start": (False, "start each solve from the run's nearest solved θ̂ (faster)"),
     "atlas": (
-        False,
+        NEEDED,
         "plans from a plan atlas (docs/atlas.md), every plan a function of (θ, E) alone: true, "
         "or a table of width (the box θ̂⁰ ± width sd, 5), points (a weight, 31), cold_stride "
-        "(cold starts on every n-th node, 10); false: each run's own plan book",
+        "(cold starts on every n-th node, 10); false: each run's own plan book; not given: "
+        "true where a learner needs it (the exact learners, the recommended robot), else false",
     ),
     "person_restarts": (
         None,
@@ -286,9 +288,12 @@ def _teacher(value) -> Teacher:
         raise ValueError(str(exc)) from None
 
 
-def _atlas(value) -> AtlasSettings | None:
-    """The ``atlas`` key: false (each run's plan book), true (the defaults) or a table."""
-    if value is False or value is None:
+def _atlas(value) -> AtlasSettings | str | None:
+    """The ``atlas`` key: false (each run's plan book), true (the defaults) or a table; absent
+    (None): :data:`~corrections_sim.study.settings.NEEDED`, an atlas where a learner needs it."""
+    if value is None:
+        return NEEDED
+    if value is False:
         return None
     if value is True:
         return AtlasSettings()

@@ -108,6 +108,11 @@ class AtlasSettings:
         return AtlasGrid.around(theta0, sd, width=self.width, count=self.points)
 
 
+#: ``atlas``'s default: a plan atlas with its default settings where one of the study's
+#: learners needs it (the recommended robot does), none where none does.
+NEEDED = "needed"
+
+
 def _default_learners() -> dict[str, Learner]:
     return {name: make_learner(name) for name in DEFAULT_LEARNERS}
 
@@ -140,7 +145,8 @@ class StudySettings:
             (:class:`~corrections_sim.people.teacher.Teacher`).
         atlas: plans from a plan atlas over the prior's box (:class:`AtlasSettings`): every
             plan a function of (θ, E) alone, and ``warm_start`` moot; None: each run's own
-            plan book.
+            plan book; :data:`NEEDED` (the default): ``AtlasSettings()`` where a learner needs
+            it, else None (resolved on construction: the attribute is never :data:`NEEDED`).
         person_restarts: random starts of the person's own plans beside the planner's cold
             starts (what regret is measured against); None: :data:`PERSON_RESTARTS` with an
             atlas, none without (see :meth:`restarts`). A matrix whose columns plan with and
@@ -161,7 +167,7 @@ class StudySettings:
     online: bool = False
     user_theta: tuple[float, ...] = ()
     teacher: Teacher = field(default_factory=Teacher)
-    atlas: AtlasSettings | None = None
+    atlas: AtlasSettings | None = NEEDED  # type: ignore[assignment]  (resolved below)
     person_restarts: int | None = None
 
     def restarts(self) -> int:
@@ -173,6 +179,9 @@ class StudySettings:
         return PERSON_RESTARTS if self.atlas is not None else 0
 
     def __post_init__(self) -> None:
+        if isinstance(self.atlas, str) and self.atlas == NEEDED:
+            needed = any(getattr(x, "needs_atlas", False) for x in self.learners.values())
+            object.__setattr__(self, "atlas", AtlasSettings() if needed else None)
         if not np.all(np.isfinite(np.asarray(self.user_theta, float))):
             raise ValueError(f"theta_star: all weights must be finite, got {self.user_theta}")
         k = len(self.theta_star)
