@@ -8,6 +8,7 @@ import sqlite3
 import numpy as np
 import pytest
 
+from corrections_sim.defaults import RECOMMENDED
 from corrections_sim.people.users import make_user
 from corrections_sim.scene.geometry import TABLE_TOP_Z
 from corrections_sim.session.log import SCHEMA_VERSION, LogError, StudyLog
@@ -173,6 +174,16 @@ def test_the_command_line_runs_a_headless_session_and_replays_it(tmp_path, capsy
     assert (out / "replay-1" / "curves.csv").is_file()
     assert (out / "replay-1" / "session-1.png").is_file()
     capsys.readouterr()
+    # This study has no plan atlas: the recommended robot, which reads one, is left out of a
+    # replay's defaults (said in one line) and refused when named.
+    assert main(["replay", str(db), "--out", str(tmp_path / "defaults")]) == 0
+    err = capsys.readouterr().err
+    assert f"replay: {RECOMMENDED} left out: they need the study's plan atlas" in err
+    assert RECOMMENDED not in (tmp_path / "defaults" / "replay-1" / "curves.csv").read_text()
+    assert main(["replay", str(db), "--learners", f"KF,{RECOMMENDED}", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"--learners {RECOMMENDED}: needs the study's plan atlas" in err
+    assert err.count("\n") == 1
 
     # Bad input: one line naming what was wrong, exit status 2, nothing overwritten.
     assert main(["replay", str(tmp_path / "missing.sqlite")]) == 2

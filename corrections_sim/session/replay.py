@@ -97,6 +97,17 @@ def replay(
     for name in [*names, *params]:
         if name not in LEARNERS:
             raise ValueError(f"learner {name!r}: unknown; choose from {', '.join(LEARNERS)}")
+    # A learner that reads the study's plan atlas cannot replay a session whose study had
+    # none: left out of the defaults (said in the facts), refused when named.
+    left_out = []
+    if settings.atlas_spec() is None:
+        left_out = [n for n in dict.fromkeys(names) if LEARNERS[n].needs_atlas]
+        if learners and left_out:
+            raise ValueError(
+                f"--learners {left_out[0]}: needs the study's plan atlas, and session "
+                f"{session_id}'s study had none (replay it through the others)"
+            )
+        names = [n for n in names if n not in left_out]
     for name in params:
         if name not in names:
             raise ValueError(f"learners.{name}: set, but not replayed (--learners)")
@@ -216,6 +227,7 @@ def replay(
         "session": session_id,
         "participant": row.participant,
         "session_learner": row.learner,
+        "left_out": left_out,
         "corrector": row.corrector,
         "correction_model": row.correction,
         "corrections": n,

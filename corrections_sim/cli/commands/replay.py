@@ -69,6 +69,12 @@ def run_replay(args: argparse.Namespace) -> list[Path]:
             json.dumps(provenance.plain(summary), indent=2) + "\n"
         )
         names = sorted(p.name for p in staging.iterdir())
+    if facts["left_out"]:
+        print(
+            f"replay: {', '.join(facts['left_out'])} left out: they need the study's plan atlas, "
+            f"and this session's study had none",
+            file=sys.stderr,
+        )
     for name, entry in facts["final"].items():
         error = entry["estimate_error"]
         tail = "" if error is None else f", error {error:.3f} against the stated θ"
