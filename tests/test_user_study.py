@@ -806,3 +806,17 @@ def test_the_condition_plot_shows_the_spread_on_the_outcomes_scale(tmp_path, mon
     assert bottom <= 0.0 < 1.028 < top < 1.2, (bottom, top)
     assert sorted(spans) == [[0.98, 1.018], [1.02, 1.028]], spans
     assert drawn["participants"][0][0] <= 0.0
+
+
+@pytest.mark.parametrize("n", [25, 37, 200, 600])
+def test_a_power_of_zero_or_one_keeps_its_interval_around_it(n):
+    """At p = 1 the Wilson bound came out 1 − 1e-16 for 25 studies: a negative error bar
+    that stopped the power plot after the whole pool was simulated."""
+    from corrections_sim.userstudy import statistics as st
+
+    for hits in (0, n):
+        found = st.power_summary([True] * hits + [False] * (n - hits))
+        assert found["lo"] <= found["power"] <= found["hi"]
+        assert 0.0 <= found["lo"] and found["hi"] <= 1.0
+    inside = st.power_summary([True] * (n // 2) + [False] * (n - n // 2))
+    assert inside["lo"] < inside["power"] < inside["hi"]

@@ -272,7 +272,10 @@ def power_summary(significant: Sequence[bool], level: float = LEVEL) -> dict:
     p = k / n
     centre = (p + z * z / (2 * n)) / (1 + z * z / n)
     half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    return {"studies": n, "power": p, "lo": centre - half, "hi": centre + half}
+    # The interval holds p within [0, 1]; at p = 0 or 1 rounding put an end a hair past
+    # either (hi 1 − 1e-16 at p = 1: a negative error bar that stopped the power plot).
+    lo, hi = min(max(centre - half, 0.0), p), max(min(centre + half, 1.0), p)
+    return {"studies": n, "power": p, "lo": lo, "hi": hi}
 
 
 def needed(sizes: Sequence[int], powers: Sequence[float], target: float = 0.8) -> float | None:
