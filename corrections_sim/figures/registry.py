@@ -37,6 +37,7 @@ BUILT_IN = (
     "corrections_sim.figures.ferl",
     "corrections_sim.figures.reference_figure",
     "corrections_sim.figures.sbc",
+    "corrections_sim.figures.coverage",
 )
 
 #: Options every figure takes (the command line's own: where, how big, which executor).

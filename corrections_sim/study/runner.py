@@ -92,8 +92,11 @@ def run_one(
     plan_book: type[PlanBook] = PlanBook,
     handed: spread.Carried | None = None,
     exchange=None,
+    watch=None,
 ) -> RunResult:
-    """One (learner, run); safe to call in a worker process. ``plan_book``: see
+    """One (learner, run); safe to call in a worker process. ``watch``: called with (t, the
+    belief after t corrections), as :func:`~corrections_sim.study.loop.run_learner`'s (a
+    judge of the posterior itself, which the records hold only as its moments). ``plan_book``: see
     :func:`~corrections_sim.study.loop.run_learner`; ``handed``: as :func:`prepare`'s;
     ``exchange``: a cluster's :class:`~corrections_sim.plans.spread.PlanExchange`, through
     which the run takes the plans between the atlas's nodes other workers solved whenever it
@@ -119,6 +122,7 @@ def run_one(
         known=shared.prior,
         plan_book=plan_book,
         atlas=atlas,
+        watch=watch,
     )
     if atlas is not None:  # the plans it solved between the nodes, for the next process
         if exchange is not None and spec is not None:

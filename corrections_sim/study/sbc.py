@@ -40,7 +40,7 @@ from corrections_sim.planning.features import feature_counts
 from corrections_sim.planning.planner import shared_planner
 from corrections_sim.plans import spread
 from corrections_sim.plans.book import Target
-from corrections_sim.study import loop
+from corrections_sim.study import loop, runner
 from corrections_sim.study.settings import FigureSettings
 
 #: The corrections after which the posterior is judged.
@@ -289,4 +289,59 @@ def summarize(learners: Sequence[str], k: int, rows: Sequence[dict]) -> dict:
             entry["by_model"] = models
             by_t[str(t)] = entry
         out[learner] = by_t
+    return out
+
+
+def judged_run(
+    settings: FigureSettings,
+    shared: runner.Shared,
+    learner: str,
+    run: int,
+    handed: spread.Carried | None = None,
+) -> dict:
+    """Run ``run`` of ``learner`` in ``settings``'s study exactly as the study runs it (the
+    same draws, so its records are the study's own), its posterior after the last correction
+    judged against the study's θ* (:func:`judge`): the highest-density level of θ*
+    (``level``: θ* lies in the posterior's a-region for every a ≥ level) and each weight's
+    rank. For people the robot's model does not hold (a matrix's columns): the coverage of
+    its credible regions where SBC's people, drawn from its prior, cannot tell. Safe in a
+    worker process; ``handed``: the study's atlases."""
+    s = settings.study
+    last = s.iterations
+    kept: dict[int, Belief] = {}
+
+    def watch(t: int, belief: Belief) -> None:
+        if t == last:
+            kept[t] = belief
+
+    result = runner.run_one(settings, shared, learner, run, handed=handed, watch=watch)
+    stream = LEARNERS[learner].stream
+    rng = np.random.default_rng(np.random.SeedSequence([s.seed, stream, run, 3]))
+    theta_star = np.asarray(s.theta_star, float)
+    judged = judge(s.learners[learner], kept[last], theta_star, rng)
+    record = result.records[last]
+    return {
+        "learner": learner,
+        "run": run,
+        "iteration": last,
+        **judged,
+        "nees": record["nees"],
+        "estimate_error": record["estimate_error"],
+        "regret": record.get("regret"),
+    }
+
+
+def coverage_of(rows: Sequence[dict]) -> dict:
+    """Of judged runs' rows: how many, the share whose θ* lies in the 50% and 90%
+    highest-density regions with 95% (Wilson) intervals, and the mean level, NEES and error."""
+    out: dict = {"runs": len(rows)}
+    for alpha in COVERAGE:
+        hits = int(sum(r["level"] <= alpha for r in rows))
+        out[f"coverage_{round(100 * alpha)}"] = {
+            "share": hits / len(rows) if rows else None,
+            "ci95": wilson(hits, len(rows)),
+        }
+    for name in ("level", "nees", "estimate_error"):
+        found = [r[name] for r in rows if r.get(name) is not None]
+        out[f"mean_{name}"] = float(np.mean(found)) if found else None
     return out
