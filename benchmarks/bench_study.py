@@ -195,7 +195,9 @@ def _browser_participant(study, code, link, corrections, barrier, out, errors, b
             arrived, sent = page.last_submit
             spans.append(sent - arrived)
             # Its own next plan: the correction's number, and the cup where its plan has it.
-            title = f"Correction {page.session.iteration + 1} of {corrections}"
+            # (the trial's length is the page's: the protocol gives it 20 corrections more
+            # than are made, so that no trial ends during the benchmark)
+            title = f"Correction {page.session.iteration + 1} of {page.limit}"
             plan = page.proposal.plan.trajectory
             cup = cup_pose(plan[int(page.waypoint.value)])[1]
 
