@@ -96,6 +96,43 @@ def test_the_rank_test_passes_bayes_and_fails_an_over_confident_posterior():
     assert counts[0] + counts[-1] > 3 * counts[4:6].sum() / 2
 
 
+def _two_model_ranks(people: int, seed: int = 5) -> tuple[np.ndarray, np.ndarray]:
+    """Exact Bayes over a weight and which of two ways the person corrects: θ ~ N(0, 1), the
+    step m is 1 or ½ with probability ½ each, five corrections y = mθ + N(0, 1). The
+    posterior is a two-part Gaussian mixture, drawn from exactly. Returns each person's rank
+    of θ* among :data:`~corrections_sim.study.sbc.SAMPLES` draws and their step."""
+    rng = np.random.default_rng(seed)
+    steps, n = np.array([1.0, 0.5]), 5
+    ranks, which = [], []
+    for _ in range(people):
+        theta, m = rng.normal(), rng.integers(2)
+        y = steps[m] * theta + rng.normal(size=n)
+        var = 1.0 / (1.0 + n * steps**2)
+        mean = var * steps * y.sum()
+        # p(m | y): y ~ N(0, I + m² 11ᵀ); its log-density up to what both models share.
+        log_w = -0.5 * (np.log1p(n * steps**2) - steps**2 * y.sum() ** 2 / (1 + n * steps**2))
+        w = np.exp(log_w - log_w.max())
+        parts = rng.choice(2, size=sbc.SAMPLES, p=w / w.sum())
+        draws = rng.normal(mean[parts], np.sqrt(var[parts]))
+        ranks.append(int((draws < theta).sum()))
+        which.append(int(m))
+    return np.array(ranks), np.array(which)
+
+
+def test_a_group_of_one_correction_model_may_fail_where_exact_bayes_passes():
+    """Why SBC's per-model p-values are diagnostics, not a test EX-M must pass: the ranks are
+    uniform over the people drawn from the prior, not over the people of one latent way of
+    correcting when the corrections cannot tell the ways apart. Exact Bayes over two steps
+    passes the pooled test and fails within each step's people (∪ for the half steps, whose
+    θ the mixture shrinks toward the full step's smaller |θ|, ∩ for the full steps)."""
+    ranks, which = _two_model_ranks(4000)
+    assert sbc.chi2_p(ranks) > 0.01
+    half, full = ranks[which == 1], ranks[which == 0]
+    assert sbc.chi2_p(half) < 1e-6 and sbc.chi2_p(full) < 1e-6
+    ends = lambda r: sbc.rank_counts(r)[[0, -1]].sum() / len(r)  # noqa: E731
+    assert ends(half) > 0.2 + 0.05 > ends(full) + 0.1  # uniform: 0.2
+
+
 def test_the_people_come_from_the_robots_prior():
     """θ* inside the atlas's box, a model of EX-M's, a scale of its four, N positive
     definite; the same draw from the same seed."""
