@@ -31,6 +31,7 @@ import numpy as np
 from scipy import stats
 
 from corrections_sim.belief import Belief
+from corrections_sim.calibration import wilson
 from corrections_sim.learning.base import LEARNERS
 from corrections_sim.learning.exact.draws import mixture_density, mixture_draws, posterior_parts
 from corrections_sim.learning.exact.mixture import ExactPersonModel, model_tag
@@ -236,14 +237,9 @@ def chi2_p(ranks: Sequence[int]) -> float:
     return float(stats.chisquare(rank_counts(ranks)).pvalue)
 
 
-def wilson(hits: int, n: int, z: float = 1.96) -> list[float | None]:
-    """The Wilson interval of a share ``hits`` / ``n`` (95% by default)."""
-    if n == 0:
-        return [None, None]
-    p = hits / n
-    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
-    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    return [float(centre - half), float(centre + half)]
+def wilson_or_none(hits: int, n: int) -> list[float | None]:
+    """:func:`~corrections_sim.calibration.wilson`'s 95% interval, [None, None] of no runs."""
+    return list(wilson(hits, n)) if n else [None, None]
 
 
 def summarize(learners: Sequence[str], k: int, rows: Sequence[dict]) -> dict:
@@ -270,7 +266,7 @@ def summarize(learners: Sequence[str], k: int, rows: Sequence[dict]) -> dict:
                 hits = int(sum(r["level"] <= alpha for r in at))
                 entry[f"coverage_{round(100 * alpha)}"] = {
                     "share": hits / len(at) if at else None,
-                    "ci95": wilson(hits, len(at)),
+                    "ci95": wilson_or_none(hits, len(at)),
                 }
             nees = [r["nees"] for r in at if r["nees"] is not None]
             entry["mean_nees"] = float(np.mean(nees)) if nees else None
@@ -339,7 +335,7 @@ def coverage_of(rows: Sequence[dict]) -> dict:
         hits = int(sum(r["level"] <= alpha for r in rows))
         out[f"coverage_{round(100 * alpha)}"] = {
             "share": hits / len(rows) if rows else None,
-            "ci95": wilson(hits, len(rows)),
+            "ci95": wilson_or_none(hits, len(rows)),
         }
     for name in ("level", "nees", "estimate_error"):
         found = [r[name] for r in rows if r.get(name) is not None]

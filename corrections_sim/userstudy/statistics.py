@@ -34,6 +34,8 @@ from itertools import combinations
 import numpy as np
 from scipy import stats
 
+from corrections_sim.calibration import wilson
+
 #: A confidence level for every interval of the analysis.
 LEVEL = 0.95
 #: A participant standard deviation below this share of the residual one is on its boundary
@@ -269,13 +271,8 @@ def power_summary(significant: Sequence[bool], level: float = LEVEL) -> dict:
     if n == 0:
         return {"studies": 0, "power": math.nan, "lo": math.nan, "hi": math.nan}
     z = float(stats.norm.ppf(0.5 + level / 2))
-    p = k / n
-    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    # The interval holds p within [0, 1]; at p = 0 or 1 rounding put an end a hair past
-    # either (hi 1 − 1e-16 at p = 1: a negative error bar that stopped the power plot).
-    lo, hi = min(max(centre - half, 0.0), p), max(min(centre + half, 1.0), p)
-    return {"studies": n, "power": p, "lo": lo, "hi": hi}
+    lo, hi = wilson(k, n, z)
+    return {"studies": n, "power": k / n, "lo": lo, "hi": hi}
 
 
 def needed(sizes: Sequence[int], powers: Sequence[float], target: float = 0.8) -> float | None:
