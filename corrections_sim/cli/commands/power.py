@@ -99,7 +99,15 @@ def _plot_power(table: dict, path: Path, title: str) -> None:
     b.plot(sizes, [s["coverage_z"] for s in table["sizes"]], "s--", label="Wald z")
     b.axhline(0.95, color="0.5", ls="--", lw=1)
     b.axhspan(0.93, 0.97, color="C2", alpha=0.12)
-    low = min([*cov, *(s["coverage_z"] for s in table["sizes"]), 0.9])
+    # Low enough for every interval's lower end too (one cut off hid how little was known).
+    low = min(
+        [
+            *cov,
+            *(s["coverage_z"] for s in table["sizes"]),
+            *(s["coverage_lo"] for s in table["sizes"]),
+            0.9,
+        ]
+    )
     b.set(xlabel="participants N", ylabel="95% CI coverage", ylim=(max(0.0, low - 0.03), 1.0))
     b.legend(fontsize=8)
     fig.suptitle(f"{title} (simulated participants, {table['outcome']})", fontsize=10)
