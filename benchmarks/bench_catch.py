@@ -22,7 +22,7 @@ from pathlib import Path
 
 from scipy import stats
 
-from corrections_sim.pages.server import serve
+from corrections_sim.pages.server import serve, stop
 from corrections_sim.session.log import StudyLog
 from corrections_sim.session.session import Session
 from corrections_sim.study.schema import parse_study
@@ -116,7 +116,10 @@ def run(tries: int = 62) -> dict:
             caught, tried = catch(tab, page, tries)
         finally:
             browser.close()
-            server.stop()
+            # The last grab's push may still be learning on the physics thread: it ends
+            # before the log closes under it.
+            page.settle()
+            stop(server)
             log.close()
     return {"caught": caught, "tried": tried}
 

@@ -128,7 +128,7 @@ def run_page_bench(speed: float = 0.25, pushes: int = 2, screenshot=None, db=Non
 
     from playwright.sync_api import sync_playwright
 
-    from corrections_sim.pages.server import serve
+    from corrections_sim.pages.server import serve, stop
     from corrections_sim.session.log import StudyLog
     from corrections_sim.session.session import Session
     from corrections_sim.study.schema import parse_study
@@ -170,11 +170,13 @@ def run_page_bench(speed: float = 0.25, pushes: int = 2, screenshot=None, db=Non
                 if screenshot is not None and k == 0:
                     tab.screenshot(path=str(screenshot))
                 server_side.append(page.last_push[1] - page.last_push[0])
-                drive.wait_for(lambda: not page._runner.is_alive(), "the motion's end", 120)
+                if not page.settle(120):
+                    raise TimeoutError("the motion did not end within 120 s")
                 page.max_force = 0.0
             browser.close()
     finally:
-        server.stop()
+        page.settle()  # a push still learning ends before the log closes under it
+        stop(server)
         log.close()
     return [
         f"physical page at speed {speed} ({pushes} pushes, chromium, software WebGL; session "

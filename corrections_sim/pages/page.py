@@ -229,6 +229,11 @@ class Page(Teaching):
     def disconnect(self, client) -> None:
         self._disconnect(client)
 
+    def settle(self, timeout: float | None = None) -> bool:
+        """Wait until nothing of this page's still runs on the server; whether nothing does
+        (a drag page learns on viser's handlers: nothing outlives them)."""
+        return True
+
     def close(self) -> None:
         """Leave the tab to whoever draws on it next (nothing of this page is drawn again)."""
         with self._lock:

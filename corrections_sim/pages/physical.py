@@ -92,12 +92,22 @@ class PhysicalPage(Page):
         self._force_line = None
         super().__init__(server, session, **options)
 
+    def settle(self, timeout: float | None = None) -> bool:
+        """Wait until the motion running on the server has ended (a push it had is learnt
+        and logged), at most ``timeout`` seconds (default: the motion's length and a minute to
+        learn); whether it has. Call it before closing the session's log."""
+        runner = self._runner
+        if runner is None:
+            return True
+        runner.join(timeout=self.duration / self.speed + 60.0 if timeout is None else timeout)
+        return not runner.is_alive()
+
     def _connect(self, client) -> None:
         runner = self._runner
         if runner is not None and runner.is_alive() and self.owner is None:
             # A tab (re)connected during a motion whose page was closed: the motion plays out
             # on the server (a push it had is learnt and logged); this page starts after it.
-            runner.join(timeout=self.duration / self.speed + 60.0)
+            self.settle()
         super()._connect(client)
 
     def _build(self, client) -> None:

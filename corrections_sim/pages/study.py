@@ -230,6 +230,16 @@ class StudyServer:
         if view is not None:
             view.render()
 
+    def settle(self) -> None:
+        """Wait until no participant's page still runs anything on the server (a push
+        being learnt is logged): call it before the log closes."""
+        with self._lock:
+            views = list(self.views.values())
+        for view in views:
+            page = getattr(view, "page", None)  # the experimenter's view has none
+            if page is not None:
+                page.settle()
+
     def status(self) -> list[dict]:
         """Who is where, with whether their page is open and whether they wait."""
         out = []

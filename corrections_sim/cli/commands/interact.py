@@ -242,6 +242,7 @@ def _serve_session(args, server, session, log, db: Path, speed: float) -> list[P
     :data:`AFTER_DONE` s later), or an interrupt."""
     from corrections_sim.pages.server import show, stop
 
+    page = None
     try:
         page = show(server, session, speed=speed)
         url = f"http://{_host(args)}:{server.get_port()}"
@@ -266,6 +267,8 @@ def _serve_session(args, server, session, log, db: Path, speed: float) -> list[P
         while waited < AFTER_DONE and not page.left.wait(0.5):
             waited += 0.5
     finally:
+        if page is not None:
+            page.settle()  # a push still learning is logged before the log closes
         stop(server)
         log.close()
     return [db]

@@ -52,6 +52,7 @@ def run_serve_study(args: argparse.Namespace) -> list[Path]:
     except BaseException:
         stop(server)
         raise
+    study = None
     try:
         if host not in ("127.0.0.1", "localhost", "::1"):
             print(
@@ -79,6 +80,8 @@ def run_serve_study(args: argparse.Namespace) -> list[Path]:
         while True:
             time.sleep(POLL)
     finally:
+        if study is not None:
+            study.settle()  # a push still learning is logged before the log closes
         stop(server)
         run.log.close()
 
