@@ -18,7 +18,7 @@ import pytest
 
 from corrections_sim.cli import main as cli
 from corrections_sim.cli.commands import figure as figure_command
-from corrections_sim.figures import learning_study
+from corrections_sim.figures import learning_plot, learning_study
 from corrections_sim.study import runner
 from corrections_sim.study import schema as study_file
 
@@ -379,7 +379,7 @@ def test_the_learners_legend_covers_no_panel(tmp_path, monkeypatch):
         drawn["fig"] = fig
 
     monkeypatch.setattr(style, "save_and_close", keep)
-    learning_study.plot_learning_curves(
+    learning_plot.plot_learning_curves(
         curves, "title", [tmp_path / "x.png"], bands={n: (0.5, 3.0) for n in names[:4]}
     )
     fig = drawn["fig"]

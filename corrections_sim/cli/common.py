@@ -68,6 +68,7 @@ def writable_dir(path: Path) -> Path:
 def staged(final: Path) -> Iterator[Path]:
     """A scratch folder beside ``final``; its files replace ``final``'s only if the body
     succeeds, so a failed command leaves earlier results as they were."""
+    final.parent.mkdir(parents=True, exist_ok=True)  # a figure's folder may be nested
     staging = Path(tempfile.mkdtemp(prefix=f".{final.name}-", dir=final.parent))
     try:
         yield staging

@@ -117,18 +117,26 @@ def write(
     name: str,
     *,
     user: str | None = None,
+    plot: Callable | None = None,
+    heading: str | None = None,
 ) -> dict:
     """curves.csv, mean_estimate.csv and the plot (PNG, PDF) in ``folder``; returns the
-    summary's fields (statistics, provenance of the numbers, the curves drawn)."""
+    summary's fields (statistics, provenance of the numbers, the curves drawn). ``plot``:
+    how the curves are drawn (default
+    :func:`~corrections_sim.figures.learning_plot.plot_learning_curves`; ``run learners``
+    draws every learner by family); ``heading``: the title's first words
+    (default ``name``, which also names the plot's files)."""
+    from corrections_sim.figures.learning_plot import plot_learning_curves
 
     write_records(folder / "curves.csv", result.records)
     write_records(folder / "mean_estimate.csv", result.mean_estimate)
     stats = summarize(settings, result)
     data = curves(settings, result.records)
-    title = f"{name}: {describe(settings, user)}"
+    heading = heading or name
+    title = f"{heading}: {describe(settings, user)}"
     if settings.description:
-        title = f"{name}: {settings.description}\n{describe(settings, user)}"
-    plot_learning_curves(
+        title = f"{heading}: {settings.description}\n{describe(settings, user)}"
+    (plot or plot_learning_curves)(
         data,
         title,
         [folder / f"{name}.png", folder / f"{name}.pdf"],
@@ -229,107 +237,3 @@ register(
     )
 )
 register(LearningStudy("study", "a learning study in a TOML file (see docs/study-files.md)"))
-
-
-def plot_learning_curves(
-    curves: dict[str, dict[str, np.ndarray]],
-    title: str,
-    paths,
-    bands: dict[str, tuple[float, float]] | None = None,
-    n_environments: int = 48,
-) -> None:
-    """Estimate error, regret and calibration against iteration.
-
-    Bands are ± SEM over runs (none for a single run). The calibration panel shows the mean
-    NEES of every learner with a covariance on a log scale, with the 95% χ² band of a
-    calibrated mean for that learner's number of runs shaded (light grey: the most runs;
-    hatched: a single run).
-
-    Args:
-        curves: learner -> {"estimate_error", "regret", "regret_paper", "nees"}: each
-            (runs, T+1).
-        paths: files to write (PNG, PDF, …).
-        bands: learner -> (low, high) band of its mean NEES; learners without one have no
-            covariance and are left out of the calibration panel.
-    """
-    from corrections_sim.figures.style import learner_label, learner_style, plt, save_and_close
-    from corrections_sim.metrics import mean_sem
-
-    bands = bands or {}
-    # The learners' legend gets a row of its own under the panels: inside a panel, thirteen
-    # learners covered the curves they name.
-    ncol = min(len(curves), 5)
-    legend_rows = -(-len(curves) // ncol) if curves else 0
-    fig = plt.figure(figsize=(17, 4.4 + 0.22 * legend_rows))
-    grid = fig.add_gridspec(2, 4, height_ratios=(4.4, max(0.22 * legend_rows, 0.01)))
-    axes = [fig.add_subplot(grid[0, j]) for j in range(4)]
-    box = fig.add_subplot(grid[1, :])
-    box.set_axis_off()
-    panels = (
-        ("estimate_error", "Estimate error ‖θ̂ − θ*‖₁", "error (L1, weight units)"),
-        (
-            "regret",
-            f"Regret (full objective), Σ over {n_environments} envs",
-            "regret (reward units)",
-        ),
-        (
-            "regret_paper",
-            f"Regret θ*·Φ only (paper's), Σ over {n_environments} envs",
-            "regret (reward units)",
-        ),
-    )
-    for ax, (key, label, ylabel) in zip(axes, panels, strict=False):
-        for learner, data in curves.items():
-            colour, style = learner_style(learner)
-            values = data[key]
-            mean, sem = mean_sem(values)
-            t = np.arange(mean.size)
-            n = values.shape[0]
-            name = f"{learner_label(learner)}, N = {n}"
-            ax.plot(t, mean, color=colour, ls=style, lw=2, label=name)
-            if n > 1:
-                ax.fill_between(t, mean - sem, mean + sem, color=colour, alpha=0.2, lw=0)
-        ax.set_title(label, fontsize=10)
-        ax.set_ylabel(ylabel)
-    ax = axes[3]
-    shown = set()
-    for learner, band in sorted(bands.items(), key=lambda kv: kv[1][1] - kv[1][0]):
-        if tuple(band) in shown:
-            continue
-        n = curves[learner]["nees"].shape[0]
-        single = n == 1
-        ax.axhspan(
-            *band,
-            facecolor="none" if single else "0.85",
-            hatch="///" if single else None,
-            edgecolor="0.7",
-            lw=0,
-            label=f"95% band, calibrated mean of {n} run{'s' if n > 1 else ''}",
-        )
-        shown.add(tuple(band))
-    for learner in bands:
-        colour, style = learner_style(learner)
-        mean = np.nanmean(curves[learner]["nees"], axis=0)
-        ax.plot(np.arange(mean.size), mean, color=colour, ls=style, lw=2)
-    if bands:
-        ax.set_yscale("log")
-        ax.legend(fontsize=7, loc="upper left")
-    ax.set_title("Calibration: mean NEES (θ̂−θ*)ᵀP⁻¹(θ̂−θ*)", fontsize=10)
-    ax.set_ylabel("mean NEES (calibrated: k)")
-    for ax in axes:
-        ax.set_xlabel("iteration (corrections)")
-        ax.xaxis.get_major_locator().set_params(integer=True)
-        ax.grid(alpha=0.3)
-    if curves:
-        box.legend(
-            *axes[0].get_legend_handles_labels(),
-            loc="center",
-            ncol=ncol,
-            fontsize=8,
-            frameon=False,
-        )
-    fig.suptitle(title + "; bands: ± SEM over runs", fontsize=11)
-    save_and_close(fig, paths, dpi=150)
-
-
-# --- figs. 1-3: heat maps of the predicted covariance, risk-sensitive deployment ---------------

@@ -31,6 +31,7 @@ BUILT_IN = (
     "corrections_sim.figures.selection",
     "corrections_sim.figures.deployment",
     "corrections_sim.figures.learning_study",
+    "corrections_sim.figures.every_learner",
     "corrections_sim.figures.robustness",
     "corrections_sim.figures.physical",
     "corrections_sim.figures.relevance",
