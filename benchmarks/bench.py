@@ -52,6 +52,7 @@ SUBCOMMANDS = (
     "particles",
     "exact",
     "split",
+    "main",
 )
 
 #: A figure's study at a tiny size: its atlas at 3 points a weight (the paper's 31 would be
@@ -77,6 +78,7 @@ TINY: dict[str, list[str]] = {
     "particles": ["--particles", "20", "--problems", "1", "--envs", "1", "--moves", "1", *SMALL],
     "exact": ["--problems", "1", "--iterations", "2", "--learners", "EX-C", *SMALL],
     "split": ["--slice-runs", "1", "--iterations", "1", "--learners", "KF,EX-C", *SMALL],
+    "main": ["--quick", "--learners", "KF,EX-M", "--iterations", "1", *SMALL, "--keep-compiled"],
 }
 
 THETA_RANGE = (-1.5, 1.5)
@@ -441,7 +443,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         "--iterations; --learners). 'split': where a study's CPU goes, learner by learner "
         "(fig. 4 or --study FILE at paper settings; --slice-runs runs of each, default 8): a "
         "run, its regret metric, the learner's update, solves, and the study's runs at that "
-        "rate.",
+        "rate. 'main': the README's run fig4 in a fresh process from an empty cache (gcc "
+        "builds, atlas), then with everything cached but the runs: wall, CPU, max RSS, the "
+        "wall split around the runs, and whether the two curves are byte-identical.",
     )
     parser.add_argument(
         "what",
@@ -493,6 +497,11 @@ def main(argv: Sequence[str] | None = None) -> None:
         action="store_true",
         help="atlas: the same problems also through a coarse-to-fine construction (every other "
         "node built in full, the others from their parents, where a problem asks; docs/atlas.md)",
+    )
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="main: the figure's quick preset (the tests' size) instead of the paper's",
     )
     parser.add_argument(
         "--tiny",
@@ -553,6 +562,12 @@ def main(argv: Sequence[str] | None = None) -> None:
         action="store_true",
         help="confidence: also how often PF-C's plans are local optima (best of 10 random "
         "starts, 150 of its plans)",
+    )
+    parser.add_argument(
+        "--keep-compiled",
+        action="store_true",
+        help="main: the empty cache gets the machine's compiled solvers, so that only the "
+        "atlas and plans are made again (the tiny size's: its gcc builds were most of it)",
     )
     parser.add_argument(
         "--build",
@@ -791,6 +806,19 @@ def main(argv: Sequence[str] | None = None) -> None:
         else:
             lines = run_exact(names, runs, args.iterations, smaller, figure)
         print("\n".join(lines), flush=True)
+        return
+    if args.what == "main":
+        from benchmarks.bench_main import report as report_main
+        from benchmarks.bench_main import run as run_main
+
+        extra = ["--quick"] if args.quick else []
+        extra += set_options(args.grid, args.study_envs)
+        if args.learners:
+            extra += ["--learners", args.learners]
+        if args.iterations is not None:
+            extra += ["--iterations", str(args.iterations), "--runs", "1"]
+        result = run_main("fig4", extra, compiled=args.keep_compiled)
+        print("\n".join(report_main(result)), flush=True)
         return
     if args.what == "catch":
         from benchmarks.bench_catch import report as report_catch

@@ -17,7 +17,7 @@ from benchmarks import bench
 def test_every_benchmark_has_a_tiny_size_and_a_test():
     """A new benchmark without a tiny size (or without a test here) fails at once."""
     assert set(bench.TINY) == set(bench.SUBCOMMANDS)
-    tested = set(SPLIT[0]) | set(SPLIT[1]) | set(IN_A_BROWSER) | {"exact", "split"}
+    tested = set(SPLIT[0]) | set(SPLIT[1]) | set(IN_A_BROWSER) | {"exact", "split", "main"}
     assert tested == set(bench.SUBCOMMANDS)
 
 
@@ -125,3 +125,13 @@ def test_atlas_compares_a_studys_levels_on_its_own_box(tmp_path, capsys):
     assert len(shares) == 5 and all(0.0 <= float(v) <= 100.0 for v in shares), out
     asked = re.findall(r"(\d+) nodes asked for", out)
     assert len(asked) == 2 and all(int(n) > 0 for n in asked), out
+
+
+def test_main_times_the_main_job_from_an_empty_cache_and_again(tmp_path):
+    """``bench main`` at the quick preset: both rows (an empty cache, then all cached but the
+    runs) with a wall time and the runs found in the progress lines, and the verdict on the
+    two curves (the same code and cache: identical)."""
+    out = run_tiny("main", tmp_path)
+    rows = [line.split() for line in out.splitlines() if line.startswith(("empty", "all cached"))]
+    assert len(rows) == 2
+    assert "the two runs' curves.csv: byte-identical" in out

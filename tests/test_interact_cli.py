@@ -77,7 +77,7 @@ def test_a_host_that_never_answers_is_given_up_on(monkeypatch):
         (["--runs", "3"], ["--runs: does not apply to interact", "FILE"]),
         (["--drag-model", "nonsense"], ["nonsense", "waypoint"]),
         (["--learner", "PP"], ["fixed_alpha"]),
-        (["--mode", "physical", "--set", "learners.KF-CL.model=bogus"], ["bogus"]),
+        (["--mode", "physical", "--set", "learners.KF-C.model=bogus"], ["bogus"]),
     ],
 )
 def test_bad_session_options_write_nothing(tmp_path, capsys, argv, names):

@@ -386,14 +386,62 @@ def test_the_learners_legend_covers_no_panel(tmp_path, monkeypatch):
     renderer = fig.canvas.get_renderer()
     panels = [ax for ax in fig.axes if ax.get_visible() and ax.axison]
     legends = [ax.get_legend() for ax in fig.axes if ax.get_legend() is not None]
-    learners = next(leg for leg in legends if len(leg.get_texts()) == len(names))
+    (learners,) = legends  # the learners and the calibration panel's bands, under the panels
     box = learners.get_window_extent(renderer)
     assert len(panels) == 4
     for ax in panels:
         assert not box.overlaps(ax.get_tightbbox(renderer)), ax.get_title()
-    assert sorted(t.get_text().rsplit(", N = ")[0] for t in learners.get_texts()) == sorted(
+    texts = [t.get_text() for t in learners.get_texts()]
+    assert sorted(t.rsplit(", N = ")[0] for t in texts if ", N = " in t) == sorted(
         style.learner_label(n) for n in names
     )
+    assert [t for t in texts if ", N = " not in t] == ["95% band of a calibrated mean of 3 runs"]
+    style.plt.close(fig)
+
+
+def test_figs_4_and_5_show_six_learners_each_its_own_and_the_recommended_robot_on_top(
+    tmp_path, monkeypatch
+):
+    """Issue 68: the paper's three, the correction-aware two, and EX-M; no two drawn alike,
+    EX-M thickest, on top and named the robot we recommend; the calibration panel says in
+    words what the band means."""
+    from corrections_sim.defaults import RECOMMENDED
+    from corrections_sim.figures import style
+
+    (names,) = {
+        tuple(learning_study.load_settings(f, quick=q).study.learners)
+        for f in learning_study.FIGURES
+        for q in (False, True)
+    }
+    assert len(names) <= 6 and RECOMMENDED in names and {"PP", "KF", "AL"} <= set(names)
+    rng = np.random.default_rng(0)
+    curves = {
+        n: {
+            k: rng.random((3, 5)) + 0.1
+            for k in ("estimate_error", "regret", "regret_paper", "nees")
+        }
+        for n in names
+    }
+    drawn = {}
+    monkeypatch.setattr(style, "save_and_close", lambda fig, paths, dpi: drawn.update(fig=fig))
+    learning_plot.plot_learning_curves(
+        curves, "t", [tmp_path / "x.png"], bands={n: (0.5, 3.0) for n in names if n != "PP"}
+    )
+    fig = drawn["fig"]
+    error = fig.axes[0]
+    lines = {line.get_label(): line for line in error.get_lines()}
+    assert len({(line.get_color(), line.get_linestyle()) for line in lines.values()}) == len(names)
+    (ours,) = [label for label in lines if "the robot we recommend" in label]
+    assert ours.startswith(style.learner_label(RECOMMENDED))
+    assert lines[ours].get_linewidth() > max(
+        line.get_linewidth() for label, line in lines.items() if label != ours
+    )
+    assert lines[ours].get_zorder() > max(
+        line.get_zorder() for label, line in lines.items() if label != ours
+    )
+    calibration = fig.axes[3].get_title()
+    assert "calibrated" in calibration and "over-confident" in calibration
+    assert "PP: no covariance" in calibration
     style.plt.close(fig)
 
 

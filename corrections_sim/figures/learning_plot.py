@@ -22,7 +22,9 @@ PANELS = (
 )
 CALIBRATION_TITLE = "Calibration: mean NEES (θ̂−θ*)ᵀP⁻¹(θ̂−θ*)"
 #: What the calibration panel's reader needs in words, under its title.
-CALIBRATION_WORDS = "in the grey band: calibrated; above: over-confident; below: under-confident"
+CALIBRATION_WORDS = (
+    "in the grey band: calibrated\nabove it: over-confident; below it: under-confident"
+)
 
 #: Panels of ``run learners``: the learners' families, by the package they live in (an active
 #: learner is in "Active learning" whatever its package; a plug-in in "Plug-ins").
@@ -125,9 +127,11 @@ def _calibration(ax, curves: Mapping, bands: Mapping, learners: Sequence[str]) -
     if shown:
         ax.set_yscale("log")
     without = [n for n in learners if n not in bands]
-    words = CALIBRATION_WORDS + (f"\nno covariance: {', '.join(without)}" if without else "")
-    ax.set_title(f"{CALIBRATION_TITLE}\n{words}", fontsize=9)
-    ax.set_ylabel("mean NEES (calibrated: the number of weights)")
+    first, rest = CALIBRATION_WORDS.split("\n", 1)
+    if without:
+        first += f" ({', '.join(without)}: no covariance)"
+    ax.set_title(f"{CALIBRATION_TITLE}\n{first}\n{rest}", fontsize=9)
+    ax.set_ylabel("mean NEES (log scale)")
 
 
 def _order(names: Sequence[str]) -> list[str]:
@@ -266,7 +270,8 @@ def plot_every_learner(
             handles = (handles[0] + bands_shown[0], handles[1] + bands_shown[1])
         box.legend(*handles, loc="upper center", ncol=1, fontsize=8, frameon=False)
     fig.suptitle(
-        f"{title}; bands: ± SEM over runs\ncalibration (log scale): {CALIBRATION_WORDS}",
+        f"{title}; bands: ± SEM over runs\ncalibration (log scale): "
+        + CALIBRATION_WORDS.replace("\n", "; "),
         fontsize=12,
     )
     save_and_close(fig, paths, dpi=110)
