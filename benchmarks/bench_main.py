@@ -4,10 +4,11 @@ and the plan atlas made first), then again with everything cached but the runs (
 cache deleted: every run recomputed, only compiled code, atlas nodes and plans kept).
 
 For each: wall time, CPU seconds (the command and its workers), the largest resident set of
-any one process, and the wall time split by what the command's progress lines say: until the
-first run starts (compile, atlas and the shared plans), the runs, and the rest (summaries,
-figure, files). Then whether the two runs' ``curves.csv`` are byte-identical. Where a
-learner's time goes inside the runs: ``bench split``.
+any one process so far (the kernel keeps one maximum over every finished child, so the
+second row cannot show less than the first), and the wall time split by what the command's
+progress lines say: until the first run starts (compile, atlas and the shared plans), the
+runs, and the rest (summaries, figure, files). Then whether the two runs' ``curves.csv``
+are byte-identical. Where a learner's time goes inside the runs: ``bench split``.
 
 It prints figures and never asserts.
 """
