@@ -90,7 +90,7 @@ class EveryLearner(LearningStudy):
         return f"{FOLDER}/{settings.name}"
 
     def write(self, settings: FigureSettings, result: FigureResult, folder: Path) -> dict:
-        from corrections_sim.figures.learning_plot import family, plot_every_learner
+        from corrections_sim.figures.learning_plot import plot_every_learner
 
         fields = learning_study.write(
             settings,
@@ -101,7 +101,7 @@ class EveryLearner(LearningStudy):
             heading=f"every learner on {settings.name}'s settings",
         )
         _, left_out = every_learner(settings.study.atlas is not None)
-        rows = table(fields, family)
+        rows = table(fields)
         with open(folder / "table.csv", "w", newline="") as fh:
             writer = csv.DictWriter(fh, fieldnames=list(rows[0]) if rows else ["learner"])
             writer.writeheader()
@@ -114,9 +114,10 @@ def _blank(value):
     return "" if value is None else value
 
 
-def table(fields: Mapping[str, Any], family) -> list[dict]:
+def table(fields: Mapping[str, Any]) -> list[dict]:
     """One row a learner: its family, the question it answers, its final estimate error and
     regret (mean ± SEM over runs) and its final mean NEES (none without a covariance)."""
+    from corrections_sim.figures.learning_plot import family
     from corrections_sim.learning.base import LEARNERS
 
     rows = []

@@ -86,10 +86,6 @@ def _draw(ax, name: str, values: np.ndarray, *, label: str | None, band: bool = 
         ax.fill_between(t, mean - sem, mean + sem, color=colour, alpha=0.2, lw=0, zorder=2)
 
 
-def _nees_mean(values: np.ndarray) -> np.ndarray:
-    return np.nanmean(values, axis=0)
-
-
 def _calibration(ax, curves: Mapping, bands: Mapping, learners: Sequence[str]) -> None:
     """Mean NEES of ``learners`` with a covariance on a log scale, the 95% band of a
     calibrated mean for each number of runs shaded, and what the band means in words."""
@@ -114,7 +110,7 @@ def _calibration(ax, curves: Mapping, bands: Mapping, learners: Sequence[str]) -
         if name not in bands:
             continue
         colour, style = learner_style(name)
-        mean = _nees_mean(curves[name]["nees"])
+        mean = np.nanmean(curves[name]["nees"], axis=0)
         ours = name == RECOMMENDED
         ax.plot(
             np.arange(mean.size),
