@@ -232,3 +232,45 @@ def test_processes_that_merge_the_same_shards_at_once_lose_no_plan(tmp_path):
     assert sorted(out.get() for _ in workers) == [len(thetas)] * 4
     _assert_known(tmp_path, thetas, plans)
     assert len(list(tmp_path.glob("key.extra-*.npz"))) < between.COMPACT_AT
+
+
+def test_a_plan_table_answers_as_a_dictionary_of_first_plans_would():
+    """PlanTable (a few arrays and an index) against a plain dict θ's bytes -> the first plan
+    kept there (None where NaN), over a random mix of single plans and blocks (some θ repeated
+    within and across them, blocks past MAX_BLOCKS compacted): the same keys, and every
+    lookup — one at a time and many at once — the same bits."""
+    rng = np.random.default_rng(65)
+    T, table, reference = 3, between.PlanTable(3), {}
+    for step in range(400):
+        if rng.random() < 0.1:  # a block, as read from shards or taken from another worker
+            n = int(rng.integers(0, 50))
+            thetas = rng.integers(0, 300, size=(n, 2)).astype(float)
+            plans = rng.normal(size=(n, T, 7))
+            plans[rng.random(n) < 0.2] = np.nan
+            memos = between.row_keys(thetas)
+            new = table.add_many(memos, plans)
+            expected_new = []
+            for memo, plan in zip(memos, plans, strict=True):
+                if memo not in reference:
+                    reference[memo] = None if np.isnan(plan).all() else plan
+                    expected_new.append(memo)
+            assert new == expected_new
+        else:  # one solved here
+            memo = rng.integers(0, 300, size=2).astype(float).tobytes()
+            plan = None if rng.random() < 0.2 else rng.normal(size=(T, 7))
+            assert table.add(memo, plan) == (memo not in reference)
+            reference.setdefault(memo, plan)
+        asked = list(reference)
+        asked = [asked[i] for i in rng.integers(0, len(asked), size=20)] if asked else []
+        taken = table.take(table.rows(asked)) if asked else []
+        for memo, plan in zip(asked, taken, strict=True):
+            want = reference[memo]
+            if want is None:
+                assert np.isnan(plan).all() and table[memo] is None
+            else:
+                assert np.array_equal(plan, want) and np.array_equal(table[memo], want)
+    assert set(table) == set(reference) and len(table) == len(reference)
+    assert len(table._blocks) <= between.MAX_BLOCKS + 1
+    assert table.rows([b"absent but sixteen"]).tolist() == [-1]
+    with pytest.raises(ValueError, match="2 thetas for 1 plans"):
+        table.add_many([b"a" * 16, b"b" * 16], np.zeros((1, T, 7)))

@@ -24,6 +24,7 @@ from __future__ import annotations
 import collections
 import functools
 import hashlib
+import inspect
 import itertools
 import json
 import math
@@ -46,7 +47,7 @@ from corrections_sim.planning.planner import (
     cache_dir,
     smoothness_cost,
 )
-from corrections_sim.plans.between import BetweenNodes, PlanShards
+from corrections_sim.plans.between import BetweenNodes, PlanShards, row_keys
 from corrections_sim.scene.environments import Environment
 
 #: Bumped when the build's algorithm changes: older atlases are rebuilt, never read.
@@ -54,12 +55,18 @@ ALGORITHM = 1
 
 
 @functools.cache
+@functools.cache
 def answer_version() -> str:
-    """What an answer between the nodes depends on beyond the atlas's key, hashed: the code of
-    this module (:meth:`Atlas.solve`, the corners' ranking) and of Newton's warm re-solve;
-    plans kept between nodes are named by it, so changed code leaves them unread."""
+    """What an answer between the nodes depends on beyond the atlas's key, hashed: the source
+    of the code that makes it (:meth:`Atlas.solve`, the corners' ranking
+    :func:`iter_cell_starts`, the cell's arithmetic) and Newton's warm re-solve (``newton.py``
+    and ``newton.c``); plans kept between nodes are named by it, so changed code leaves them
+    unread, and other edits to this module (how plans are looked up, kept or documented) do
+    not. Computed once a process."""
     h = hashlib.sha256()
-    for path in (Path(__file__), Path(newton.__file__), Path(newton.__file__).with_suffix(".c")):
+    for code in (Atlas.solve, iter_cell_starts, AtlasGrid.contains, AtlasGrid.cell):
+        h.update(inspect.getsource(code).encode())
+    for path in (Path(newton.__file__), Path(newton.__file__).with_suffix(".c")):
         h.update(path.read_bytes())
     return h.hexdigest()[:12]
 
@@ -523,28 +530,32 @@ class Atlas:
             nodes = np.ravel_multi_index(tuple(index[on].astype(int).T), grid.counts)
             out[on] = built.trajectories[nodes]
         known = self._between.known(env.key(), self.between_key(env))
-        missing = [i for i in np.flatnonzero(~on).tolist() if thetas[i].tobytes() not in known]
+        off = np.flatnonzero(~on)
+        memos = row_keys(thetas[off])  # θ.tobytes() of each, in one array step
+        rows = known.rows(memos)
+        absent = np.flatnonzero(rows < 0)
+        missing = off[absent].tolist()
         # With a peer, in chunks: before each, what others solved meanwhile; after, ours.
         chunk = PEER_BATCH * 4 if self.peer is not None else max(len(missing), 1)
         for start in range(0, len(missing), chunk):
             todo = missing[start : start + chunk]
             if self.peer is not None and len(todo) >= PEER_BATCH:
                 self.peer.take(self)
-            for i in todo:
-                memo = thetas[i].tobytes()
+            for i, memo in zip(todo, row_keys(thetas[todo]), strict=True):
                 if memo in known:  # asked twice, or taken from the peer
                     continue
                 try:
-                    known[memo] = self.solve(thetas[i], env).trajectory
+                    plan = self.solve(thetas[i], env).trajectory
                 except PlanningError:
-                    known[memo] = None
+                    plan = None
+                known.add(memo, plan)
                 self._between.added(env.key(), memo)
             if self.peer is not None and self._between.pending() >= PEER_BATCH:
                 self.peer.give(self)
-        for i in np.flatnonzero(~on).tolist():
-            plan = known[thetas[i].tobytes()]
-            if plan is not None:
-                out[i] = plan
+        if absent.size:  # now solved (or taken from the peer)
+            rows[absent] = known.rows([memos[j] for j in absent.tolist()])
+        if len(off):
+            out[off] = known.take(rows)  # NaN where no start converged
         return out
 
     def save(self, at_least: int = 1) -> int:

@@ -16,9 +16,10 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import itertools
 import os
 import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -141,15 +142,102 @@ def distinct(thetas: np.ndarray, plans: np.ndarray) -> tuple[np.ndarray, np.ndar
     return rows[first], plans[first]
 
 
-def _by_theta(thetas: np.ndarray, plans: np.ndarray) -> Iterator[tuple[bytes, np.ndarray | None]]:
-    """(θ's bytes, its trajectory, None where NaN marks that no start converged) for plans
-    as stored (θ (n, k), trajectories (n, T, 7)), judged in one array step."""
-    if len(thetas) != len(plans):
-        raise ValueError(f"{len(thetas)} thetas for {len(plans)} plans")
-    values: list[np.ndarray | None] = list(plans)
-    for i in np.flatnonzero(~np.isfinite(plans).all(axis=(1, 2))).tolist():
-        values[i] = None
-    return zip(row_keys(thetas), values, strict=True)
+#: A :class:`PlanTable` of more blocks (a plan exchange's takes add one each) copies all but
+#: its first (the shards as read, the largest) into one, so a lookup visits a few.
+MAX_BLOCKS = 8
+
+
+class PlanTable(Mapping):
+    """One environment's plans between nodes, as a read-only mapping θ's bytes -> trajectory
+    (T, 7), None where no start converged (a NaN row), kept as rows of a few arrays (the
+    shards as read, then a growing block for what is added) so that many are looked up and
+    taken in one array step (:meth:`rows`, :meth:`take`). A θ kept twice keeps its first
+    plan (a plan depends on (θ, E) alone: the two are the same)."""
+
+    def __init__(self, T: int, thetas: np.ndarray | None = None, plans: np.ndarray | None = None):
+        self.T = T
+        self._index: dict[bytes, int] = {}
+        self._blocks: list[tuple[int, np.ndarray]] = []  # (first row, rows), in row order
+        self._rows = 0  # rows stored (a θ repeated in a block keeps its row, unpointed)
+        self._tail: np.ndarray | None = None  # the last block's room, when it grows row by row
+        if thetas is not None and len(thetas):
+            self.add_many(row_keys(thetas), plans)
+
+    def __len__(self) -> int:
+        return len(self._index)
+
+    def __iter__(self) -> Iterator[bytes]:
+        return iter(self._index)
+
+    def __contains__(self, memo: object) -> bool:
+        return memo in self._index
+
+    def __getitem__(self, memo: bytes) -> np.ndarray | None:
+        plan = self.take([self._index[memo]])[0]
+        return plan if np.isfinite(plan).all() else None
+
+    def rows(self, memos: Sequence[bytes]) -> np.ndarray:
+        """The row of each θ (its bytes), −1 where none is kept."""
+        n = len(memos)
+        return np.fromiter(map(self._index.get, memos, itertools.repeat(-1, n)), np.int64, n)
+
+    def take(self, rows: Sequence[int] | np.ndarray) -> np.ndarray:
+        """The trajectories at ``rows`` (:meth:`rows`'s), (n, T, 7), NaN where no start
+        converged."""
+        rows = np.asarray(rows, np.int64)
+        out = np.empty((len(rows), self.T, 7))
+        for start, block in self._blocks:
+            inside = (rows >= start) & (rows < start + len(block))
+            if inside.all():
+                return block[rows - start]
+            if inside.any():
+                out[inside] = block[rows[inside] - start]
+        return out
+
+    def add(self, memo: bytes, plan: np.ndarray | None) -> bool:
+        """Keep ``plan`` (None: no start converged) at θ (its bytes); whether it was new."""
+        if memo in self._index:
+            return False
+        if self._tail is None:  # a block of its own after every kept row
+            self._tail = np.empty((64, self.T, 7))
+            self._blocks.append((self._rows, self._tail[:0]))
+        start = self._blocks[-1][0]
+        used = self._rows - start
+        if used == len(self._tail):  # full: twice the room, the rows kept
+            grown = np.empty((2 * used, self.T, 7))
+            grown[:used] = self._tail
+            self._tail = grown
+        self._tail[used] = np.nan if plan is None else plan
+        self._blocks[-1] = (start, self._tail[: used + 1])  # only the rows in use
+        self._index[memo] = self._rows
+        self._rows += 1
+        return True
+
+    def add_many(self, memos: Sequence[bytes], plans: np.ndarray) -> list[bytes]:
+        """Keep each of ``plans`` (n, T, 7; NaN where no start converged) at its θ (its
+        bytes) where none is kept yet, as one block; those that were new, in order."""
+        plans = np.asarray(plans, float)
+        if len(plans) != len(memos):
+            raise ValueError(f"{len(memos)} thetas for {len(plans)} plans")
+        if plans.shape[1:] != (self.T, 7):
+            raise ValueError(f"plans of shape {plans.shape}, expected (n, {self.T}, 7)")
+        partial = ~np.isfinite(plans).all(axis=(1, 2)) & np.isfinite(plans).any(axis=(1, 2))
+        if partial.any():  # a plan is whole or absent: a row with a NaN is no plan
+            plans = np.array(plans)
+            plans[partial] = np.nan
+        index, new = self._index, []
+        for row, memo in enumerate(memos, start=self._rows):
+            if memo not in index:
+                index[memo] = row
+                new.append(memo)
+        if new:
+            self._blocks.append((self._rows, plans))
+            self._rows += len(plans)
+            self._tail = None
+            if len(self._blocks) > MAX_BLOCKS:  # the later, smaller blocks as one
+                first, later = self._blocks[1][0], [block for _, block in self._blocks[1:]]
+                self._blocks[1:] = [(first, np.concatenate(later))]
+        return new
 
 
 def row_keys(thetas: np.ndarray) -> list[bytes]:
@@ -170,7 +258,7 @@ class BetweenNodes:
 
     def __init__(self, shards: PlanShards | None, T: int, k: int) -> None:
         self.shards, self.T, self.k = shards, T, k
-        self._known: dict[bytes, dict[bytes, np.ndarray | None]] = {}
+        self._known: dict[bytes, PlanTable] = {}
         self._unsaved: dict[bytes, list[bytes]] = {}
         self._keys: dict[bytes, str] = {}
         self._kept = 0
@@ -179,7 +267,7 @@ class BetweenNodes:
         #: Plans solved in this process (not read from disk, not received).
         self.solved = 0
 
-    def known(self, env_key: bytes, atlas_key: str) -> dict[bytes, np.ndarray | None]:
+    def known(self, env_key: bytes, atlas_key: str) -> PlanTable:
         """E's plans known here (θ's bytes -> trajectory or None), to read and add to (then
         :meth:`added`); ``atlas_key`` names E's atlas on disk."""
         if self._kept >= MAX_KEPT:
@@ -188,11 +276,11 @@ class BetweenNodes:
             self._kept = 0
         found = self._known.get(env_key)
         if found is None:
-            found = self._known[env_key] = {}
+            found = self._known[env_key] = PlanTable(self.T)
             self._keys[env_key] = atlas_key
             if self.shards is not None:
                 thetas, plans = self.shards.load(atlas_key, self.T, self.k)
-                found.update(_by_theta(thetas, plans))
+                found.add_many(row_keys(thetas), plans)
                 self._kept += len(thetas)
         return found
 
@@ -213,8 +301,8 @@ class BetweenNodes:
         where no start converged)."""
         out = []
         for env_key, thetas in self._outgoing.items():
-            known = self._known.get(env_key, {})
-            kept = [t for t in thetas if t in known]
+            known = self._known.get(env_key)
+            kept = [t for t in thetas if known is not None and t in known]
             if kept:
                 out.append((env_key, self._keys[env_key], *self._stack(known, kept)))
         self._outgoing.clear()
@@ -233,22 +321,17 @@ class BetweenNodes:
         again; how many were new here. A plan depends on (θ, E) alone, so a plan received is the
         plan this process would have solved."""
         known = self.known(env_key, atlas_key)
-        new = 0
-        for memo, plan in _by_theta(np.asarray(thetas, float), np.asarray(plans, float)):
-            if memo not in known:
-                known[memo] = plan
-                if save:
-                    self._unsaved.setdefault(env_key, []).append(memo)
-                self._kept += 1
-                new += 1
-        return new
+        new = known.add_many(row_keys(np.asarray(thetas, float)), plans)
+        if save and new:
+            self._unsaved.setdefault(env_key, []).extend(new)
+        self._kept += len(new)
+        return len(new)
 
-    def _stack(
-        self, known: dict[bytes, np.ndarray | None], thetas: list[bytes]
-    ) -> tuple[np.ndarray, np.ndarray]:
-        nan = np.full((self.T, 7), np.nan)
-        plans = np.array([nan if known[t] is None else known[t] for t in thetas])
-        return np.array([np.frombuffer(t) for t in thetas]), plans
+    def _stack(self, known: PlanTable, thetas: list[bytes]) -> tuple[np.ndarray, np.ndarray]:
+        """θ (n, k) and trajectories (n, T, 7; NaN where no start converged) of ``thetas``
+        (their bytes), as stored."""
+        plans = known.take(known.rows(thetas))
+        return np.frombuffer(b"".join(thetas)).reshape(len(thetas), self.k).copy(), plans
 
     def save(self, at_least: int = 1) -> int:
         """The unsaved plans of every environment with at least ``at_least`` of them, a shard
@@ -259,8 +342,8 @@ class BetweenNodes:
         for env_key, thetas in self._unsaved.items():
             if len(thetas) < max(1, at_least):
                 continue
-            known = self._known.get(env_key, {})
-            kept = [t for t in thetas if t in known]
+            known = self._known.get(env_key)
+            kept = [t for t in thetas if known is not None and t in known]
             if kept:
                 self.shards.save(self._keys[env_key], *self._stack(known, kept))
                 written += len(kept)
