@@ -241,7 +241,7 @@ def test_a_plan_table_answers_as_a_dictionary_of_first_plans_would():
     lookup — one at a time and many at once — the same bits."""
     rng = np.random.default_rng(65)
     T, table, reference = 3, between.PlanTable(3), {}
-    for step in range(400):
+    for _ in range(400):
         if rng.random() < 0.1:  # a block, as read from shards or taken from another worker
             n = int(rng.integers(0, 50))
             thetas = rng.integers(0, 300, size=(n, 2)).astype(float)
