@@ -243,6 +243,7 @@ def run(
         PROTOCOL.format(n=participants, corrections=corrections + 20, learner=learner, set=changed)
     )
     run_ = open_run(protocol, folder / "study.sqlite")
+    run_.read_plans()  # as serve-study does before participants come
     server = open_server("127.0.0.1", _port())
     study = StudyServer(server, run_, host="127.0.0.1")
     links = {f"B{i}": study.enroll(f"B{i}") for i in range(participants)}

@@ -820,3 +820,17 @@ def test_a_power_of_zero_or_one_keeps_its_interval_around_it(n):
         assert 0.0 <= found["lo"] and found["hi"] <= 1.0
     inside = st.power_summary([True] * (n // 2) + [False] * (n - n // 2))
     assert inside["lo"] < inside["power"] < inside["hi"]
+
+
+def test_a_run_reads_its_atlases_and_stored_plans_before_participants_come(short, tmp_path):
+    """``read_plans`` (what serve-study does before it serves): every condition's atlas held by
+    this process for every environment, and the stored plans between its nodes counted, so
+    the first submits do not wait for them; no condition is left without its atlas."""
+    run = open_run(short, tmp_path / "study.sqlite")
+    atlases = [(s.atlas(), s.envs()) for s in run.settings_of.values()]
+    assert any(atlas is not None for atlas, _ in atlases)  # the test would check nothing
+    held = run.read_plans()
+    assert isinstance(held, int) and held >= 0
+    for atlas, envs in atlases:
+        assert atlas is None or all(atlas.holds(env) for env in envs)
+    run.log.close()

@@ -497,6 +497,13 @@ class Atlas:
             self._atlases[env.key()] = found
         return found
 
+    def read(self, env: Environment) -> int:
+        """E's atlas and the plans between its nodes kept on disk, read into this process
+        now rather than at the first ask (a page server's first submits otherwise wait for
+        them); how many plans between nodes it holds."""
+        self.environment(env)
+        return len(self._between.known(env.key(), self.between_key(env)))
+
     def solve(self, theta: Sequence[float], env: Environment) -> Plan:
         """ξ*(θ, E) from the atlas (class docstring); PlanningError if no start converges."""
         t = np.asarray(theta, float)

@@ -61,6 +61,11 @@ def run_serve_study(args: argparse.Namespace) -> list[Path]:
                 "secret",
                 file=sys.stderr,
             )
+        t0 = time.perf_counter()
+        held = run.read_plans()  # read now, not at the first participants' submits
+        if held:
+            print(f"read {held:,} stored plans between atlas nodes in "
+                  f"{time.perf_counter() - t0:.1f} s", file=sys.stderr)  # fmt: skip
         study = StudyServer(server, run, host=host, speed=args.speed or 1.0)
         args.serving = True  # for an interrupt's message
         for code in codes:
