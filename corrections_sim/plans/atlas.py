@@ -55,7 +55,6 @@ ALGORITHM = 1
 
 
 @functools.cache
-@functools.cache
 def answer_version() -> str:
     """What an answer between the nodes depends on beyond the atlas's key, hashed: the source
     of the code that makes it (:meth:`Atlas.solve`, the corners' ranking

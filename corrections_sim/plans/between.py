@@ -154,14 +154,12 @@ class PlanTable(Mapping):
     taken in one array step (:meth:`rows`, :meth:`take`). A θ kept twice keeps its first
     plan (a plan depends on (θ, E) alone: the two are the same)."""
 
-    def __init__(self, T: int, thetas: np.ndarray | None = None, plans: np.ndarray | None = None):
+    def __init__(self, T: int):
         self.T = T
         self._index: dict[bytes, int] = {}
         self._blocks: list[tuple[int, np.ndarray]] = []  # (first row, rows), in row order
         self._rows = 0  # rows stored (a θ repeated in a block keeps its row, unpointed)
         self._tail: np.ndarray | None = None  # the last block's room, when it grows row by row
-        if thetas is not None and len(thetas):
-            self.add_many(row_keys(thetas), plans)
 
     def __len__(self) -> int:
         return len(self._index)
@@ -221,7 +219,8 @@ class PlanTable(Mapping):
             raise ValueError(f"{len(memos)} thetas for {len(plans)} plans")
         if plans.shape[1:] != (self.T, 7):
             raise ValueError(f"plans of shape {plans.shape}, expected (n, {self.T}, 7)")
-        partial = ~np.isfinite(plans).all(axis=(1, 2)) & np.isfinite(plans).any(axis=(1, 2))
+        finite = np.isfinite(plans)
+        partial = ~finite.all(axis=(1, 2)) & finite.any(axis=(1, 2))
         if partial.any():  # a plan is whole or absent: a row with a NaN is no plan
             plans = np.array(plans)
             plans[partial] = np.nan
