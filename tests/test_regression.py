@@ -200,10 +200,13 @@ def _check_matrix(
     *,
     labels: bool = False,
     column_keys: tuple[str, ...] | None = None,
+    written=None,
 ) -> int:
     """A matrix figure's quick preset against ``results/reference/<figure>``: per column
     (person) and learner, the mean curve of every key the reference has; the ``relevant``
-    labels exactly with ``labels``. Returns how many curves were compared."""
+    labels exactly with ``labels``. ``written(column, records)``: the records as the figure
+    writes them to curves.csv, where it changes them. Returns how many curves were
+    compared."""
     from corrections_sim.figures import robustness
 
     more = {} if column_keys is None else {"column_keys": column_keys}
@@ -215,16 +218,17 @@ def _check_matrix(
     checked = 0
     for column, result in zip(settings.columns, results, strict=True):
         ref = [r for r in reference if r["user"] == column.label]
-        assert len(result.records) == len(ref)
+        records = result.records if written is None else written(column, result.records)
+        assert len(records) == len(ref)
         if labels:
-            now = [r.get("relevant") for r in result.records]
+            now = [r.get("relevant") for r in records]
             assert now == [None if r["relevant"] == "" else float(r["relevant"]) for r in ref]
         for learner in column.settings.study.learners:
             for key, rtol in keys.items():
                 rows = [r for r in ref if r["learner"] == learner and r.get(key) not in (None, "")]
                 if not rows:
                     continue
-                now = [r for r in result.records if r.get(key) is not None]
+                now = [r for r in records if r.get(key) is not None]
                 np.testing.assert_allclose(
                     _mean_curves(now, learner, key),
                     _mean_curves(rows, learner, key),
@@ -254,12 +258,25 @@ def test_quick_relevance_curves_match_the_reference():
 
 def test_quick_ferl_curves_match_the_reference():
     """The FERL study's quick preset (``run ferl --quick --out results/reference``): every
-    person's error and regret, and for KF-CRX whether it asked and expanded (exactly) and the
-    learnt feature's Spearman ρ against the person's."""
+    person's error on the features every robot knows (``known_error``, the study's one
+    error) and regret, and for KF-CRX whether it asked and expanded (exactly) and the learnt
+    feature's Spearman ρ against the person's."""
     from corrections_sim.figures import ferl
 
-    keys = {**TOLERANCE, "asked": 0.0, "expanded": 0.0, "learnt_spearman": 0.02}
-    checked = _check_matrix("ferl", keys, column_keys=ferl.COLUMN_KEYS)
+    keys = {
+        ferl.KNOWN_ERROR: TOLERANCE["estimate_error"],
+        "regret": TOLERANCE["regret"],
+        "asked": 0.0,
+        "expanded": 0.0,
+        "learnt_spearman": 0.02,
+    }
+    k0 = len(ferl.FerlFigure().load(quick=True, overrides={}).columns[0].settings.features)
+    checked = _check_matrix(
+        "ferl",
+        keys,
+        column_keys=ferl.COLUMN_KEYS,
+        written=lambda column, records: ferl.with_known_error(column, records, k0),
+    )
     # Three people x three learners and the two upper bounds: error and regret; KF-CRX's
     # asking for the two people it asks, its expanding and the learnt ρ where it expanded.
     assert checked == (3 * 3 + 2) * 2 + 2 * 3

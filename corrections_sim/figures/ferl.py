@@ -15,10 +15,12 @@ teacher's noise: Spearman ρ between the learnt and the true `human` on 10,000 r
 reachable configurations (FERL's measure), over seeds.
 
 Files: ``matrix.csv`` (per person and learner: final regret of the person's whole objective
-and error on the study's features, mean ± SEM; how often the learner asked and expanded, when,
+and ``known_error``, mean ± SEM; how often the learner asked and expanded, when,
 the learnt feature's Spearman ρ and R² against the person's, and its weight against the
 person's weight mapped through the best affine fit), ``paired.csv`` (KF-CRX − KF-C and
-KF-CRX − the upper bound, paired by run: final regret and error), ``curves.csv``,
+KF-CRX − the upper bound, paired by run: final regret and known error), ``curves.csv``
+(every record, its ``known_error`` in place of ``estimate_error``: one error for every robot,
+see :data:`KNOWN_ERROR`),
 ``quality.csv`` (one row per traces × teacher noise × seed) and the plots ``ferl.png``
 (regret and error over corrections per person) and ``ferl-quality.png``.
 """
@@ -67,19 +69,35 @@ def _knows_all(column) -> bool:
 
 
 def known_error(column, records: Sequence[dict], k0: int) -> dict[str, np.ndarray]:
-    """learner -> error ‖θ̂ − θ*‖₁ on the first ``k0`` features (the study's own), (runs, T+1)."""
-    s = column.settings
-    star = np.array(s.study.person()[:k0] if not s.user_features else _on(s, k0), float)
+    """learner -> ``known_error`` (:func:`with_known_error`), (runs, T+1)."""
     out: dict[str, dict[int, list]] = {}
-    for r in records:
-        theta = np.array([float(r[f"theta_{i}"]) for i in range(k0)])
+    for r in with_known_error(column, records, k0):
         out.setdefault(r["learner"], {}).setdefault(r["run"], []).append(
-            (r["iteration"], estimate_error(theta, star))
+            (r["iteration"], r[KNOWN_ERROR])
         )
     return {
         name: np.array([[e for _, e in sorted(v)] for _, v in sorted(runs.items())])
         for name, runs in out.items()
     }
+
+
+#: The one error every file of the study reports, for every robot alike: ‖θ̂ − θ*‖₁ on the
+#: first k0 features, those every column's robot knows (laptop and table). A run's own
+#: ``estimate_error`` is over its robot's features, which differ by column (the upper bound's
+#: counts `human`), so the study's files carry this column instead.
+KNOWN_ERROR = "known_error"
+
+
+def with_known_error(column, records: Sequence[dict], k0: int) -> list[dict]:
+    """``records`` with :data:`KNOWN_ERROR` in place of their ``estimate_error``."""
+    s = column.settings
+    star = np.array(s.study.person()[:k0] if not s.user_features else _on(s, k0), float)
+    out = []
+    for r in records:
+        theta = np.array([float(r[f"theta_{i}"]) for i in range(k0)])
+        rec = {key: value for key, value in r.items() if key != "estimate_error"}
+        out.append(rec | {KNOWN_ERROR: estimate_error(theta, star)})
+    return out
 
 
 def _on(settings, k0: int) -> list[float]:
@@ -101,7 +119,7 @@ def matrix(settings, results: Sequence[FigureResult], k0: int) -> list[dict]:
             error = errors[learner][:, -1]
             row = {"user": column.label, "learner": learner, "runs": int(regret.size)}
             row["regret_mean"], row["regret_sem"] = _ms(regret)
-            row["error_mean"], row["error_sem"] = _ms(error)
+            row[f"{KNOWN_ERROR}_mean"], row[f"{KNOWN_ERROR}_sem"] = _ms(error)
             final = [
                 r
                 for r in result.records
@@ -161,7 +179,7 @@ def paired(settings, results: Sequence[FigureResult], k0: int) -> list[dict]:
             a, b = final[(column.label, EXPANDING)], final[(where, rival)]
             if a[0].shape != b[0].shape:
                 continue
-            for i, metric in enumerate(("final regret", "final error")):
+            for i, metric in enumerate(("final regret", f"final {KNOWN_ERROR}")):
                 out.append(
                     {
                         "user": column.label,
@@ -185,50 +203,54 @@ def _bound(settings, column):
 
 
 def quality_sweep(settings, *, quick: bool) -> list[dict]:
-    """Spearman ρ (and R²) of features learnt from N traces against the true one, per teacher
-    noise and seed, in the study's first environment (each cell seeded from the study's
-    seed, so the sweep is the same on every run)."""
+    """Spearman ρ and R² of features learnt from N traces against the true one, per feature
+    the study's people mind that the robot lacks, teacher noise and seed, in the study's first
+    environment (each cell seeded from the study's seed, so the sweep is the same on every
+    run)."""
     first = settings.columns[0].settings
     env = first.envs()[0]
     base = first.study.teacher
-    feature = _taught(settings)
     rows = []
-    for n in QUICK_TRACES if quick else TRACES:
-        for j, (label, scale) in enumerate(NOISE_SCALES.items()):
-            teacher = replace(
-                base, path_noise=base.path_noise * scale, label_noise=base.label_noise * scale
-            )
-            for seed in range(QUICK_SEEDS if quick else SEEDS):
-                rng = np.random.default_rng([first.study.seed, n, j, seed])
-                traces = teacher.traces(feature, n, env, rng)
-                start = time.process_time()
-                learnt = learn(traces, env, rng)
-                seconds = time.process_time() - start
-                register_learnt(learnt)
-                q = quality(learnt.name, feature, env)
-                rows.append(
-                    {
-                        "traces": n,
-                        "noise": label,
-                        "path_noise": teacher.path_noise,
-                        "label_noise": teacher.label_noise,
-                        "seed": seed,
-                        "spearman": q.spearman,
-                        "r2": q.r2,
-                        "train_seconds": seconds,
-                    }
+    for f, feature in enumerate(_taught(settings)):
+        for n in QUICK_TRACES if quick else TRACES:
+            for j, (label, scale) in enumerate(NOISE_SCALES.items()):
+                teacher = replace(
+                    base, path_noise=base.path_noise * scale, label_noise=base.label_noise * scale
                 )
+                for seed in range(QUICK_SEEDS if quick else SEEDS):
+                    key = [first.study.seed, n, j, seed] + ([f] if f else [])
+                    rng = np.random.default_rng(key)
+                    traces = teacher.traces(feature, n, env, rng)
+                    start = time.process_time()
+                    learnt = learn(traces, env, rng)
+                    seconds = time.process_time() - start
+                    register_learnt(learnt)
+                    q = quality(learnt.name, feature, env)
+                    rows.append(
+                        {
+                            "feature": feature,
+                            "traces": n,
+                            "noise": label,
+                            "path_noise": teacher.path_noise,
+                            "label_noise": teacher.label_noise,
+                            "seed": seed,
+                            "spearman": q.spearman,
+                            "r2": q.r2,
+                            "train_seconds": seconds,
+                        }
+                    )
     return rows
 
 
-def _taught(settings) -> str:
-    """The feature the people of the figure mind that the robot lacks."""
+def _taught(settings) -> tuple[str, ...]:
+    """The features the people of the figure mind that the robot lacks, in column order."""
+    out: dict[str, None] = {}
     for column in settings.columns:
         s = column.settings
-        for name in s.user_features:
-            if name not in s.features:
-                return name
-    raise ValueError(f"{FIGURE}: no column's person minds a feature the robot lacks")
+        out |= {name: None for name in s.user_features if name not in s.features}
+    if not out:
+        raise ValueError(f"{FIGURE}: no column's person minds a feature the robot lacks")
+    return tuple(out)
 
 
 def write(settings, results: Sequence[FigureResult], folder: Path, sweep: list[dict]) -> dict:
@@ -238,7 +260,11 @@ def write(settings, results: Sequence[FigureResult], folder: Path, sweep: list[d
     k0 = len(settings.columns[0].settings.features)
     rows = matrix(settings, results, k0)
     pairs = paired(settings, results, k0)
-    summary = robustness.write_matrix(settings, results, rows, folder, pairs)
+    written = [
+        replace(result, records=with_known_error(column, result.records, k0))
+        for column, result in zip(settings.columns, results, strict=True)
+    ]
+    summary = robustness.write_matrix(settings, written, rows, folder, pairs)
     write_csv(folder / "quality.csv", sweep)
     title = robustness.title(settings, FIGURE)
     curves = {}
@@ -253,12 +279,18 @@ def write(settings, results: Sequence[FigureResult], folder: Path, sweep: list[d
     bounds = {c.label: b.label for c in settings.columns if (b := _bound(settings, c)) is not None}
     plot_ferl(curves, people, bounds, title, [folder / f"{FIGURE}.png", folder / f"{FIGURE}.pdf"])
     plot_ferl_quality(sweep, title, [folder / f"{FIGURE}-quality.png"])
-    table = {}
+    table: dict[str, dict[str, list]] = {}
     for row in sweep:
-        table.setdefault(f"{row['noise']} x{row['traces']}", []).append(row["spearman"])
+        cell = table.setdefault(f"{row['feature']} {row['noise']} x{row['traces']}", {})
+        for measure in ("spearman", "r2"):
+            cell.setdefault(measure, []).append(row[measure])
     return summary | {
         "quality": {
-            key: {"mean": float(np.mean(v)), "min": float(np.min(v))} for key, v in table.items()
+            key: {
+                measure: {"mean": float(np.mean(v)), "min": float(np.min(v))}
+                for measure, v in cell.items()
+            }
+            for key, cell in table.items()
         },
         "train_seconds_mean": float(np.mean([r["train_seconds"] for r in sweep])),
     }
@@ -339,29 +371,45 @@ def plot_ferl(curves: dict, people: list[str], bounds: dict, title: str, paths) 
 
 
 def plot_ferl_quality(rows: Sequence[dict], title: str, paths) -> None:
-    """Spearman ρ of a learnt feature against the true one, against the number of traces,
-    per teacher noise (mean ± SEM over seeds; FERL's measure), with the issue's targets."""
+    """A learnt feature against the true one, against the number of traces, per teacher
+    noise (mean ± SEM over seeds): Spearman ρ (FERL's measure, top) and the R² of the best
+    affine fit (its shape, bottom), a column per feature, with the issue's targets."""
     from corrections_sim.figures.style import plt, save_and_close
 
-    fig, ax = plt.subplots(figsize=(6.4, 4.8))
-    for noise in dict.fromkeys(r["noise"] for r in rows):
-        mine = [r for r in rows if r["noise"] == noise]
-        counts = sorted({r["traces"] for r in mine})
-        values = [np.array([r["spearman"] for r in mine if r["traces"] == n]) for n in counts]
-        mean = [v.mean() for v in values]
-        sem = [v.std(ddof=1) / np.sqrt(v.size) if v.size > 1 else 0.0 for v in values]
-        ax.errorbar(counts, mean, yerr=sem, marker="o", capsize=3, label=f"teacher: {noise}")
-    for level in (0.9, 0.8):
-        ax.axhline(level, color="0.6", lw=0.8, ls=":")
-    ax.set_xscale("log")
+    features = list(dict.fromkeys(r["feature"] for r in rows))
+    fig, axes = plt.subplots(
+        2, len(features), figsize=(4.2 * len(features) + 1.0, 7.2), squeeze=False, sharex=True
+    )
+    measures = (
+        ("spearman", "Spearman ρ, learnt vs true", (0.9,)),
+        ("r2", "R², best affine fit of learnt to true", (0.6,)),
+    )
     counts = sorted({r["traces"] for r in rows})
-    ax.set_xticks(counts, [str(n) for n in counts])
-    ax.minorticks_off()
-    ax.set_xlabel("feature traces")
-    ax.set_ylabel("Spearman ρ, learnt vs true (10,000 configurations)")
-    ax.set_ylim(top=1.0)
-    ax.legend(fontsize=8)
-    ax.grid(alpha=0.3)
-    fig.suptitle(title, fontsize=9)
+    for c, feature in enumerate(features):
+        for m, (key, label, targets) in enumerate(measures):
+            ax = axes[m, c]
+            for noise in dict.fromkeys(r["noise"] for r in rows):
+                mine = [r for r in rows if r["noise"] == noise and r["feature"] == feature]
+                values = [np.array([r[key] for r in mine if r["traces"] == n]) for n in counts]
+                mean = [v.mean() for v in values]
+                sem = [v.std(ddof=1) / np.sqrt(v.size) if v.size > 1 else 0.0 for v in values]
+                ax.errorbar(
+                    counts, mean, yerr=sem, marker="o", capsize=3, label=f"teacher: {noise}"
+                )
+            for level in targets:
+                ax.axhline(level, color="0.6", lw=0.8, ls=":")
+            ax.set_xscale("log")
+            ax.set_xticks(counts, [str(n) for n in counts])
+            ax.minorticks_off()
+            ax.set_ylim(0.0, 1.0)
+            ax.grid(alpha=0.3)
+            if c == 0:
+                ax.set_ylabel(label)
+            if m == 0:
+                ax.set_title(f"the missing feature: {feature}", fontsize=10)
+            else:
+                ax.set_xlabel("feature traces")
+    axes[0, 0].legend(fontsize=8)
+    fig.suptitle(f"{title}\n(10,000 reachable configurations; dotted: the targets)", fontsize=9)
     fig.tight_layout()
     save_and_close(fig, paths, dpi=130)

@@ -185,19 +185,26 @@ def reachable(
     """``n`` random reachable configurations (n, 7): uniform within the joint limits, the cup
     above the table's plane, no contact with the scene of ``env`` (MuJoCo)."""
     lo, hi = joint_limits()
-    checker = _checker()
     out: list[np.ndarray] = []
     have = 0
     while have < n:
         q = rng.uniform(lo, hi, size=(batch, N_ARM_JOINTS))
-        cup = np.asarray(_input_function(("cup",)).map(q.shape[0])(q.T, env.params()))
-        q = q[cup[2] > g.TABLE_TOP_Z + 0.02]
-        report = checker.check_configurations(q, env)
-        hit = {c.sample for c in report.contacts}
-        q = q[[i for i in range(q.shape[0]) if i not in hit]]
+        q = q[reachable_mask(q, env)]
         out.append(q)
         have += q.shape[0]
     return np.concatenate(out)[:n]
+
+
+def reachable_mask(q: np.ndarray, env: Environment) -> np.ndarray:
+    """Which configurations (n, 7) within the joint limits are reachable: the cup above the
+    table's plane, no contact with the scene of ``env`` (MuJoCo)."""
+    cup = np.asarray(_input_function(("cup",)).map(q.shape[0])(q.T, env.params()))
+    above = np.flatnonzero(cup[2] > g.TABLE_TOP_Z + 0.02)
+    report = _checker().check_configurations(q[above], env)
+    hit = {c.sample for c in report.contacts}
+    mask = np.zeros(q.shape[0], bool)
+    mask[[i for k, i in enumerate(above) if k not in hit]] = True
+    return mask
 
 
 @functools.cache

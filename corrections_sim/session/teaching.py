@@ -226,6 +226,8 @@ class Teaching:
                 "hidden": list(f.network.hidden),
                 "weights": np.asarray(f.weights).tolist(),
                 "loss": facts["loss"],
+                "variance": facts["variance"],
+                "evidence": facts["evidence"],
             },
         )
         self._grown(belief)

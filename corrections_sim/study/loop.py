@@ -221,6 +221,7 @@ def run_learner(
             if step.expansion is not None and step.expansion.get("taught"):
                 learnt.update(expansion.quality_of(step.expansion["feature"], target, current, env))
                 learnt["expanded_at"] = t + 1
+                learnt["variance"] = step.expansion.get("variance")
         except PlanningError as exc:
             skipped = str(exc).splitlines()[0]
         record(t + 1, env.name, skipped, step, task)

@@ -41,8 +41,9 @@ class ExpandingRelevanceKalman(PersonRelevanceKalman):
         expand_below: ask once E[r], the person's believed rate of relevant corrections,
             falls below this, in (0, 1).
         expand_after: and no sooner than after this many corrections (>= 1).
-        expand_variance: the learnt feature's weight starts at N(0, this) (P⁰'s diagonal in
-            every study here), uncorrelated with the others.
+        expand_variances: the prior variances the learnt feature's weight may start from,
+            N(0, v) uncorrelated with the others; the one under which the person's corrections
+            so far were likeliest is kept (see :meth:`grow`). One value: that prior.
         expand_inputs: what the learnt feature's network reads (``learnt.INPUTS``).
         expand_hidden: its hidden layers' widths.
     """
@@ -57,7 +58,7 @@ class ExpandingRelevanceKalman(PersonRelevanceKalman):
     expand_traces: int = 10
     expand_below: float = 0.35
     expand_after: int = 3
-    expand_variance: float = 1.0
+    expand_variances: tuple[float, ...] = (1.0, 4.0, 16.0, 64.0)
     expand_inputs: tuple[str, ...] = Network().inputs
     expand_hidden: tuple[int, ...] = Network().hidden
 
@@ -67,12 +68,16 @@ class ExpandingRelevanceKalman(PersonRelevanceKalman):
         require_count("expand_after", self.expand_after, 1)
         if not (isinstance(self.expand_below, int | float) and 0 < self.expand_below < 1):
             raise ParameterError("expand_below", f"must lie in (0, 1), got {self.expand_below!r}")
-        require_positive("expand_variance", self.expand_variance)
-        for name in ("expand_inputs", "expand_hidden"):
+        for name in ("expand_inputs", "expand_hidden", "expand_variances"):
             value = getattr(self, name)
             if not isinstance(value, list | tuple):
                 raise ParameterError(name, f"must be a list, got {value!r}")
             object.__setattr__(self, name, tuple(value))
+        if not self.expand_variances:
+            raise ParameterError("expand_variances", "must hold at least one variance")
+        for v in self.expand_variances:
+            require_positive("expand_variances", v)
+        object.__setattr__(self, "expand_variances", tuple(float(v) for v in self.expand_variances))
         try:
             self.network()
         except ValueError as exc:
@@ -112,7 +117,7 @@ class ExpandingRelevanceKalman(PersonRelevanceKalman):
         corrections are believed mostly unexplained (E[r] < ``expand_below`` after
         ``expand_after`` corrections), ask them for ``expand_traces`` feature traces in
         ``env``, learn the feature, and go on over k + 1 features: its weight
-        N(0, ``expand_variance``) beside the belief so far; from then on the person's
+        N(0, v) beside the belief so far (v of ``expand_variances``); from then on the person's
         corrections are taken as relevant (see :meth:`update`)."""
         state = RelevanceState.of(belief)
         if state.history and not state.asked and ctx.corrected is not None:
@@ -159,22 +164,57 @@ class ExpandingRelevanceKalman(PersonRelevanceKalman):
         ``env`` (registered under its name; the expansion's facts beside it).
 
         The past is read again over the new features: from the prior (θ̂⁰, P⁰) extended by
-        N(0, ``expand_variance``) for the new weight, each kept correction updates the belief
-        as KF-C does (the person has shown what their corrections were about, so all are
-        taken as relevant), planned over k + 1 features with ``ctx``'s planner settings."""
+        N(0, v) for the new weight, each kept correction updates the belief as KF-C does (the
+        person has shown what their corrections were about, so all are taken as relevant),
+        planned over k + 1 features with ``ctx``'s planner settings.
+
+        The learnt feature's scale is the ranking network's (0 to 1 over the workspace), not
+        the person's, so how large its weight may be is fitted from the person's own
+        corrections: the past is read again under each prior variance v of
+        ``expand_variances``, and the v under which the filter predicted the corrections best
+        is kept — the evidence Σᵢ log N(νᵢ; 0, Sᵢ) of the innovations over all k + 1 features
+        (the same numbers under every v; ties keep the first)."""
         start = time.process_time()
         learnt = learn(traces, env, rng, network=self.network())
         name = register_learnt(learnt)
         first, *past = RelevanceState.of(belief).history or (PriorEntry(belief.theta, belief.cov),)
+        best, evidences = None, []
+        for variance in self.expand_variances:
+            grown, evidence = self._reread(first, past, name, variance, ctx)
+            evidences.append(evidence)
+            if best is None or evidence > best[1]:
+                best = (grown, evidence, variance)
+        grown, _, variance = best
+        asked = RelevanceState(asked=True)
+        grown = Belief(theta=grown.theta, cov=grown.cov, extra=(*belief.extra, name), state=asked)
+        return grown, {
+            "asked": True,
+            "taught": True,
+            "feature": name,
+            "traces": len(traces),
+            "reread": len(past),
+            "loss": learnt.loss,
+            "variance": variance,
+            "evidence": evidences,
+            "seconds": time.process_time() - start,
+        }
+
+    def _reread(
+        self, first: PriorEntry, past, name: str, variance: float, ctx: LearnerContext
+    ) -> tuple[Belief, float]:
+        """The belief over k + 1 features (the learnt one, ``name``, last, its weight's prior
+        N(0, ``variance``)) after reading the kept corrections ``past`` again from the prior
+        ``first``, and the evidence Σᵢ log N(νᵢ; 0, Sᵢ) of their innovations."""
         theta0, cov0 = first.theta, first.cov
         k = len(theta0)
         cov = np.zeros((k + 1, k + 1))
         cov[:k, :k] = cov0
-        cov[k, k] = self.expand_variance
+        cov[k, k] = variance
         grown = Belief(theta=np.append(theta0, 0.0), cov=cov)
         features = (*ctx.features, name)
         config = dataclasses.replace(ctx.book.planner.config, features=features)
         book = PlanBook(shared_planner(config), warm_start=ctx.book.warm_start)
+        evidence = 0.0
         for shown in past:
             env_i, robot, corrected = shown.env, shown.robot, shown.corrected
             seen = dataclasses.replace(
@@ -192,20 +232,20 @@ class ExpandingRelevanceKalman(PersonRelevanceKalman):
             )
             try:
                 phi_h = feature_counts(corrected, env_i, features)
-                grown = CorrectionAwareKalman.update(self, seen, grown, env_i, plan, phi_h).belief
+                step = CorrectionAwareKalman.update(self, seen, grown, env_i, plan, phi_h)
             except PlanningError:
                 continue  # skipped, as the loop skips an update whose plans fail
-        asked = RelevanceState(asked=True)
-        grown = Belief(theta=grown.theta, cov=grown.cov, extra=(*belief.extra, name), state=asked)
-        return grown, {
-            "asked": True,
-            "taught": True,
-            "feature": name,
-            "traces": len(traces),
-            "reread": len(past),
-            "loss": learnt.loss,
-            "seconds": time.process_time() - start,
-        }
+            grown = step.belief
+            evidence += log_normal(step.innovation, step.innovation_cov)
+        return grown, evidence
+
+
+def log_normal(x: np.ndarray, cov: np.ndarray) -> float:
+    """log N(x; 0, cov) (−inf where cov is not positive definite)."""
+    sign, logdet = np.linalg.slogdet(cov)
+    if sign <= 0:
+        return -np.inf
+    return float(-0.5 * (x @ np.linalg.solve(cov, x) + logdet + x.size * np.log(2 * np.pi)))
 
 
 def missing_feature(target, current: tuple[str, ...]) -> str | None:
@@ -232,7 +272,8 @@ def columns(belief, step: Step | None, learnt: dict, k: int) -> dict:
     """Columns of a learner that can learn features: whether it asked, whether it has
     expanded (and at which correction), the learnt feature's quality against the person's
     (Spearman ρ, R² of the best affine fit), its weight θ̂ and the weight the person's maps
-    to through that fit (θ*·a), for every record after it expanded."""
+    to through that fit (θ*·a) and the prior variance of its weight it chose, for every
+    record after it expanded."""
     asked = RelevanceState.of(belief).asked
     if not (asked or (step is not None and step.expansion is not None)):
         return {}
@@ -244,5 +285,6 @@ def columns(belief, step: Step | None, learnt: dict, k: int) -> dict:
             "learnt_r2": learnt.get("r2"),
             "learnt_weight": float(belief.theta[k]),
             "learnt_weight_target": learnt.get("target"),
+            "learnt_variance": learnt.get("variance"),
         }
     return out
