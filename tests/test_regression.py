@@ -277,6 +277,7 @@ def test_quick_ferl_curves_match_the_reference():
         column_keys=ferl.COLUMN_KEYS,
         written=lambda column, records: ferl.with_known_error(column, records, k0),
     )
-    # Three people x three learners and the two upper bounds: error and regret; KF-CRX's
-    # asking for the two people it asks, its expanding and the learnt ρ where it expanded.
-    assert checked == (3 * 3 + 2) * 2 + 2 * 3
+    # Five people x three learners and the four upper bounds: error and regret; KF-CRX's
+    # asking for the three people it asks (who mind only `human`, only the tilt, and in one
+    # run of two who also minds `human`), its expanding and the learnt ρ where it expanded.
+    assert checked == (5 * 3 + 4) * 2 + 3 * 3

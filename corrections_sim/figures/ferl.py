@@ -193,13 +193,26 @@ def paired(settings, results: Sequence[FigureResult], k0: int) -> list[dict]:
 
 
 def _bound(settings, column):
-    """The column where the robot knows the features this column's person minds."""
+    """The column where the robot knows the features this column's person minds (the same
+    weights on the same features)."""
     if _knows_all(column):
         return None
+    theirs = column.settings.user_features
     for other in settings.columns:
-        if other is not column and _knows_all(other) and _person(other) == _person(column):
+        if (
+            other is not column
+            and _knows_all(other)
+            and _person(other) == _person(column)
+            and other.settings.features == theirs
+        ):
             return other
     return None
+
+
+def _lacked(column) -> str:
+    """The features this column's person minds that its robot lacks, for a label."""
+    s = column.settings
+    return ", ".join(n for n in s.user_features if n not in s.features)
 
 
 def quality_sweep(settings, *, quick: bool) -> list[dict]:
@@ -276,7 +289,11 @@ def write(settings, results: Sequence[FigureResult], folder: Path, sweep: list[d
             for learner in column.settings.study.learners
         }
     people = [c.label for c in settings.columns if not _knows_all(c) or c is settings.columns[0]]
-    bounds = {c.label: b.label for c in settings.columns if (b := _bound(settings, c)) is not None}
+    bounds = {
+        c.label: (b.label, _lacked(c))
+        for c in settings.columns
+        if (b := _bound(settings, c)) is not None
+    }
     plot_ferl(curves, people, bounds, title, [folder / f"{FIGURE}.png", folder / f"{FIGURE}.pdf"])
     plot_ferl_quality(sweep, title, [folder / f"{FIGURE}-quality.png"])
     table: dict[str, dict[str, list]] = {}
@@ -334,7 +351,8 @@ def plot_ferl(curves: dict, people: list[str], bounds: dict, title: str, paths) 
     Args:
         curves: column label -> learner -> {"regret", "error"} arrays (runs, T + 1).
         people: the columns to draw, in order.
-        bounds: column label -> the label of its upper bound's column.
+        bounds: column label -> the label of its upper bound's column and the features
+            that robot knows and this one lacks.
         paths: files to write.
     """
     from corrections_sim.figures.style import learner_style, plt, save_and_close
@@ -343,15 +361,18 @@ def plot_ferl(curves: dict, people: list[str], bounds: dict, title: str, paths) 
     fig, axes = plt.subplots(2, len(people), figsize=(5.0 * len(people), 7.4), squeeze=False)
     for j, person in enumerate(people):
         lines = dict(curves[person])
+        bound = None
         if person in bounds:
-            lines["KF-C, knows human"] = curves[bounds[person]]["KF-C"]
+            label, lacked = bounds[person]
+            bound = f"KF-C, knows {lacked}"
+            lines[bound] = curves[label]["KF-C"]
         for i, metric in enumerate(("regret", "error")):
             ax = axes[i, j]
             for name, data in lines.items():
                 values = data[metric]
                 t = np.arange(values.shape[1])
                 mean, sem = mean_sem(values)
-                if name.endswith("knows human"):
+                if name == bound:
                     colour, style = "0.45", "--"
                 else:
                     colour, style = learner_style(name)
