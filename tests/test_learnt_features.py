@@ -3,6 +3,8 @@ learner that expands its features in the study loop."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -214,6 +216,27 @@ def test_a_folder_made_when_kf_crp_held_expansion_compares_equal_where_it_never_
     older = {k: v for k, v in crx.items() if k != "expand_variances"} | {"expand_variance": 1.0}
     assert normalize_recorded({"learners": {"KF-CRX": older}})["learners"]["KF-CRX"] == crx
     assert make_learner("KF-CRX").expand_variances == (1.0, 4.0, 16.0, 64.0)
+
+
+def test_a_session_logged_before_the_learnt_weights_prior_became_a_choice_still_resumes(
+    tmp_path,
+):
+    """The committed teaching session logged KF-CRX with one ``expand_variance`` (before issue
+    69): read back, it is the choice among that one, so the session resumes and replays as it
+    ran instead of refusing an unknown parameter."""
+    import shutil
+
+    from corrections_sim.session.log import StudyLog
+    from corrections_sim.session.session import build_learner, settings_from_log
+
+    log_path = tmp_path / "teach.sqlite"
+    shutil.copy(Path(__file__).resolve().parents[1] / "results/interact/teach.sqlite", log_path)
+    with StudyLog(log_path) as log:
+        row = log.session(log.session_ids()[0])
+    assert row.learner == "KF-CRX" and "expand_variance" not in row.learner_params
+    assert row.learner_params["expand_variances"] == [1.0]
+    agent = build_learner(settings_from_log(row.settings), row.learner, row.learner_params)
+    assert agent.expand_variances == (1.0,)
 
 
 def test_a_session_asks_for_traces_learns_the_feature_logs_resumes_and_replays(tmp_path):

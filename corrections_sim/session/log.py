@@ -56,6 +56,8 @@ from typing import Any
 
 import numpy as np
 
+from corrections_sim.study import legacy
+
 SCHEMA_VERSION = 1
 
 #: A participant's pseudonym: letters, digits, ``-`` and ``_``, 1 to 40 of them.
@@ -342,7 +344,9 @@ class StudyLog:
             ended=ended,
             settings=json.loads(settings),
             learner=learner,
-            learner_params=json.loads(params),
+            # In today's form: a log made before a parameter was renamed still resumes and
+            # replays (KF-CRX's expand_variance, issue 69).
+            learner_params=legacy.current_learner_params(learner, json.loads(params)),
             correction=json.loads(correction),
             seed=seed,
             corrector=json.loads(corrector),

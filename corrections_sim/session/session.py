@@ -74,6 +74,7 @@ from corrections_sim.scene.world import CollisionChecker
 from corrections_sim.session.log import ASK_KINDS, StudyLog, check_participant, now
 from corrections_sim.session.refused import Refused
 from corrections_sim.session.teaching import TEACH_EVENTS, Teaching
+from corrections_sim.study import legacy
 from corrections_sim.study.schema import parse_study
 from corrections_sim.study.settings import FigureSettings
 
@@ -776,4 +777,9 @@ def settings_from_log(recorded: Mapping) -> FigureSettings:
     """A study's settings from the dictionary a session logged (``FigureSettings.as_dict``)."""
     values = dict(recorded)
     values.pop("plugins", None)  # plug-ins are loaded by their files (see the session's study)
+    if isinstance(values.get("learners"), dict):  # a retired parameter as what replaced it
+        values["learners"] = {
+            name: legacy.current_learner_params(name, params)
+            for name, params in values["learners"].items()
+        }
     return parse_study(values, name="interact")

@@ -183,11 +183,11 @@ def note_older_spellings(values: Mapping[str, Any], where: str) -> None:
         )
 
 
-def _without_retired(name: str, params: Any) -> Any:
-    """A recorded learner's parameters in today's form: without those it gave up where they
-    did nothing (KF-CRP's ``expand_*`` went to KF-CRX, issue 64; with ``expand_traces = 0`` it
-    never asked), and KF-CRX's one ``expand_variance`` as the one candidate of
-    ``expand_variances`` (issue 69)."""
+def current_learner_params(name: str, params: Any) -> Any:
+    """A recorded learner's parameters (a summary's, a session log's) in today's form: without
+    those it gave up where they did nothing (KF-CRP's ``expand_*`` went to KF-CRX, issue 64;
+    with ``expand_traces = 0`` it never asked), and KF-CRX's one ``expand_variance`` as the
+    one candidate of ``expand_variances`` (issue 69)."""
     if name == "KF-CRP" and isinstance(params, dict) and params.get("expand_traces", 0) == 0:
         return {k: v for k, v in params.items() if not k.startswith("expand_")}
     if name == "KF-CRX" and isinstance(params, dict) and "expand_variance" in params:
@@ -219,7 +219,7 @@ def normalize_recorded(settings: Mapping[str, Any]) -> dict:
     if isinstance(learners, dict):
         out = {}
         for name, params in learners.items():
-            params = _without_retired(name, params)
+            params = current_learner_params(name, params)
             try:
                 out[name] = components.params(make_learner(name, params))
             except (ValueError, KeyError):

@@ -159,6 +159,13 @@ def gaussian_log_prior(thetas: np.ndarray, prior: Belief) -> np.ndarray:
     return -0.5 * np.einsum("ni,ij,nj->n", d, np.linalg.inv(prior.cov), d)
 
 
+def gaussian_log_density(z: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> float:
+    """log N(z; mean, cov), normalised (−inf where cov is not positive definite)."""
+    d = np.asarray(z, float) - mean
+    sign, logdet = np.linalg.slogdet(2.0 * np.pi * cov)
+    return float(-0.5 * d @ np.linalg.solve(cov, d) - 0.5 * logdet) if sign > 0 else -np.inf
+
+
 def gaussian_log_likelihood(z: np.ndarray, h: np.ndarray, noise: np.ndarray) -> np.ndarray:
     """log N(z; h(θ), N) at each grid point, up to a constant.
 

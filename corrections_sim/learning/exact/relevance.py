@@ -111,12 +111,6 @@ def nudge_density(
     return mean, symmetrize(d.T @ d / len(d) + floor)
 
 
-def _log_gaussian(z: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> float:
-    d = np.asarray(z, float) - mean
-    sign, logdet = np.linalg.slogdet(2.0 * np.pi * cov)
-    return float(-0.5 * d @ np.linalg.solve(cov, d) - 0.5 * logdet) if sign > 0 else -np.inf
-
-
 @dataclass(frozen=True, eq=False)
 class JudgedEntry(CorrectionEntry):
     """A correction with the irrelevant density of its features, log qᵢ(zᵢ) (−inf: it is
@@ -320,7 +314,7 @@ class RelevantExact(ExactCorrectionAware):
         if rows is not None:
             size = float(np.linalg.norm(move))
             q = nudge_density(plan.trajectory, rows, size, env, ctx.features, NUDGE_FLOOR * centre)
-            log_q, move = _log_gaussian(z, *q), move / size
+            log_q, move = ref.gaussian_log_density(z, *q), move / size
         entry = JudgedEntry(env, plan.trajectory, z, ctx.noise.observation, log_q, rows, move)
         # What it expected before the correction (a relevant correction's predictive).
         w = weights[at][seen] / weights[at][seen].sum()

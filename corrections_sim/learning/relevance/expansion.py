@@ -15,6 +15,7 @@ import numpy as np
 from corrections_sim.belief import Belief, KalmanNoise
 from corrections_sim.components import ParameterError
 from corrections_sim.learning.base import LearnerContext
+from corrections_sim.learning.exact.bayes import gaussian_log_density
 from corrections_sim.learning.history import PriorEntry, ShownEntry
 from corrections_sim.learning.kalman.learners import CorrectionAwareKalman
 from corrections_sim.learning.params import require_count, require_positive
@@ -236,16 +237,8 @@ class ExpandingRelevanceKalman(PersonRelevanceKalman):
             except PlanningError:
                 continue  # skipped, as the loop skips an update whose plans fail
             grown = step.belief
-            evidence += log_normal(step.innovation, step.innovation_cov)
+            evidence += gaussian_log_density(step.innovation, 0.0, step.innovation_cov)
         return grown, evidence
-
-
-def log_normal(x: np.ndarray, cov: np.ndarray) -> float:
-    """log N(x; 0, cov) (−inf where cov is not positive definite)."""
-    sign, logdet = np.linalg.slogdet(cov)
-    if sign <= 0:
-        return -np.inf
-    return float(-0.5 * (x @ np.linalg.solve(cov, x) + logdet + x.size * np.log(2 * np.pi)))
 
 
 def missing_feature(target, current: tuple[str, ...]) -> str | None:
