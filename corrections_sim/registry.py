@@ -55,6 +55,7 @@ class Registry(Mapping[str, T], Generic[T]):
         self.base = base
         self._check = check if check is not None or base is None else self.subclass_of(base)
         self._items: dict[str, T] = {}
+        self._retired: dict[str, str] = {}
 
     def register(self, name: str, item: T, *, replace: bool = False) -> T:
         """Add ``item`` under ``name``; returns ``item``.
@@ -73,7 +74,16 @@ class Registry(Mapping[str, T], Generic[T]):
         if name in self._items and not replace:
             raise ValueError(f"{self.kind} {name!r} is already registered")
         self._items[name] = item
+        self._retired.pop(name, None)
         return item
+
+    def retire(self, name: str, why: str) -> None:
+        """Say that ``name`` left the registry and why: looking it up then fails with that
+        reason instead of "unknown" (a study file, a recorded summary or a command line that
+        names it). A plug-in may register the name again."""
+        if name in self._items:
+            raise ValueError(f"{self.kind} {name!r} is registered: unregister it first")
+        self._retired[name] = why
 
     def decorator(self, name: str, *, replace: bool = False) -> Callable[[T], T]:
         """``@registry.decorator(name)``: register the decorated object under ``name``."""
@@ -98,6 +108,10 @@ class Registry(Mapping[str, T], Generic[T]):
         self[name]  # refuses unknown names like a lookup
         del self._items[name]
 
+    def retired(self, name: object) -> str | None:
+        """Why ``name`` left the registry, or None (it never did, or was registered again)."""
+        return self._retired.get(name) if isinstance(name, str) else None
+
     def check(self, names) -> tuple[str, ...]:
         """``names`` as a tuple, refused unless they are distinct registered names."""
         names = tuple(names)
@@ -112,6 +126,11 @@ class Registry(Mapping[str, T], Generic[T]):
             return self._items[name]
         except (KeyError, TypeError):
             known = ", ".join(self._items) or "none"
+            why = self.retired(name)
+            if why is not None:
+                raise UnknownName(
+                    f"{self.kind} {name!r} left the registry: {why}; known are {known}"
+                ) from None
             raise UnknownName(f"unknown {self.kind} {name!r}: known are {known}") from None
 
     def __iter__(self) -> Iterator[str]:

@@ -46,7 +46,7 @@ from corrections_sim.study import schema
 from corrections_sim.study.settings import StudySettings
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
-BUILT_IN = ("PP", "KF", "EKF", "AL", "PP-C", "KF-C", "AL-C", "KF-A", "BP")
+BUILT_IN = ("PP", "KF", "AL", "PP-C", "KF-C", "AL-C", "KF-A", "BP")
 
 
 def settings(**overrides) -> StudySettings:
@@ -78,6 +78,38 @@ def test_an_unknown_name_is_refused_in_one_line_listing_the_known_ones():
     assert list(reg) == ["a", "b-2"]
 
 
+def test_a_retired_name_is_refused_with_why_it_left_and_may_be_registered_again():
+    reg: Registry[int] = Registry("widget")
+    reg.register("a", 1)
+    reg.retire("old", "it measured nothing")
+    with pytest.raises(UnknownName) as info:
+        reg["old"]
+    assert str(info.value) == "widget 'old' left the registry: it measured nothing; known are a"
+    assert "old" not in reg and list(reg) == ["a"]
+    with pytest.raises(ValueError, match="is registered"):
+        reg.retire("a", "no")
+    assert reg.retired("old") == "it measured nothing" and reg.retired("a") is None
+    reg.register("old", 2)  # a plug-in may take the name again
+    assert reg["old"] == 2 and reg.retired("old") is None
+
+
+def test_a_study_naming_a_learner_that_left_says_why_in_one_line():
+    """The EKF left the registry (issue 66): a study file, a recorded summary or
+    ``--learners`` that names it is refused with the reason and where it is recorded."""
+    from corrections_sim.learning.roster import RETIRED
+
+    assert {"EKF", "KF-CB"} <= set(RETIRED) and not set(RETIRED) & set(LEARNERS)
+    with pytest.raises(ValueError) as info:
+        settings(learners=["KF", "EKF"])
+    message = str(info.value)
+    assert "\n" not in message
+    assert message.startswith("learners[1] = 'EKF': the paper's EKF answered its question")
+    assert "docs/decision.md#learners-that-left" in message
+    # As a table too, and wherever a learner is made by name (a recorded summary, a log).
+    with pytest.raises(ValueError, match="learner 'EKF' left the registry: the paper's EKF"):
+        settings(learners={"EKF": {"step": 0.05}})
+
+
 @pytest.mark.parametrize("name", ["", "-a", "a b", "a/b", 3])
 def test_a_malformed_name_is_refused(name):
     with pytest.raises(ValueError, match="name"):
@@ -99,7 +131,7 @@ def test_a_name_is_registered_once_unless_replaced():
 
 
 def test_the_papers_learners_are_registered_in_the_figures_order():
-    assert list(LEARNERS)[:9] == ["PP", "KF", "EKF", "AL", "PP-C", "KF-C", "AL-C", "KF-A", "BP"]
+    assert list(LEARNERS)[:8] == ["PP", "KF", "AL", "PP-C", "KF-C", "AL-C", "KF-A", "BP"]
 
 
 def test_no_two_registered_learners_are_drawn_alike():

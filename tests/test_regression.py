@@ -170,7 +170,7 @@ class TestEveryLearnerFig4(EveryLearnerFigure):
 
     def test_the_recommended_robot_learns_the_papers_person_best(self, quick_run):
         """Measured: after 4 corrections EX-M's error is 0.137 against EX-CL's 0.614 and
-        EX-C's 0.694 (4 runs), the best of the other 21 learners' 0.614, and it holds the
+        EX-C's 0.694 (4 runs), the best of the other 20 learners' 0.614, and it holds the
         paper's model, the worst waypoint moved all the way, at p = 0.95 (each of its six
         models began at 1/6)."""
         settings, result, _ = quick_run

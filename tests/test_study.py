@@ -45,7 +45,7 @@ COLUMNS = {
 
 
 #: The built-in learners: every test's settings hold them all, so any can run.
-BUILT_IN = ["PP", "KF", "EKF", "AL", "PP-C", "KF-C", "AL-C", "KF-A", "BP"]
+BUILT_IN = ["PP", "KF", "AL", "PP-C", "KF-C", "AL-C", "KF-A", "BP"]
 
 
 def settings(**overrides) -> StudySettings:

@@ -4,8 +4,8 @@ tables list them (a plug-in's learner registers itself with
 lines here.
 
 * :mod:`~corrections_sim.learning.perceptron`: PP, PP-C, PP-MAX;
-  :mod:`~corrections_sim.learning.kalman`: KF, EKF, KF-C, KF-CL, KF-CI, AL, AL-C,
-  AL-CL, KF-A; :mod:`~corrections_sim.learning.boltzmann`: BP;
+  :mod:`~corrections_sim.learning.kalman`: KF, KF-C, KF-CL, KF-CI, AL, AL-C, AL-CL,
+  KF-A; :mod:`~corrections_sim.learning.boltzmann`: BP;
   :mod:`~corrections_sim.learning.relevance`: KF-CR, KF-CRP, PP-R, KF-CRX;
   :mod:`~corrections_sim.learning.particles`: PF-C, AL-PF;
   :mod:`~corrections_sim.learning.exact`: EX-C, EX-CL, EX-M (on the study's plan atlas).
@@ -13,6 +13,11 @@ lines here.
 Each is a frozen dataclass whose fields are its own parameters (``[learners.KF-A]
 attenuation_min = 0.1`` in a study file); the filters' shared M, N and sigma points come from
 the study through :class:`~corrections_sim.learning.base.LearnerContext`.
+
+A learner leaves the registry when its question is answered, it runs in no study but the
+every-learner comparison (``run learners``), and no learner that stays needs it
+(docs/decision.md, "Learners that left"); :data:`RETIRED` says why, and naming it anywhere
+gives that reason in one line.
 """
 
 from corrections_sim.learning.base import LEARNERS
@@ -35,7 +40,6 @@ from corrections_sim.learning.kalman.attenuated import AttenuatedKalman
 from corrections_sim.learning.kalman.learners import (
     CorrectionAwareKalman,
     CorrectionAwareKalmanLearntNoise,
-    ExtendedKalman,
     IteratedCorrectionAwareKalman,
     UnscentedKalman,
 )
@@ -55,7 +59,6 @@ from corrections_sim.learning.relevance.learners import (
 
 LEARNERS.register("PP", Perceptron)
 LEARNERS.register("KF", UnscentedKalman)
-LEARNERS.register("EKF", ExtendedKalman)
 LEARNERS.register("AL", ActiveLearning)
 LEARNERS.register("PP-C", PerceptronFromCorrectionAware)
 LEARNERS.register("KF-C", CorrectionAwareKalman)
@@ -75,3 +78,18 @@ LEARNERS.register("AL-PF", ParticleActive)
 LEARNERS.register("EX-C", ExactCorrectionAware)
 LEARNERS.register("EX-CL", ExactCorrectionAwareLearntNoise)
 LEARNERS.register("EX-M", ExactPersonModel)
+
+#: Learners that left the registry, and why (what naming one says; docs/decision.md).
+RETIRED = {
+    "KF-CB": (
+        "KF-C iterating every past correction at once measured no better than KF-C "
+        "(issue 64; docs/exact-confidence.md); use KF-CI or EX-C"
+    ),
+    "EKF": (
+        "the paper's EKF answered its question, whether the unscented transform matters: "
+        "neither filter led on both figures, both far behind KF-C (issue 66; "
+        "docs/decision.md#learners-that-left); use KF, or ekf_update in a plug-in"
+    ),
+}
+for _name, _why in RETIRED.items():
+    LEARNERS.retire(_name, _why)
