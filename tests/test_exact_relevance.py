@@ -245,3 +245,27 @@ def test_the_move_s_direction_tells_a_nudge_from_a_correction(tmp_path):
     relevant = [float(r["relevance"]) for r in rows if float(r["relevant"]) == 1.0]
     assert nudges and relevant
     assert max(nudges) < 0.01 < 0.2 < min(relevant), (nudges, relevant)
+
+
+def test_a_correction_that_moved_nothing_is_taken_in_but_not_judged(tmp_path):
+    """A person whose plan is the robot's (θ* = θ̂⁰, both plans the atlas's) moves nothing:
+    there is no move to call a nudge, so EX-M reports no β̂ for that correction (a study
+    scores relevance over the corrections that moved something; the relevance study's nudges
+    of no size were counted against EX-M, issue 66). The same person with the robot starting
+    elsewhere is judged."""
+
+    def first(theta0: str) -> dict:
+        study = STUDY.replace("theta_star = [1.0, -1.0]", f"theta_star = [1.0, -1.0]\n{theta0}")
+        path = tmp_path / "judged.toml"
+        user = '{ name = "distracted", fraction = 0.5 }'
+        path.write_text(study.format(runs=1, iterations=1, user=user, more=""))
+        out = tmp_path / "out"
+        assert cli.main(["study", str(path), "--out", str(out), "--workers", "1", "--force"]) == 0
+        with open(out / "judged" / "curves.csv", newline="") as fh:
+            rows = [r for r in csv.DictReader(fh) if r["learner"] == "EX-M"]
+        return next(r for r in rows if r["iteration"] == "1")
+
+    same = first("theta0 = [1.0, -1.0]")
+    assert same.get("relevance", "") == ""  # not judged
+    assert np.isfinite(float(same["theta_0"])) and np.isfinite(float(same["theta_1"]))
+    assert 0.0 < float(first("theta0 = [0.0, 0.0]")["relevance"]) <= 1.0

@@ -31,7 +31,9 @@ node and pair). A person's noise is learnt among point masses, not under KF-CL's
 inverse-Wishart as in EX-CL: with N integrated out under the latter the corrections are not
 independent given θ, and the sum over subsets would take 2ᵗ terms. Where ``ctx.corrected`` is
 not given (no joint-space correction to judge), the correction is taken as relevant and its
-direction is not read.
+direction is not read; where the person moved nothing (their plan is the robot's), it is taken
+in as relevant but reported unjudged (β̂ None: there is no move to call a nudge, and a study
+scores relevance over the corrections that moved something).
 
 Every correction is weighed at every node at once (no lazy weighing: at k = 2 it saves
 little, and the relevance sum has no cheap bound).
@@ -333,7 +335,10 @@ class RelevantExact(ExactCorrectionAware):
         mean, cov = _moments(after.thetas, ref.posterior(log_post, after.cells.coefficients))
         kept = ExactState(noise=prior, grid=after, history=history)
         new = Belief(theta=mean, cov=cov, state=kept)
-        beta = self._relevance(after, prior, history)
+        # A correction that moved nothing (the robot's plan was already the person's) is
+        # judged by nobody: no move, no nudge to tell from a correction (None, not 1).
+        nothing = ctx.corrected is not None and rows is None
+        beta = None if nothing else self._relevance(after, prior, history)
         return ExactStep(
             new,
             None,
