@@ -4,9 +4,9 @@ The learners of :data:`corrections_sim.learning.base.LEARNERS` (the paper's PP, 
 KF-C, AL-C, PP-C, KF-A, BP, the exact learners, plug-ins) learning from a simulated user's
 corrections. Settings live as data: a study file each (``experiments/fig4.toml``,
 ``fig5.toml``; any other with ``run study FILE``, see :mod:`corrections_sim.study.schema`).
-The study runs in
-:mod:`corrections_sim.study.runner` and is summarized by :mod:`corrections_sim.study.analysis`;
-this module writes its files (CSV, ``summary.json`` fields, the plot).
+The study runs in :mod:`corrections_sim.study.runner` and is summarized by
+:mod:`corrections_sim.study.analysis`; this module writes its files (CSV, ``summary.json``
+fields, the plot).
 """
 
 from __future__ import annotations
