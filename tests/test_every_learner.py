@@ -60,7 +60,7 @@ def test_every_built_in_learner_has_a_family_panel():
     from corrections_sim.learning.roster import RETIRED
 
     built_in = [n for n, c in LEARNERS.items() if c.__module__.startswith("corrections_sim.")]
-    # Every built-in learner but those that left (docs/decision.md#learners-that-left).
-    assert len(built_in) == 21 and not set(built_in) & set(RETIRED)
+    # The 21 built-in learners at least, none of those that left (decision.md).
+    assert len(built_in) >= 21 and not set(built_in) & set(RETIRED)
     for name in built_in:
         assert learning_plot.family(name) in learning_plot.FAMILY_ORDER[:-1], name

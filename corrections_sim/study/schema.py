@@ -211,8 +211,8 @@ def _learners(value) -> dict:
     if isinstance(value, list | tuple):
         table = {}
         for i, name in enumerate(value):
-            if LEARNERS.retired(name) is not None:
-                raise ValueError(f"learners[{i}] = {name!r}: {LEARNERS.retired(name)}")
+            if (why := LEARNERS.retired(name)) is not None:
+                raise ValueError(f"learners[{i}] = {name!r}: {why}")
             if not isinstance(name, str) or name not in LEARNERS:
                 raise ValueError(
                     f"learners[{i}] = {name!r}: unknown learner (choose from {', '.join(LEARNERS)})"
