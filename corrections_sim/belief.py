@@ -221,16 +221,22 @@ class KalmanNoise:
         """Number of features k."""
         return int(self.process.shape[0])
 
-    def grown(self, dim: int) -> KalmanNoise:
+    def grown(self, dim: int, share: float = 1.0) -> KalmanNoise:
         """The noise over ``dim`` >= k features: a learnt feature's share (past the k) its
-        mean diagonal entry, uncorrelated (the studies' M and N are m·I and n·I)."""
+        mean diagonal entry, uncorrelated (the studies' M and N are m·I and n·I); its
+        observation noise that entry times ``share`` (> 0; a learnt feature's values are in
+        units of their own, so how much a correction moves them may be fitted: KF-CRX)."""
         k = self.dim
         if dim == k:
             return self
+        if not (np.isfinite(share) and share > 0):
+            raise ValueError(f"KalmanNoise.grown: share = {share!r} must be finite and > 0")
 
-        def grow(a: np.ndarray) -> np.ndarray:
-            out = np.eye(dim) * float(np.mean(np.diag(a)))
+        def grow(a: np.ndarray, scale: float) -> np.ndarray:
+            out = np.eye(dim) * (float(np.mean(np.diag(a))) * scale)
             out[:k, :k] = a
             return out
 
-        return KalmanNoise(process=grow(self.process), observation=grow(self.observation))
+        return KalmanNoise(
+            process=grow(self.process, 1.0), observation=grow(self.observation, float(share))
+        )

@@ -412,6 +412,24 @@ def test_noise_accepts_zero_process_noise():
     assert KalmanNoise(np.zeros((2, 2)), np.eye(2)).dim == 2
 
 
+def test_grown_noise_gives_a_learnt_feature_a_share_of_the_observation_noise():
+    """Grown to k + 1 features, the learnt one's noise is the mean diagonal entry (M and N
+    alike), its observation noise times ``share`` (KF-CRX fits it, issue 69); a share of 1
+    is the noise it always had, byte for byte."""
+    noise = KalmanNoise(np.diag([0.01, 0.03]), np.diag([0.2, 0.3]))
+    plain = noise.grown(3)
+    np.testing.assert_array_equal(plain.observation, np.diag([0.2, 0.3, 0.25]))
+    np.testing.assert_array_equal(plain.process, np.diag([0.01, 0.03, 0.02]))
+    assert noise.grown(3, 1.0).observation.tobytes() == plain.observation.tobytes()
+    shared = noise.grown(3, 1 / 16)
+    np.testing.assert_allclose(shared.observation, np.diag([0.2, 0.3, 0.25 / 16]), rtol=1e-15)
+    np.testing.assert_array_equal(shared.process, plain.process)
+    assert noise.grown(2, 1 / 16) is noise
+    for share in (0.0, -1.0, np.nan):
+        with pytest.raises(ValueError, match="share"):
+            noise.grown(3, share)
+
+
 @pytest.mark.parametrize("alpha", [0.0, -0.1, np.nan, np.inf, np.array([0.1, 0.2]), "0.1"])
 def test_perceptron_refuses_bad_alpha(alpha):
     belief = Belief(np.zeros(2), np.eye(2))

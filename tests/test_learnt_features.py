@@ -189,6 +189,9 @@ def test_expansion_options_are_checked_in_one_line():
         ({"expand_inputs": ["elbow"]}, "expand_inputs"),
         ({"expand_variances": []}, "expand_variances"),
         ({"expand_variances": [1.0, -2.0]}, "expand_variances"),
+        ({"expand_noises": []}, "expand_noises"),
+        ({"expand_noises": [0.0]}, "expand_noises"),
+        ({"expand_noises": 0.5}, "expand_noises"),
     ):
         with pytest.raises(ValueError, match=f"learners.KF-CRX.{key}") as info:
             make_learner("KF-CRX", params)
@@ -216,6 +219,11 @@ def test_a_folder_made_when_kf_crp_held_expansion_compares_equal_where_it_never_
     older = {k: v for k, v in crx.items() if k != "expand_variances"} | {"expand_variance": 1.0}
     assert normalize_recorded({"learners": {"KF-CRX": older}})["learners"]["KF-CRX"] == crx
     assert make_learner("KF-CRX").expand_variances == (1.0, 4.0, 16.0, 64.0)
+    # A KF-CRX recorded before its learnt feature's noise was fitted gave it the study's.
+    crx = components.params(make_learner("KF-CRX", {"expand_noises": [1.0]}))
+    older = {k: v for k, v in crx.items() if k != "expand_noises"}
+    assert normalize_recorded({"learners": {"KF-CRX": older}})["learners"]["KF-CRX"] == crx
+    assert make_learner("KF-CRX").expand_noises == (1.0, 1 / 16, 1 / 64, 1 / 256)
 
 
 def test_a_session_logged_before_the_learnt_weights_prior_became_a_choice_still_resumes(
@@ -235,8 +243,9 @@ def test_a_session_logged_before_the_learnt_weights_prior_became_a_choice_still_
         row = log.session(log.session_ids()[0])
     assert row.learner == "KF-CRX" and "expand_variance" not in row.learner_params
     assert row.learner_params["expand_variances"] == [1.0]
+    assert row.learner_params["expand_noises"] == [1.0]  # its learnt feature had the study's
     agent = build_learner(settings_from_log(row.settings), row.learner, row.learner_params)
-    assert agent.expand_variances == (1.0,)
+    assert agent.expand_variances == (1.0,) and agent.expand_noises == (1.0,)
 
 
 def test_a_session_asks_for_traces_learns_the_feature_logs_resumes_and_replays(tmp_path):
@@ -284,13 +293,17 @@ def test_a_session_asks_for_traces_learns_the_feature_logs_resumes_and_replays(t
         assert session.belief.dim == 3 and session.wanted == 0
         learnt = log.events(session.id, "learnt")
         assert len(learnt) == 1 and learnt[0]["detail"]["feature"] == name
-        # The learnt weight's prior variance: the candidate under which the corrections read
-        # again were likeliest (issue 69), logged with every candidate's evidence.
+        # The learnt weight's prior variance and its feature's noise: the pair under which
+        # the corrections read again were likeliest (issue 69), logged with every pair's
+        # evidence.
         detail = learnt[0]["detail"]
-        variances = make_learner("KF-CRX").expand_variances
-        assert len(detail["evidence"]) == len(variances)
-        assert detail["variance"] == variances[int(np.argmax(detail["evidence"]))]
+        crx = make_learner("KF-CRX")
+        pairs = [[s, v] for s in crx.expand_noises for v in crx.expand_variances]
+        assert detail["candidates"] == pairs and len(detail["evidence"]) == len(pairs)
+        best = pairs[int(np.argmax(detail["evidence"]))]
+        assert [detail["noise"], detail["variance"]] == best
         assert session.belief.cov[2, 2] <= detail["variance"]
+        assert session.belief.state.learnt_noise == detail["noise"]  # what it goes on with
         assert len(log.events(session.id, "trace")) == 3
 
         resumed = Session.resume(log, session.id)

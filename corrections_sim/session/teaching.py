@@ -227,6 +227,8 @@ class Teaching:
                 "weights": np.asarray(f.weights).tolist(),
                 "loss": facts["loss"],
                 "variance": facts["variance"],
+                "noise": facts["noise"],
+                "candidates": facts["candidates"],
                 "evidence": facts["evidence"],
             },
         )

@@ -186,15 +186,20 @@ def note_older_spellings(values: Mapping[str, Any], where: str) -> None:
 def current_learner_params(name: str, params: Any) -> Any:
     """A recorded learner's parameters (a summary's, a session log's) in today's form: without
     those it gave up where they did nothing (KF-CRP's ``expand_*`` went to KF-CRX, issue 64;
-    with ``expand_traces = 0`` it never asked), and KF-CRX's one ``expand_variance`` as the
-    one candidate of ``expand_variances`` (issue 69)."""
+    with ``expand_traces = 0`` it never asked), KF-CRX's one ``expand_variance`` as the
+    one candidate of ``expand_variances``, and a KF-CRX recorded before its learnt feature's
+    noise was fitted as the choice among one share, the study's noise (both issue 69)."""
     if name == "KF-CRP" and isinstance(params, dict) and params.get("expand_traces", 0) == 0:
         return {k: v for k, v in params.items() if not k.startswith("expand_")}
-    if name == "KF-CRX" and isinstance(params, dict) and "expand_variance" in params:
-        # One prior variance for a learnt weight became a choice among several (issue 69):
-        # the older setting is that choice with one candidate.
-        kept = {k: v for k, v in params.items() if k != "expand_variance"}
-        return kept | {"expand_variances": [params["expand_variance"]]}
+    if name == "KF-CRX" and isinstance(params, dict):
+        if "expand_variance" in params:
+            # One prior variance for a learnt weight became a choice among several (issue
+            # 69): the older setting is that choice with one candidate.
+            kept = {k: v for k, v in params.items() if k != "expand_variance"}
+            params = kept | {"expand_variances": [params["expand_variance"]]}
+        if "expand_noises" not in params:
+            # Its learnt feature's noise was the study's until it was fitted (issue 69).
+            params = params | {"expand_noises": [1.0]}
     return params
 
 

@@ -222,6 +222,7 @@ def run_learner(
                 learnt.update(expansion.quality_of(step.expansion["feature"], target, current, env))
                 learnt["expanded_at"] = t + 1
                 learnt["variance"] = step.expansion.get("variance")
+                learnt["noise"] = step.expansion.get("noise")
         except PlanningError as exc:
             skipped = str(exc).splitlines()[0]
         record(t + 1, env.name, skipped, step, task)

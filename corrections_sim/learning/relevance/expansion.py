@@ -45,6 +45,11 @@ class ExpandingRelevanceKalman(PersonRelevanceKalman):
         expand_variances: the prior variances the learnt feature's weight may start from,
             N(0, v) uncorrelated with the others; the one under which the person's corrections
             so far were likeliest is kept (see :meth:`grow`). One value: that prior.
+        expand_noises: the learnt feature's observation noise, as shares of the study's (its
+            mean diagonal entry, :meth:`~corrections_sim.belief.KalmanNoise.grown`): the
+            learnt feature's values are the ranking network's, so how much a correction moves
+            them is not known beforehand; chosen with the variance, the pair under which the
+            corrections so far were likeliest (see :meth:`grow`). One value: that share.
         expand_inputs: what the learnt feature's network reads (``learnt.INPUTS``).
         expand_hidden: its hidden layers' widths.
     """
@@ -60,6 +65,7 @@ class ExpandingRelevanceKalman(PersonRelevanceKalman):
     expand_below: float = 0.35
     expand_after: int = 3
     expand_variances: tuple[float, ...] = (1.0, 4.0, 16.0, 64.0)
+    expand_noises: tuple[float, ...] = (1.0, 1.0 / 16.0, 1.0 / 64.0, 1.0 / 256.0)
     expand_inputs: tuple[str, ...] = Network().inputs
     expand_hidden: tuple[int, ...] = Network().hidden
 
@@ -69,16 +75,18 @@ class ExpandingRelevanceKalman(PersonRelevanceKalman):
         require_count("expand_after", self.expand_after, 1)
         if not (isinstance(self.expand_below, int | float) and 0 < self.expand_below < 1):
             raise ParameterError("expand_below", f"must lie in (0, 1), got {self.expand_below!r}")
-        for name in ("expand_inputs", "expand_hidden", "expand_variances"):
+        for name in ("expand_inputs", "expand_hidden", "expand_variances", "expand_noises"):
             value = getattr(self, name)
             if not isinstance(value, list | tuple):
                 raise ParameterError(name, f"must be a list, got {value!r}")
             object.__setattr__(self, name, tuple(value))
-        if not self.expand_variances:
-            raise ParameterError("expand_variances", "must hold at least one variance")
-        for v in self.expand_variances:
-            require_positive("expand_variances", v)
-        object.__setattr__(self, "expand_variances", tuple(float(v) for v in self.expand_variances))
+        for name, what in (("expand_variances", "variance"), ("expand_noises", "share")):
+            values = getattr(self, name)
+            if not values:
+                raise ParameterError(name, f"must hold at least one {what}")
+            for v in values:
+                require_positive(name, v)
+            object.__setattr__(self, name, tuple(float(v) for v in values))
         try:
             self.network()
         except ValueError as exc:
@@ -105,8 +113,11 @@ class ExpandingRelevanceKalman(PersonRelevanceKalman):
         # Expanded: the person taught what their corrections were about, so they are taken
         # as relevant (KF-C's update over k + 1 features). Judged one by one, a learnt feature
         # that ranks like the person's (Spearman 0.88-0.92) still leaves most of a joint-space
-        # correction unexplained: β̂ stayed below 1e-4 (measured).
+        # correction unexplained: β̂ stayed below 1e-4 (measured). The learnt feature's noise
+        # is the share chosen when it was learnt.
         prior = Belief(theta=belief.theta, cov=belief.cov)
+        share = RelevanceState.of(belief).learnt_noise
+        ctx = dataclasses.replace(ctx, noise=_with_share(ctx.noise, len(belief.extra), share))
         step = CorrectionAwareKalman.update(self, ctx, prior, env, plan, phi_h)
         kept = dataclasses.replace(belief, theta=step.belief.theta, cov=step.belief.cov)
         return dataclasses.replace(step, belief=kept, relevance=1.0)
@@ -170,23 +181,26 @@ class ExpandingRelevanceKalman(PersonRelevanceKalman):
         planned over k + 1 features with ``ctx``'s planner settings.
 
         The learnt feature's scale is the ranking network's (0 to 1 over the workspace), not
-        the person's, so how large its weight may be is fitted from the person's own
-        corrections: the past is read again under each prior variance v of
-        ``expand_variances``, and the v under which the filter predicted the corrections best
-        is kept — the evidence Σᵢ log N(νᵢ; 0, Sᵢ) of the innovations over all k + 1 features
-        (the same numbers under every v; ties keep the first)."""
+        the person's, so how large its weight may be, and how much a correction moves its
+        values, are fitted from the person's own corrections: the past is read again under
+        each pair of a share s of ``expand_noises`` (its observation noise s times the study's)
+        and a prior variance v of ``expand_variances``, and the pair under which the filter
+        predicted the corrections best is kept — the evidence Σᵢ log N(νᵢ; 0, Sᵢ) of the
+        innovations over all k + 1 features (the same numbers under every pair; ties keep the
+        first, shares outer, in the order given)."""
         start = time.process_time()
         learnt = learn(traces, env, rng, network=self.network())
         name = register_learnt(learnt)
         first, *past = RelevanceState.of(belief).history or (PriorEntry(belief.theta, belief.cov),)
         best, evidences = None, []
-        for variance in self.expand_variances:
-            grown, evidence = self._reread(first, past, name, variance, ctx)
-            evidences.append(evidence)
-            if best is None or evidence > best[1]:
-                best = (grown, evidence, variance)
-        grown, _, variance = best
-        asked = RelevanceState(asked=True)
+        for share in self.expand_noises:
+            for variance in self.expand_variances:
+                grown, evidence = self._reread(first, past, name, variance, ctx, share)
+                evidences.append(evidence)
+                if best is None or evidence > best[1]:
+                    best = (grown, evidence, variance, share)
+        grown, _, variance, share = best
+        asked = RelevanceState(asked=True, learnt_noise=share)
         grown = Belief(theta=grown.theta, cov=grown.cov, extra=(*belief.extra, name), state=asked)
         return grown, {
             "asked": True,
@@ -196,16 +210,25 @@ class ExpandingRelevanceKalman(PersonRelevanceKalman):
             "reread": len(past),
             "loss": learnt.loss,
             "variance": variance,
+            "noise": share,
+            "candidates": [[s, v] for s in self.expand_noises for v in self.expand_variances],
             "evidence": evidences,
             "seconds": time.process_time() - start,
         }
 
     def _reread(
-        self, first: PriorEntry, past, name: str, variance: float, ctx: LearnerContext
+        self,
+        first: PriorEntry,
+        past,
+        name: str,
+        variance: float,
+        ctx: LearnerContext,
+        share: float = 1.0,
     ) -> tuple[Belief, float]:
         """The belief over k + 1 features (the learnt one, ``name``, last, its weight's prior
-        N(0, ``variance``)) after reading the kept corrections ``past`` again from the prior
-        ``first``, and the evidence Σᵢ log N(νᵢ; 0, Sᵢ) of their innovations."""
+        N(0, ``variance``), its observation noise ``share`` times the study's) after reading
+        the kept corrections ``past`` again from the prior ``first``, and the evidence
+        Σᵢ log N(νᵢ; 0, Sᵢ) of their innovations."""
         theta0, cov0 = first.theta, first.cov
         k = len(theta0)
         cov = np.zeros((k + 1, k + 1))
@@ -219,7 +242,7 @@ class ExpandingRelevanceKalman(PersonRelevanceKalman):
         for shown in past:
             env_i, robot, corrected = shown.env, shown.robot, shown.corrected
             seen = dataclasses.replace(
-                ctx, book=book, features=features, noise=ctx.noise.grown(k + 1),
+                ctx, book=book, features=features, noise=ctx.noise.grown(k + 1, share),
                 corrected=corrected,
             )  # fmt: skip
             plan = Plan(  # the plan the person corrected then, its Φ over k + 1 features
@@ -239,6 +262,16 @@ class ExpandingRelevanceKalman(PersonRelevanceKalman):
             grown = step.belief
             evidence += gaussian_log_density(step.innovation, 0.0, step.innovation_cov)
         return grown, evidence
+
+
+def _with_share(noise: KalmanNoise, learnt: int, share: float) -> KalmanNoise:
+    """``noise`` over k + ``learnt`` features with the learnt features' observation noise
+    ``share`` times the study's (the same noise when ``share`` is 1)."""
+    k = noise.dim - learnt
+    if share == 1.0 or learnt == 0:
+        return noise
+    study = KalmanNoise(process=noise.process[:k, :k], observation=noise.observation[:k, :k])
+    return study.grown(noise.dim, share)
 
 
 def missing_feature(target, current: tuple[str, ...]) -> str | None:
@@ -265,8 +298,9 @@ def columns(belief, step: Step | None, learnt: dict, k: int) -> dict:
     """Columns of a learner that can learn features: whether it asked, whether it has
     expanded (and at which correction), the learnt feature's quality against the person's
     (Spearman ρ, R² of the best affine fit), its weight θ̂ and the weight the person's maps
-    to through that fit (θ*·a) and the prior variance of its weight it chose, for every
-    record after it expanded."""
+    to through that fit (θ*·a), the prior variance of its weight and the share of the
+    study's observation noise its values are given that it chose, for every record after it
+    expanded."""
     asked = RelevanceState.of(belief).asked
     if not (asked or (step is not None and step.expansion is not None)):
         return {}
@@ -279,5 +313,6 @@ def columns(belief, step: Step | None, learnt: dict, k: int) -> dict:
             "learnt_weight": float(belief.theta[k]),
             "learnt_weight_target": learnt.get("target"),
             "learnt_variance": learnt.get("variance"),
+            "learnt_noise": learnt.get("noise"),
         }
     return out

@@ -151,15 +151,19 @@ class PersonBelief:
 class RelevanceState(FamilyState):
     """KF-CRP's and KF-CRX's own state: the belief over the person (None once a feature is
     learnt: the person's corrections are then taken as relevant), whether it has asked for
-    feature traces (it asks once), and the prior with the corrections shown so far (what a
-    learnt feature reads again)."""
+    feature traces (it asks once), the prior with the corrections shown so far (what a
+    learnt feature reads again), and, once a feature is learnt, the share of the study's
+    observation noise its values are given (fitted from the corrections read again:
+    :meth:`~corrections_sim.belief.KalmanNoise.grown`)."""
 
     person: PersonBelief | None = None
     asked: bool = False
     history: tuple[HistoryEntry, ...] = ()
+    learnt_noise: float = 1.0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "history", checked(self.history, "RelevanceState.history"))
+        _positive_finite("RelevanceState.learnt_noise", self.learnt_noise)
 
     def columns(self) -> dict[str, float]:
         """E[r] and σ̂ (``relevance_rate``, ``relevance_spread``) while it judges the person."""
