@@ -347,9 +347,12 @@ def run(
 
 
 def report(log: StudyLog, session_id: int) -> dict:
-    """From the log alone: each trace's start against where the page showed the cup when
-    Start was taken (m), the learnt feature's quality against `human` (Spearman's ρ, R²), and
-    the plans' closest approach of the cup to the person (m) before and after the teaching."""
+    """From the log: each trace's start against where the page showed the cup when Start was
+    taken (m), the learnt feature's quality against `human` (Spearman's ρ, R²), the plans'
+    closest approach of the cup to the person (m) before and after the teaching, and how far
+    the teaching moved the plan away from the person: in each environment planned after it,
+    the closest approach of that plan minus that of the plan the robot would have made there
+    with its belief just before (planned again, over the study's features; issue 69)."""
     from corrections_sim.learnt.training import quality, register_logged
     from corrections_sim.session.session import settings_from_log
 
@@ -391,6 +394,33 @@ def report(log: StudyLog, session_id: int) -> dict:
         out["feature"] = detail["feature"]
         out["closest_before_m"] = [round(closest(r), 3) for r in rows if r["iteration"] < after]
         out["closest_after_m"] = [round(closest(r), 3) for r in rows if r["iteration"] >= after]
+        moved = _moved_away(settings, rows, after, person)
+        out["moved_away_m"] = [round(m, 3) for m in moved]
+        out["moved_away_mean_m"] = round(float(np.mean(moved)), 3) if moved else None
+    return out
+
+
+def _moved_away(settings, rows, after: int, person: np.ndarray) -> list[float]:
+    """Per correction from ``after`` on: the closest approach of its plan to ``person`` minus
+    that of the plan at the belief of the last correction before ``after`` in its
+    environment (m; positive: away from them)."""
+    before = [r for r in rows if r["iteration"] < after]
+    if not before:
+        return []
+    k = len(settings.features)
+    theta = np.asarray(before[-1]["theta_after"], float)[:k]
+    config = PlannerConfig(features=settings.features, **dict(settings.planner))
+    book = PlanBook(shared_planner(config))
+    envs = settings.envs()
+
+    def closest(xi) -> float:
+        return float(np.min(np.linalg.norm(cup_path(np.asarray(xi)) - person, axis=1)))
+
+    out = []
+    for r in rows:
+        if r["iteration"] >= after:
+            was = book.plan(theta, envs[int(r["env_index"])]).trajectory
+            out.append(closest(r["xi_robot"]) - closest(was))
     return out
 
 
@@ -400,6 +430,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     p.add_argument("--db", type=Path, required=True)
     p.add_argument("--after", type=int, default=3, help="corrections after the teaching")
+    p.add_argument(
+        "--traces", type=int, help="the traces KF-CRX asks for (its expand_traces; default 10)"
+    )
     p.add_argument("--seed", type=int, default=39)
     p.add_argument("--port", type=int, default=8094)
     p.add_argument("--hurried", action="store_true", help="Start within 0.2 s of a drag")
@@ -408,10 +441,16 @@ def main(argv: list[str] | None = None) -> int:
     if args.after < 1:
         print(f"error: --after {args.after}: at least 1", file=sys.stderr)
         return 2
+    if args.traces is not None and args.traces < 1:
+        print(
+            f"error: --traces {args.traces}: at least 1 (0: the robot never asks)", file=sys.stderr
+        )
+        return 2
     args.db.parent.mkdir(parents=True, exist_ok=True)
+    params = None if args.traces is None else {"expand_traces": args.traces}
     session_id = run(
         args.db, after=args.after, seed=args.seed, port=args.port, hurried=args.hurried,
-        shots=args.shots,
+        shots=args.shots, params=params,
     )  # fmt: skip
     print(f"session {session_id} of {args.db}: corrected, taught, corrected")
     with StudyLog(args.db) as log:

@@ -215,21 +215,29 @@ def test_replay_names_the_learnt_feature_its_weight_and_its_quality_against_the_
     assert -1.0 <= q["spearman"] <= 1.0 and q["n"] > 1000
 
 
-def test_the_committed_teaching_report_is_what_its_log_says():
-    """``results/interact/teach-report.json`` recomputed from the committed log alone, in a
-    process that never saw the session (the learnt feature registered from its logged
-    weights); floats to 1e-6 (another processor rounds otherwise)."""
+@pytest.mark.parametrize("name", ["teach", "teach-5"])
+def test_the_committed_teaching_report_is_what_its_log_says(name):
+    """``results/interact/<name>-report.json`` recomputed from the committed log, in a process
+    that never saw the session (the learnt feature registered from its logged weights; the
+    plans before the teaching planned again); floats to 1e-6 (another processor rounds
+    otherwise). ``teach``: 10 traces with the study's noise for the learnt feature (before
+    issue 69 fitted it); ``teach-5``: 5 traces, 5 corrections after, the noise fitted."""
     import json
     from pathlib import Path
 
     from scripted_people.teach import report
 
     root = Path(__file__).resolve().parents[1] / "results" / "interact"
-    committed = json.loads((root / "teach-report.json").read_text())
-    with StudyLog(root / "teach.sqlite") as log:
-        again = json.loads(json.dumps(report(log, 1)))
+    committed = json.loads((root / f"{name}-report.json").read_text())
+    with StudyLog(root / f"{name}.sqlite") as log:
+        again = json.loads(json.dumps(report(log, log.session_ids()[0])))
     assert again.keys() == committed.keys()
     for key, value in committed.items():
+        # Planned again, rounded to the millimetre: one rounding step apart on another CPU.
+        near = 1.5e-3 if key.startswith("moved_away") else 1e-9
         assert again[key] == (
-            pytest.approx(value, rel=1e-6, abs=1e-9) if key != "feature" else value
+            pytest.approx(value, rel=1e-6, abs=near) if key != "feature" else value
         )
+    assert committed["moved_away_mean_m"] == pytest.approx(
+        np.mean(committed["moved_away_m"]), abs=1e-3
+    )
