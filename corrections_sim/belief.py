@@ -125,6 +125,11 @@ class FamilyState:
         """The observation noise N̂ (k, k) it holds, for a learner that learns N; else None."""
         return None
 
+    def learnt_share(self) -> float:
+        """The share of the study's observation noise its learnt features' values are given
+        (:meth:`KalmanNoise.grown`): 1 here, what a learner that fits it chose otherwise."""
+        return 1.0
+
     def describe(self) -> str:
         """A sentence for a page about what it has learnt beyond θ̂ and P ("" for nothing)."""
         return ""

@@ -304,6 +304,15 @@ def test_a_session_asks_for_traces_learns_the_feature_logs_resumes_and_replays(t
         assert [detail["noise"], detail["variance"]] == best
         assert session.belief.cov[2, 2] <= detail["variance"]
         assert session.belief.state.learnt_noise == detail["noise"]  # what it goes on with
+        # ... and what every correction step's context gives its learnt feature from then on.
+        from corrections_sim.learning import correction
+
+        study = settings.study.noise()
+        ctx = correction.context(session.belief, study, book=None, envs=(), features=(), alphas=(),
+                                 n_waypoints=0, rng=None, sigma=None)  # fmt: skip
+        assert ctx.noise.observation[2, 2] == pytest.approx(
+            detail["noise"] * np.mean(np.diag(study.observation)), rel=1e-15
+        )
         assert len(log.events(session.id, "trace")) == 3
 
         resumed = Session.resume(log, session.id)

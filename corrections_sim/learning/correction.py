@@ -25,8 +25,9 @@ from corrections_sim.scene.environments import Environment
 
 def context(belief: Belief, noise: KalmanNoise, **fields) -> LearnerContext:
     """The context of the next correction to ``belief``: the study's ``noise`` grown to the
-    belief's dimension, the other :class:`LearnerContext` fields as given."""
-    return LearnerContext(noise=noise.grown(belief.dim), **fields)
+    belief's dimension (its learnt features' observation noise the share its state holds),
+    the other :class:`LearnerContext` fields as given."""
+    return LearnerContext(noise=noise.grown(belief.dim, belief.state.learnt_share()), **fields)
 
 
 def step(

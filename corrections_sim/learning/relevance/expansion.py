@@ -114,10 +114,8 @@ class ExpandingRelevanceKalman(PersonRelevanceKalman):
         # as relevant (KF-C's update over k + 1 features). Judged one by one, a learnt feature
         # that ranks like the person's (Spearman 0.88-0.92) still leaves most of a joint-space
         # correction unexplained: β̂ stayed below 1e-4 (measured). The learnt feature's noise
-        # is the share chosen when it was learnt.
+        # in ``ctx`` is the share chosen when it was learnt (RelevanceState.learnt_share).
         prior = Belief(theta=belief.theta, cov=belief.cov)
-        share = RelevanceState.of(belief).learnt_noise
-        ctx = dataclasses.replace(ctx, noise=_with_share(ctx.noise, len(belief.extra), share))
         step = CorrectionAwareKalman.update(self, ctx, prior, env, plan, phi_h)
         kept = dataclasses.replace(belief, theta=step.belief.theta, cov=step.belief.cov)
         return dataclasses.replace(step, belief=kept, relevance=1.0)
@@ -262,16 +260,6 @@ class ExpandingRelevanceKalman(PersonRelevanceKalman):
             grown = step.belief
             evidence += gaussian_log_density(step.innovation, 0.0, step.innovation_cov)
         return grown, evidence
-
-
-def _with_share(noise: KalmanNoise, learnt: int, share: float) -> KalmanNoise:
-    """``noise`` over k + ``learnt`` features with the learnt features' observation noise
-    ``share`` times the study's (the same noise when ``share`` is 1)."""
-    k = noise.dim - learnt
-    if share == 1.0 or learnt == 0:
-        return noise
-    study = KalmanNoise(process=noise.process[:k, :k], observation=noise.observation[:k, :k])
-    return study.grown(noise.dim, share)
 
 
 def missing_feature(target, current: tuple[str, ...]) -> str | None:

@@ -165,6 +165,9 @@ class RelevanceState(FamilyState):
         object.__setattr__(self, "history", checked(self.history, "RelevanceState.history"))
         _positive_finite("RelevanceState.learnt_noise", self.learnt_noise)
 
+    def learnt_share(self) -> float:
+        return self.learnt_noise
+
     def columns(self) -> dict[str, float]:
         """E[r] and σ̂ (``relevance_rate``, ``relevance_spread``) while it judges the person."""
         if self.person is None:
