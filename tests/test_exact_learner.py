@@ -77,6 +77,36 @@ def test_the_exact_learner_is_its_reference_on_the_atlas_grid(figure, learner, c
     assert "ref NEES" in capsys.readouterr().out
 
 
+def test_its_spread_over_the_cells_keeps_its_estimate_and_adds_what_cells_cannot_resolve(
+    figure, tmp_path
+):
+    """``spread = "cells"``: the same θ̂ to the bit after every correction, and a P wider than
+    the nodes' by a positive semi-definite part (the density within the cells); nothing else
+    in the run moves."""
+    path = tmp_path / "tiny.toml"
+    path.write_text(STUDY)
+    argv = ["study", str(path), "--out", str(tmp_path / "out"), "--workers", "1"]
+    assert cli.main([*argv, "--learners", "EX-C", "--set", 'learners.EX-C.spread="cells"']) == 0
+    cells_rows = _rows(tmp_path / "out" / "tiny" / "curves.csv", "EX-C")
+    nodes_rows = _rows(figure / "curves.csv", "EX-C")
+    assert len(cells_rows) == len(nodes_rows) == 3
+    for wide, narrow in zip(cells_rows, nodes_rows, strict=True):
+        for key in ("theta_0", "theta_1", "regret", "estimate_error"):
+            assert wide[key] == narrow[key]
+        gap = np.linalg.eigvalsh(_cov(wide) - _cov(narrow))
+        if wide["iteration"] == "0":  # the prior, before any cell
+            assert np.array_equal(_cov(wide), _cov(narrow))
+        else:
+            assert gap.min() > 0.0
+            assert float(wide["nees"]) < float(narrow["nees"])
+
+
+def _cov(row) -> np.ndarray:
+    return np.array(
+        [[float(row[f"cov_{min(i, j)}{max(i, j)}"]) for j in range(2)] for i in range(2)]
+    )
+
+
 def test_the_reference_cuts_its_cells_as_axes_says(figure, capsys):
     """``--axes``: a reference's cells cut otherwise than its learner cuts its own (what makes
     a filter's reference affordable at k = 3) hold the same posterior to within their
@@ -552,6 +582,7 @@ def test_narrow_cuts_resolve_a_posterior_narrow_along_one_axis_with_few_nodes():
         ("cut", 0.0, "learners.EX-C.cut: must be a number > 0"),
         ("max_level", -1, "learners.EX-C.max_level"),
         ("axes", '"diagonal"', 'learners.EX-C.axes: must be "all" or "narrow"'),
+        ("spread", '"wide"', 'learners.EX-C.spread: must be "nodes" or "cells"'),
     ],
 )
 def test_a_bad_refinement_is_one_line(tmp_path, capsys, param, value, message):

@@ -15,7 +15,12 @@ from corrections_sim.cli import main as cli
 from corrections_sim.figures import sbc as figure
 from corrections_sim.learning.exact import bayes as ref
 from corrections_sim.learning.exact.cells import Cells
-from corrections_sim.learning.exact.draws import cell_draws, density_at, leaf_masses
+from corrections_sim.learning.exact.draws import (
+    cell_draws,
+    cell_moments,
+    density_at,
+    leaf_masses,
+)
 from corrections_sim.study import sbc
 
 MEAN = np.array([0.3, -0.4])
@@ -53,6 +58,35 @@ def test_draws_within_the_cells_have_the_learners_mean_and_a_little_more_varianc
     again = cell_draws(cells, log_d, 200_000, np.random.default_rng(0))
     assert np.array_equal(draws, again)
     assert np.all((draws >= -3.0) & (draws <= 3.0))
+
+
+def test_the_cells_moments_are_their_draws_in_closed_form():
+    """cell_moments is the draws' mean and covariance (within their sampling error), and its
+    second moment about the trapezoid mean is that covariance plus the means' gap squared."""
+    cells, log_d = _refined(MEAN, COV)
+    mean, cov = cell_moments(cells, log_d)
+    draws = cell_draws(cells, log_d, 400_000, np.random.default_rng(1))
+    se = np.sqrt(np.diag(cov) / len(draws))
+    assert np.all(np.abs(draws.mean(axis=0) - mean) < 4 * se)
+    assert np.allclose(np.cov(draws.T), cov, rtol=0.01, atol=0.01 * np.max(np.diag(cov)))
+    node_mean, node_cov = ref.moments(cells.thetas(), ref.posterior(log_d, cells.coefficients))
+    _, about = cell_moments(cells, log_d, about=node_mean)
+    gap = mean - node_mean
+    assert np.allclose(about, cov + np.outer(gap, gap), rtol=1e-12, atol=1e-15)
+    assert np.linalg.eigvalsh(about - node_cov).min() > 0.0
+
+
+def test_a_posterior_on_one_node_spreads_over_its_cells():
+    """All mass on one interior node: the nodes' covariance is 0, the cells' is the hat
+    function's, width² / 6 along each axis, centred on the node."""
+    cells = Cells.base((-1.0, -2.0), (1.0, 2.0), (5, 5), 2)
+    thetas = cells.thetas()
+    log_d = np.full(len(thetas), -np.inf)
+    at = int(np.argmin(np.sum((thetas - [0.5, 1.0]) ** 2, axis=1)))
+    log_d[at] = 0.0
+    mean, cov = cell_moments(cells, log_d)
+    assert np.allclose(mean, [0.5, 1.0], atol=1e-15)
+    assert np.allclose(cov, np.diag(np.array([0.5, 1.0]) ** 2 / 6.0), rtol=1e-12, atol=1e-15)
 
 
 def test_the_density_anywhere_integrates_to_one_and_is_zero_outside_the_box():

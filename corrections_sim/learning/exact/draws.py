@@ -5,7 +5,10 @@ density anywhere: what simulation-based calibration ranks the truth among
 An exact learner's posterior is known at its cells' nodes; its integrals are the trapezoid
 rule's on every leaf cell (:class:`~corrections_sim.learning.exact.cells.Cells`), which is
 the integral of the density interpolated multilinearly from the leaf's 2^k corners. That
-interpolant is the density these draws come from, so their moments are the learner's own:
+interpolant is the density these draws come from. Its mean is the learner's θ̂ where every
+node's neighbours sit alike; its spread is the learner's P with ``spread = "cells"``, and
+wider than the nodes' P (``spread = "nodes"``) by what the cells cannot resolve
+(:func:`cell_moments`). The draws:
 
 * a leaf is drawn with probability its mass, its volume times the mean of its corners;
 * within it, the multilinear density is a mixture over its corners b, weighed by their
@@ -56,6 +59,39 @@ def _corner_densities(cells: Cells, log_density: np.ndarray) -> np.ndarray:
 def _masses(widths: np.ndarray, corners: np.ndarray) -> np.ndarray:
     """Each leaf's unnormalized mass (m,): its volume times the mean of its corners."""
     return np.prod(widths, axis=1) * corners.mean(axis=1)
+
+
+#: E[u] and Var[u] of a corner's factor g on the unit interval: 2u (its bit 1) has mean 2/3,
+#: 2(1 − u) (bit 0) mean 1/3; both variance 1/18.
+_FACTOR_VARIANCE = 1.0 / 18.0
+
+
+def cell_moments(
+    cells: Cells, log_density: np.ndarray, about: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """The mean (k,) and the second moment about ``about`` (k, k) of the multilinear
+    interpolant whose draws :func:`cell_draws` makes (its covariance where ``about`` is None,
+    or is that mean), in closed form: a leaf's corner b weighs its mass share, and within it
+    θ = lower + width ⊙ u, the uᵢ independent with mean 1/3 or 2/3 and variance 1/18 each,
+    so E[(θ − a)(θ − a)ᵀ] = Σ p_{leaf, b} (e eᵀ + diag(width² / 18)), e = its mean − a.
+
+    Where every node's neighbours sit alike, the mean is the trapezoid rule's (the learner's
+    θ̂); the second moment is the trapezoid's point masses' plus what the density spreads
+    within the cells, width² / 6 along an axis for a mass on one node: what the cells cannot
+    resolve, which the nodes' moments leave out."""
+    k = cells.k
+    corners = _corner_densities(cells, log_density)
+    lower, widths = _leaf_boxes(cells)
+    share = np.prod(widths, axis=1)[:, None] * corners / 2**k  # (m, 2^k)
+    share = share / share.sum()
+    offsets = (1.0 + _corner_bits(k)) / 3.0  # E[u] at each corner (2^k, k)
+    means = lower[:, None, :] + widths[:, None, :] * offsets[None, :, :]  # (m, 2^k, k)
+    mean = np.einsum("mb,mbi->i", share, means)
+    centre = mean if about is None else np.asarray(about, float)
+    e = means - centre
+    second = np.einsum("mb,mbi,mbj->ij", share, e, e)
+    within = _FACTOR_VARIANCE * np.einsum("mb,mi->i", share, widths**2)
+    return mean, second + np.diag(within)
 
 
 def leaf_masses(cells: Cells, log_density: np.ndarray) -> np.ndarray:

@@ -30,6 +30,7 @@ from corrections_sim.components import ParameterError
 from corrections_sim.learning.base import LearnerContext, Likelihood, Step
 from corrections_sim.learning.exact import bayes as ref
 from corrections_sim.learning.exact.cells import Cells
+from corrections_sim.learning.exact.draws import cell_moments
 from corrections_sim.learning.exact.state import ExactState, GridPosterior
 from corrections_sim.learning.history import CorrectionEntry, PriorEntry
 from corrections_sim.learning.kalman.learners import CorrectionAwareKalman
@@ -37,6 +38,9 @@ from corrections_sim.learning.kalman.state import NoisePosterior
 from corrections_sim.learning.params import require_count
 from corrections_sim.planning.planner import Plan, PlanningError
 from corrections_sim.scene.environments import Environment
+
+#: What an exact learner's P is (:attr:`ExactCorrectionAware.spread`).
+SPREADS = ("nodes", "cells")
 
 
 @dataclass(frozen=True)
@@ -54,6 +58,11 @@ class ExactCorrectionAware(CorrectionAwareKalman):
         max_level: the finest refinement, the atlas's spacing / 2^max_level.
         axes: how a cell is cut: "all" (in 2^k) or "narrow" (along the axis across which the
             posterior is narrowest; :class:`~corrections_sim.learning.exact.bayes.Refinement`).
+        spread: what the belief's P is: "nodes", the covariance of the nodes' trapezoid
+            weights (point masses), or "cells", E[(θ − θ̂)(θ − θ̂)ᵀ] under the density the
+            cells interpolate (the one its draws come from,
+            :func:`~corrections_sim.learning.exact.draws.cell_moments`), which adds what the
+            finest cells cannot resolve. θ̂ is the trapezoid rule's mean either way.
     """
 
     label = "Exact posterior, KF-C's model (EX-C)"
@@ -68,6 +77,7 @@ class ExactCorrectionAware(CorrectionAwareKalman):
     cut: float = 9.2
     max_level: int = 4
     axes: str = "all"
+    spread: str = "nodes"
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -81,6 +91,9 @@ class ExactCorrectionAware(CorrectionAwareKalman):
         if self.axes not in ref.REFINED_AXES:
             choices = " or ".join(f'"{a}"' for a in ref.REFINED_AXES)
             raise ParameterError("axes", f"must be {choices}, got {self.axes!r}")
+        if self.spread not in SPREADS:
+            choices = " or ".join(f'"{a}"' for a in SPREADS)
+            raise ParameterError("spread", f"must be {choices}, got {self.spread!r}")
 
     def likelihood(self) -> Likelihood:
         return dataclasses.replace(super().likelihood(), max_level=self.max_level, axes=self.axes)
@@ -152,8 +165,7 @@ class ExactCorrectionAware(CorrectionAwareKalman):
         after = self._taken_in(before, at, h, z, noise_n)
         after = self._settled(ctx, after, history, noise_prior)
         after = self._refined(ctx, after, history, noise_prior)
-        log_post = self._log_posterior(after, noise_prior)
-        mean, cov = _moments(after.thetas, ref.posterior(log_post, after.cells.coefficients))
+        mean, cov = self.moments(after, self._log_posterior(after, noise_prior))
         kept = ExactState(noise=noise_prior, grid=after, history=history)
         new = Belief(theta=mean, cov=cov, state=kept)
         return ExactStep(
@@ -252,6 +264,15 @@ class ExactCorrectionAware(CorrectionAwareKalman):
         bad = ~np.all(np.isfinite(r), axis=1)
         r[bad] = 0.0
         return np.where(bad, -np.inf, log_d), scatter + np.einsum("ni,nj->nij", r, r)
+
+    def moments(self, grid: GridPosterior, log_post: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The belief's θ̂ and P from the log posterior ``log_post`` at ``grid``'s nodes:
+        the trapezoid rule's mean, and the spread ``spread`` names (class docstring); P kept
+        positive definite where the mass sits on one node or one line of nodes."""
+        mean, cov = ref.moments(grid.thetas, ref.posterior(log_post, grid.cells.coefficients))
+        if self.spread == "cells":
+            _, cov = cell_moments(grid.cells, log_post, about=mean)
+        return mean, floored(cov)
 
     def state_log_posterior(self, state: ExactState) -> np.ndarray:
         """The log posterior at every node of ``state``'s grid, up to the constants every
@@ -354,10 +375,3 @@ def scatter_logdets(
         return out
 
     return grid.memo(key, make)
-
-
-def _moments(thetas: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The grid posterior's mean and covariance (the reference's, :func:`ref.moments`), the
-    covariance kept positive definite where the mass sits on one node or one line of nodes."""
-    mean, cov = ref.moments(thetas, weights)
-    return mean, floored(cov)

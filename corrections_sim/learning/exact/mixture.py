@@ -219,6 +219,8 @@ class ExactPersonModel(Learner):
         relevance_prior, relevance_count: with ``relevance``, the prior over the person's
             rate r of relevant corrections: Beta(prior · count, (1 − prior) · count).
         resolution, cut, max_level, axes: how every model's cells are refined, as EX-C's.
+        spread: what every model's P is, as EX-C's ("nodes" or "cells"); the mixture's P
+            is theirs mixed.
     """
 
     label = "Exact posterior over θ, N and how the person corrects (EX-M)"
@@ -241,6 +243,7 @@ class ExactPersonModel(Learner):
     cut: float = 9.2
     max_level: int = 4
     axes: str = "all"
+    spread: str = "nodes"
 
     def __post_init__(self) -> None:
         if not isinstance(self.models, tuple) or not self.models:
@@ -283,6 +286,7 @@ class ExactPersonModel(Learner):
             "cut": self.cut,
             "max_level": self.max_level,
             "axes": self.axes,
+            "spread": self.spread,
         }
         if self.relevance:
             scales = DEFAULT_POINT_SCALES if self.noise_scales is None else self.noise_scales

@@ -52,7 +52,7 @@ from corrections_sim.components import ParameterError
 from corrections_sim.learning.base import LearnerContext, Step
 from corrections_sim.learning.exact import bayes as ref
 from corrections_sim.learning.exact.cells import Cells
-from corrections_sim.learning.exact.learners import ExactCorrectionAware, ExactStep, _moments
+from corrections_sim.learning.exact.learners import ExactCorrectionAware, ExactStep
 from corrections_sim.learning.exact.state import ExactState, GridPosterior
 from corrections_sim.learning.history import CorrectionEntry
 from corrections_sim.learning.params import require_fraction, require_positive
@@ -332,7 +332,7 @@ class RelevantExact(ExactCorrectionAware):
         history = (*history, entry)
         after = GridPosterior(before.thetas, log_d, None, before.count + 1, before.cells, left=res)
         after, log_post = self._refine(ctx, after, history, prior)
-        mean, cov = _moments(after.thetas, ref.posterior(log_post, after.cells.coefficients))
+        mean, cov = self.moments(after, log_post)
         kept = ExactState(noise=prior, grid=after, history=history)
         new = Belief(theta=mean, cov=cov, state=kept)
         # A correction that moved nothing (the robot's plan was already the person's) is
