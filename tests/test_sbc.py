@@ -14,13 +14,8 @@ import pytest
 from corrections_sim.cli import main as cli
 from corrections_sim.figures import sbc as figure
 from corrections_sim.learning.exact import bayes as ref
-from corrections_sim.learning.exact.cells import Cells
-from corrections_sim.learning.exact.draws import (
-    cell_draws,
-    cell_moments,
-    density_at,
-    leaf_masses,
-)
+from corrections_sim.learning.exact.cells import Cells, cell_moments
+from corrections_sim.learning.exact.draws import cell_draws, density_at, leaf_masses
 from corrections_sim.study import sbc
 
 MEAN = np.array([0.3, -0.4])

@@ -16,8 +16,10 @@ EX-M's prior. The computation is :mod:`corrections_sim.study.sbc`'s; here are th
 
 An exact learner's draws come from the density its integrals use, multilinear in every leaf
 cell (:mod:`corrections_sim.learning.exact.draws`): their variance exceeds the learner's
-trapezoid moments by the cells' own spread, about h²/12 a cell of width h (5% of the variance
-at one node an sd, measured in ``tests/test_sbc.py``), a little toward too many middle ranks.
+trapezoid moments (``spread = "nodes"``) by the cells' own spread, h²/6 along an axis of cells
+of width h on a uniform grid (5–7% of the variance at one node an sd, measured in
+``tests/test_sbc.py``), a little toward too many middle ranks; with ``spread = "cells"`` the
+learner's P is theirs (:func:`~corrections_sim.learning.exact.cells.cell_moments`).
 """
 
 from __future__ import annotations

@@ -1,6 +1,7 @@
 """The cells of a grid over θ, refined where needed: what an exact learner's posterior
-(:class:`~corrections_sim.learning.exact.state.GridPosterior`) integrates over. Plain values,
-no planning."""
+(:class:`~corrections_sim.learning.exact.state.GridPosterior`) integrates over, and the
+moments of the density that is multilinear in each of them (:func:`cell_moments`). Plain
+values, no planning."""
 
 from __future__ import annotations
 
@@ -136,3 +137,68 @@ class Cells:
         coords = np.concatenate([self.coords, candidates[~known]])
         leaves = np.concatenate([self.leaves[~which], *children])
         return Cells(self.lows, self.highs, self.counts, self.depth, coords, leaves)
+
+
+def corner_bits(k: int) -> np.ndarray:
+    """The corners' offsets in the order of :attr:`Cells.corners` (2^k, k)."""
+    return np.array(list(itertools.product((0, 1), repeat=k)), dtype=float)
+
+
+def leaf_boxes(cells: Cells) -> tuple[np.ndarray, np.ndarray]:
+    """Each leaf's lower corner θ (m, k) and widths (m, k)."""
+    k = cells.k
+    unit = cells.unit()
+    lower = np.array(cells.lows) + cells.leaves[:, k:] * unit
+    widths = unit * 2.0 ** (cells.depth - cells.levels)
+    return lower, widths
+
+
+def corner_densities(cells: Cells, log_density: np.ndarray) -> np.ndarray:
+    """The density at every leaf's corners (m, 2^k), scaled so that its largest node is 1
+    (−inf, a node where corrections wait, is 0)."""
+    log_d = np.asarray(log_density, float)
+    if log_d.shape != (len(cells.coords),):
+        raise ValueError(
+            f"log density of {log_d.shape} for {len(cells.coords)} nodes: expected one a node"
+        )
+    top = np.max(log_d)
+    if not np.isfinite(top):
+        raise ValueError("the posterior has no node with a finite density")
+    with np.errstate(under="ignore"):
+        nodes = np.exp(log_d - top)
+    return nodes[cells.corners]
+
+
+#: E[u] and Var[u] of a corner's factor g on the unit interval: 2u (its bit 1) has mean 2/3,
+#: 2(1 − u) (bit 0) mean 1/3; both variance 1/18.
+_FACTOR_VARIANCE = 1.0 / 18.0
+
+
+def cell_moments(
+    cells: Cells, log_density: np.ndarray, about: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """The mean (k,) and the second moment about ``about`` (k, k) of the density multilinear
+    in every leaf cell that interpolates ``log_density`` at the nodes of ``cells`` (what
+    :func:`~corrections_sim.learning.exact.draws.cell_draws` draws from; its covariance where
+    ``about`` is None, or is that mean), in closed form: a leaf's corner b weighs its mass
+    share, and within it θ = lower + width ⊙ u, the uᵢ independent with mean 1/3 or 2/3 and
+    variance 1/18 each, so E[(θ − a)(θ − a)ᵀ] = Σ p_{leaf, b} (e eᵀ + diag(width² / 18)),
+    e = its mean − a.
+
+    Where every node's neighbours sit alike, the mean is the trapezoid rule's (the learner's
+    θ̂); the second moment is the trapezoid's point masses' plus what the density spreads
+    within the cells, width² / 6 along an axis for a mass on one node: what the cells cannot
+    resolve, which the nodes' moments leave out."""
+    k = cells.k
+    corners = corner_densities(cells, log_density)
+    lower, widths = leaf_boxes(cells)
+    share = np.prod(widths, axis=1)[:, None] * corners / 2**k  # (m, 2^k)
+    share = share / share.sum()
+    offsets = (1.0 + corner_bits(k)) / 3.0  # E[u] at each corner (2^k, k)
+    means = lower[:, None, :] + widths[:, None, :] * offsets[None, :, :]  # (m, 2^k, k)
+    mean = np.einsum("mb,mbi->i", share, means)
+    centre = mean if about is None else np.asarray(about, float)
+    e = means - centre
+    second = np.einsum("mb,mbi,mbj->ij", share, e, e)
+    within = _FACTOR_VARIANCE * np.einsum("mb,mi->i", share, widths**2)
+    return mean, second + np.diag(within)

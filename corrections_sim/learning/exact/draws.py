@@ -8,7 +8,7 @@ the integral of the density interpolated multilinearly from the leaf's 2^k corne
 interpolant is the density these draws come from. Its mean is the learner's θ̂ where every
 node's neighbours sit alike; its spread is the learner's P with ``spread = "cells"``, and
 wider than the nodes' P (``spread = "nodes"``) by what the cells cannot resolve
-(:func:`cell_moments`). The draws:
+(:func:`~corrections_sim.learning.exact.cells.cell_moments`). The draws:
 
 * a leaf is drawn with probability its mass, its volume times the mean of its corners;
 * within it, the multilinear density is a mixture over its corners b, weighed by their
@@ -19,41 +19,14 @@ wider than the nodes' P (``spread = "nodes"``) by what the cells cannot resolve
 
 from __future__ import annotations
 
-import itertools
-
 import numpy as np
 
-from corrections_sim.learning.exact.cells import Cells
-
-
-def _corner_bits(k: int) -> np.ndarray:
-    """The corners' offsets in the order of :attr:`Cells.corners` (2^k, k)."""
-    return np.array(list(itertools.product((0, 1), repeat=k)), dtype=float)
-
-
-def _leaf_boxes(cells: Cells) -> tuple[np.ndarray, np.ndarray]:
-    """Each leaf's lower corner θ (m, k) and widths (m, k)."""
-    k = cells.k
-    unit = cells.unit()
-    lower = np.array(cells.lows) + cells.leaves[:, k:] * unit
-    widths = unit * 2.0 ** (cells.depth - cells.levels)
-    return lower, widths
-
-
-def _corner_densities(cells: Cells, log_density: np.ndarray) -> np.ndarray:
-    """The density at every leaf's corners (m, 2^k), scaled so that its largest node is 1
-    (−inf, a node where corrections wait, is 0)."""
-    log_d = np.asarray(log_density, float)
-    if log_d.shape != (len(cells.coords),):
-        raise ValueError(
-            f"log density of {log_d.shape} for {len(cells.coords)} nodes: expected one a node"
-        )
-    top = np.max(log_d)
-    if not np.isfinite(top):
-        raise ValueError("the posterior has no node with a finite density")
-    with np.errstate(under="ignore"):
-        nodes = np.exp(log_d - top)
-    return nodes[cells.corners]
+from corrections_sim.learning.exact.cells import (
+    Cells,
+    corner_bits,
+    corner_densities,
+    leaf_boxes,
+)
 
 
 def _masses(widths: np.ndarray, corners: np.ndarray) -> np.ndarray:
@@ -61,43 +34,10 @@ def _masses(widths: np.ndarray, corners: np.ndarray) -> np.ndarray:
     return np.prod(widths, axis=1) * corners.mean(axis=1)
 
 
-#: E[u] and Var[u] of a corner's factor g on the unit interval: 2u (its bit 1) has mean 2/3,
-#: 2(1 − u) (bit 0) mean 1/3; both variance 1/18.
-_FACTOR_VARIANCE = 1.0 / 18.0
-
-
-def cell_moments(
-    cells: Cells, log_density: np.ndarray, about: np.ndarray | None = None
-) -> tuple[np.ndarray, np.ndarray]:
-    """The mean (k,) and the second moment about ``about`` (k, k) of the multilinear
-    interpolant whose draws :func:`cell_draws` makes (its covariance where ``about`` is None,
-    or is that mean), in closed form: a leaf's corner b weighs its mass share, and within it
-    θ = lower + width ⊙ u, the uᵢ independent with mean 1/3 or 2/3 and variance 1/18 each,
-    so E[(θ − a)(θ − a)ᵀ] = Σ p_{leaf, b} (e eᵀ + diag(width² / 18)), e = its mean − a.
-
-    Where every node's neighbours sit alike, the mean is the trapezoid rule's (the learner's
-    θ̂); the second moment is the trapezoid's point masses' plus what the density spreads
-    within the cells, width² / 6 along an axis for a mass on one node: what the cells cannot
-    resolve, which the nodes' moments leave out."""
-    k = cells.k
-    corners = _corner_densities(cells, log_density)
-    lower, widths = _leaf_boxes(cells)
-    share = np.prod(widths, axis=1)[:, None] * corners / 2**k  # (m, 2^k)
-    share = share / share.sum()
-    offsets = (1.0 + _corner_bits(k)) / 3.0  # E[u] at each corner (2^k, k)
-    means = lower[:, None, :] + widths[:, None, :] * offsets[None, :, :]  # (m, 2^k, k)
-    mean = np.einsum("mb,mbi->i", share, means)
-    centre = mean if about is None else np.asarray(about, float)
-    e = means - centre
-    second = np.einsum("mb,mbi,mbj->ij", share, e, e)
-    within = _FACTOR_VARIANCE * np.einsum("mb,mi->i", share, widths**2)
-    return mean, second + np.diag(within)
-
-
 def leaf_masses(cells: Cells, log_density: np.ndarray) -> np.ndarray:
     """Each leaf's share of the posterior's mass (m,), summing to 1."""
-    _, widths = _leaf_boxes(cells)
-    mass = _masses(widths, _corner_densities(cells, log_density))
+    _, widths = leaf_boxes(cells)
+    mass = _masses(widths, corner_densities(cells, log_density))
     return mass / mass.sum()
 
 
@@ -108,14 +48,14 @@ def cell_draws(
     whose log density (up to a constant) is ``log_density`` at the nodes of ``cells``
     (module docstring)."""
     k = cells.k
-    corners = _corner_densities(cells, log_density)
-    lower, widths = _leaf_boxes(cells)
+    corners = corner_densities(cells, log_density)
+    lower, widths = leaf_boxes(cells)
     mass = _masses(widths, corners)
     leaf = rng.choice(len(mass), size=n, p=mass / mass.sum())
     within = corners[leaf] / corners[leaf].sum(axis=1, keepdims=True)
     pick = (rng.random(n)[:, None] > np.cumsum(within, axis=1)).sum(axis=1)
     pick = np.minimum(pick, 2**k - 1)  # a cumulative sum a rounding short of 1
-    bits = _corner_bits(k)[pick]
+    bits = corner_bits(k)[pick]
     root = np.sqrt(rng.random((n, k)))
     u = np.where(bits == 1.0, root, 1.0 - root)
     return lower[leaf] + u * widths[leaf]
@@ -127,10 +67,10 @@ def density_at(cells: Cells, log_density: np.ndarray, thetas: np.ndarray) -> np.
     leaves, the first leaf's value."""
     thetas = np.atleast_2d(np.asarray(thetas, float))
     k = cells.k
-    corners = _corner_densities(cells, log_density)
-    lower, widths = _leaf_boxes(cells)
+    corners = corner_densities(cells, log_density)
+    lower, widths = leaf_boxes(cells)
     total = float(np.sum(_masses(widths, corners)))
-    bits = _corner_bits(k)
+    bits = corner_bits(k)
     out = np.zeros(len(thetas))
     tol = 1e-12 * np.max(widths)
     for i, theta in enumerate(thetas):

@@ -29,8 +29,7 @@ from corrections_sim.belief import Belief, KalmanNoise, floored, symmetrize
 from corrections_sim.components import ParameterError
 from corrections_sim.learning.base import LearnerContext, Likelihood, Step
 from corrections_sim.learning.exact import bayes as ref
-from corrections_sim.learning.exact.cells import Cells
-from corrections_sim.learning.exact.draws import cell_moments
+from corrections_sim.learning.exact.cells import Cells, cell_moments
 from corrections_sim.learning.exact.state import ExactState, GridPosterior
 from corrections_sim.learning.history import CorrectionEntry, PriorEntry
 from corrections_sim.learning.kalman.learners import CorrectionAwareKalman
@@ -61,7 +60,7 @@ class ExactCorrectionAware(CorrectionAwareKalman):
         spread: what the belief's P is: "nodes", the covariance of the nodes' trapezoid
             weights (point masses), or "cells", E[(θ − θ̂)(θ − θ̂)ᵀ] under the density the
             cells interpolate (the one its draws come from,
-            :func:`~corrections_sim.learning.exact.draws.cell_moments`), which adds what the
+            :func:`~corrections_sim.learning.exact.cells.cell_moments`), which adds what the
             finest cells cannot resolve. θ̂ is the trapezoid rule's mean either way.
     """
 
