@@ -80,9 +80,9 @@ def test_the_exact_learner_is_its_reference_on_the_atlas_grid(figure, learner, c
 def test_its_spread_over_the_cells_keeps_its_estimate_and_adds_what_cells_cannot_resolve(
     figure, tmp_path
 ):
-    """``spread = "cells"``: the same θ̂ to the bit after every correction, and a P wider than
-    the nodes' by a positive semi-definite part (the density within the cells); nothing else
-    in the run moves."""
+    """``spread = "cells"``: the same θ̂, error and regret to the bit after every correction,
+    and after the first a P wider than the nodes' in every direction (the density within the
+    cells), so a lower NEES; the prior's P the same."""
     path = tmp_path / "tiny.toml"
     path.write_text(STUDY)
     argv = ["study", str(path), "--out", str(tmp_path / "out"), "--workers", "1"]
