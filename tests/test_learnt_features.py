@@ -347,3 +347,51 @@ def test_a_study_file_loads_a_saved_learnt_feature_by_name(taught, tmp_path):
     with pytest.raises(ValueError, match="plugins") as info:
         parse_study({"plugins": ["gone.json"], "theta_star": [1.0, -1.0]}, base=tmp_path)
     assert "\n" not in str(info.value)
+
+
+# --- exact at k + 1 with one teaching per person (experiments/ferl_exact) -----------------------
+
+FERL_EXACT = Path(__file__).resolve().parents[1] / "experiments" / "ferl_exact"
+
+
+def test_the_taught_feature_of_the_exact_study_is_the_teachers_and_ranks_like_human():
+    """experiments/ferl_exact/taught-human-1.json is what its recipe gives (the FERL study's
+    teacher, 10 traces of `human` in the first paper environment, seed 1: the same traces,
+    and a feature that ranks and fits `human` as docs/learnt-features.md says, ρ 0.820 and
+    R² 0.20 against it; the weights themselves are L-BFGS's local optimum, compared through
+    what they do rather than bit for bit across processors)."""
+    learnt = L.load(FERL_EXACT / "taught-human-1.json")
+    assert learnt.name == "taught-human-1" and learnt.env.name == ENV.name
+    teacher = Teacher(states=12, candidates=20, path_noise=0.1, label_noise=0.1, search=30)
+    again = teacher.traces("human", 10, ENV, np.random.default_rng(1))
+    assert len(learnt.traces) == 10
+    for mine, theirs in zip(learnt.traces, again, strict=True):
+        np.testing.assert_allclose(mine, theirs, rtol=0, atol=1e-9)
+    q = L.quality(learnt.name, "human", ENV)
+    assert q.spearman == pytest.approx(0.820, abs=0.005), q
+    assert q.r2 == pytest.approx(0.202, abs=0.01), q
+
+
+@pytest.mark.parametrize("who", ["also", "only"])
+def test_the_exact_study_files_differ_only_in_what_the_robot_knows(who):
+    """The two files of a person give the same person (θ* on `human`, 0 on the taught
+    feature) and the same learners, settings and atlas; only the robot's third feature
+    differs (a file that stops loading, or drifts from its twin, fails here, not after an
+    8-minute atlas)."""
+    from corrections_sim.study.schema import load_study
+
+    learnt = load_study(FERL_EXACT / f"{who}_learnt.toml", name="a", quick=False)
+    human = load_study(FERL_EXACT / f"{who}_human.toml", name="b", quick=False)
+    assert learnt.features == ("laptop", "table", "taught-human-1")
+    assert human.features == ("laptop", "table", "human")
+    star = dict(zip(learnt.user_features, learnt.study.user_theta, strict=True))
+    assert star.pop("taught-human-1") == 0.0
+    # the robot that knows `human` is corrected over its own features (no user_theta of its own)
+    assert not human.study.user_theta
+    assert star == dict(zip(human.features, human.study.theta_star, strict=True))
+    assert star["human"] == {"also": -2.0, "only": -5.0}[who]
+    keys = ("runs", "iterations", "seed", "learners", "atlas", "person_restarts", "theta0", "cov0")
+    for key in keys:
+        assert getattr(learnt.study, key) == getattr(human.study, key), key
+    exact = learnt.study.learners["EX-M"]
+    assert exact.max_level == 1 and exact.spread == "cells"
