@@ -374,7 +374,7 @@ def test_the_taught_feature_of_the_exact_study_is_the_teachers_and_ranks_like_hu
 
 @pytest.mark.parametrize("who", ["also", "only"])
 def test_the_exact_study_files_differ_only_in_what_the_robot_knows(who):
-    """The two files of a person give the same person (θ* on `human`, 0 on the taught
+    """The files of a person give the same person (θ* on `human`, 0 on the taught
     feature) and the same learners, settings and atlas; only the robot's third feature
     differs (a file that stops loading, or drifts from its twin, fails here, not after an
     8-minute atlas)."""
@@ -395,3 +395,21 @@ def test_the_exact_study_files_differ_only_in_what_the_robot_knows(who):
         assert getattr(learnt.study, key) == getattr(human.study, key), key
     exact = learnt.study.learners["EX-M"]
     assert exact.max_level == 1 and exact.spread == "cells"
+    # the calibrated twin (a diagnosis): the same study over g_8 of the same taught feature
+    calibrated = load_study(FERL_EXACT / f"{who}_c8.toml", name="c", quick=False)
+    assert calibrated.features == ("laptop", "table", "taught-human-1-c8")
+    assert calibrated.study.user_theta == learnt.study.user_theta
+    for key in keys:
+        assert getattr(calibrated.study, key) == getattr(learnt.study, key), key
+
+
+def test_the_calibrated_taught_feature_is_g8_of_the_taught_one():
+    """calibrated_c8.py's feature is (e^{8y} − 1)/(e^8 − 1) of the taught feature's y, at
+    waypoints of the workspace (0 where y is 0, 1 where y is 1, below y in between)."""
+    from corrections_sim.study.plugins import parse_plugins
+
+    parse_plugins(["calibrated_c8.py"], FERL_EXACT)  # imports it (once per process)
+    q = L.workspace(ENV, 200, 3)
+    y, g = feats.waypoint_features(q, ENV, ("taught-human-1", "taught-human-1-c8")).T
+    np.testing.assert_allclose(g, np.expm1(8.0 * y) / np.expm1(8.0), rtol=1e-9, atol=1e-12)
+    assert np.all(g <= y + 1e-12) and y.max() > 0.5
