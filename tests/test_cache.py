@@ -234,13 +234,31 @@ def test_processes_that_merge_the_same_shards_at_once_lose_no_plan(tmp_path):
     assert len(list(tmp_path.glob("key.extra-*.npz"))) < between.COMPACT_AT
 
 
-def test_a_plan_table_answers_as_a_dictionary_of_first_plans_would():
+@pytest.mark.parametrize("mapped", [0, 3])
+def test_a_plan_table_answers_as_a_dictionary_of_first_plans_would(tmp_path, mapped, monkeypatch):
     """PlanTable (a few arrays and an index) against a plain dict θ's bytes -> the first plan
-    kept there (None where NaN), over a random mix of single plans and blocks (some θ repeated
-    within and across them, blocks past MAX_BLOCKS compacted): the same keys, and every
-    lookup — one at a time and many at once — the same bits."""
+    kept there (None where it has a NaN), over a random mix of single plans and blocks (some θ
+    repeated within and across them, blocks past MAX_BLOCKS compacted), after ``mapped``
+    shards' blocks mapped from their files (rows with a NaN among numbers in them, as a shard
+    written by other code could hold): the same keys, and every lookup — one at a time and
+    many at once — the same bits."""
     rng = np.random.default_rng(65)
     T, table, reference = 3, between.PlanTable(3), {}
+    for i in range(mapped):
+        thetas = rng.integers(0, 300, size=(40 if i != 1 else 4, 2)).astype(float)
+        n = len(thetas)
+        plans = rng.normal(size=(n, T, 7))
+        plans[rng.random(n) < 0.2] = np.nan
+        plans[rng.random(n) < 0.1, 1, 3] = np.nan  # partial: no plan
+        PlanShards(tmp_path).save("key", thetas, plans)
+    # Shards of 40 plans mapped, the one of 4 copied, in the order found.
+    monkeypatch.setattr(between, "MAP_AT", 40 * T * 7 * 8)
+    for thetas, plans, is_mapped in PlanShards(tmp_path).blocks("key", T, 2):
+        assert is_mapped == (len(thetas) == 40) == isinstance(plans, np.memmap)
+        memos = between.row_keys(thetas)
+        table.add_many(memos, plans, mapped=is_mapped)
+        for memo, plan in zip(memos, plans, strict=True):
+            reference.setdefault(memo, None if np.isnan(plan).any() else np.array(plan))
     for _ in range(400):
         if rng.random() < 0.1:  # a block, as read from shards or taken from another worker
             n = int(rng.integers(0, 50))
@@ -270,7 +288,60 @@ def test_a_plan_table_answers_as_a_dictionary_of_first_plans_would():
             else:
                 assert np.array_equal(plan, want) and np.array_equal(table[memo], want)
     assert set(table) == set(reference) and len(table) == len(reference)
-    assert len(table._blocks) <= between.MAX_BLOCKS + 1
+    assert len(table._blocks) <= mapped + between.MAX_BLOCKS + 1
     assert table.rows([b"absent but sixteen"]).tolist() == [-1]
     with pytest.raises(ValueError, match="2 thetas for 1 plans"):
         table.add_many([b"a" * 16, b"b" * 16], np.zeros((1, T, 7)))
+
+
+def test_a_store_larger_than_a_process_keeps_is_mapped_not_read_again(tmp_path, monkeypatch):
+    """The shards' plans are mapped from their files and do not count against MAX_KEPT: a
+    process that looks at more stored plans than it may keep in memory reads each
+    environment's shards once (before, it dropped every environment's plans and read them
+    again at the next look), and answers from them."""
+    monkeypatch.setattr(between, "MAX_KEPT", 5)
+    monkeypatch.setattr(between, "MAP_AT", 0)
+    rng = np.random.default_rng(7)
+    stored = {}
+    for name in ("a", "b", "c"):
+        thetas, plans = rng.normal(size=(8, 2)), rng.normal(size=(8, 3, 7))
+        PlanShards(tmp_path).save(name, thetas, plans)
+        stored[name] = (thetas, plans)
+    loads = []
+    shards = PlanShards(tmp_path)
+    blocks = shards.blocks
+    monkeypatch.setattr(shards, "blocks", lambda *a: loads.append(a[0]) or blocks(*a))
+    process = BetweenNodes(shards, 3, 2)
+    for name in ("a", "b", "c", "a", "b", "c"):
+        known = process.known(name.encode(), name)
+        thetas, plans = stored[name]
+        taken = known.take(known.rows(between.row_keys(thetas)))
+        assert np.array_equal(taken, plans)
+    assert loads == ["a", "b", "c"]
+
+
+def test_a_compressed_shard_is_read_as_a_copy(tmp_path, monkeypatch):
+    """A shard whose members are compressed (not np.savez's way) cannot be mapped: its plans
+    are read into memory, the same values."""
+    import hashlib
+
+    monkeypatch.setattr(between, "MAP_AT", 0)
+    thetas, plans = np.arange(4.0).reshape(2, 2), np.linspace(0, 1, 42).reshape(2, 3, 7)
+    tmp = tmp_path / "tmp.npz"
+    np.savez_compressed(tmp, thetas=thetas, plans=plans)
+    digest = hashlib.sha256(tmp.read_bytes()).hexdigest()[:16]
+    tmp.rename(tmp_path / f"key.extra-{digest}.npz")
+    [(read_thetas, read_plans, is_mapped)] = PlanShards(tmp_path).blocks("key", 3, 2)
+    assert not is_mapped and not isinstance(read_plans, np.memmap)
+    assert np.array_equal(read_thetas, thetas) and np.array_equal(read_plans, plans)
+
+
+def test_a_small_shard_is_copied_and_a_large_one_mapped(tmp_path):
+    """A map holds a file open: shards under MAP_AT bytes (a run's few new plans) are copied,
+    so a process holds a few maps an environment, not one a shard."""
+    rng = np.random.default_rng(3)
+    small = int(between.MAP_AT // (3 * 7 * 8)) // 2
+    for n in (small, 4 * small):
+        PlanShards(tmp_path).save("key", rng.normal(size=(n, 2)), rng.normal(size=(n, 3, 7)))
+    found = sorted((len(t), m) for t, _, m in PlanShards(tmp_path).blocks("key", 3, 2))
+    assert found == [(small, False), (4 * small, True)]

@@ -9,7 +9,10 @@ per process (θ's bytes -> the trajectory, None where no start converged), and
 the answer comes from, :func:`~corrections_sim.plans.atlas.answer_version`), written
 atomically; shards only add up (two
 workers that solved the same θ wrote the same plan), and one whose bytes do not match its
-checksum is skipped and said, its plans solved again.
+checksum is skipped and said, its plans solved again. A shard's trajectories are mapped from
+its file, not copied into the process (:func:`read_shards`' ``mapped``): a machine's store
+can hold far more plans than a process could keep in memory (millions, gigabytes), and a
+process reads the pages of the ones it looks up.
 """
 
 from __future__ import annotations
@@ -18,7 +21,9 @@ import contextlib
 import hashlib
 import itertools
 import os
+import struct
 import tempfile
+import zipfile
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 
@@ -26,9 +31,16 @@ import numpy as np
 
 from corrections_sim.planning.cache import mark_used
 
-#: Plans between nodes kept per process (0.67 kB each at T = 12: 670 MB at most; past it,
-#: the unsaved ones are saved, all are dropped, and they are read again from disk when asked).
+#: Plans between nodes kept in a process's own memory (0.67 kB each at T = 12: 670 MB at
+#: most; past it, the unsaved ones are saved, all are dropped, and they are read again from
+#: disk when asked). The shards' plans, mapped from their files, do not count: the page cache
+#: holds them.
 MAX_KEPT = 1_000_000
+#: A shard of at least this many bytes has its mapped arrays mapped (:func:`read_shards`); a
+#: smaller one is copied. A map holds a file descriptor open, so an environment's many small
+#: shards (a run's new plans each, until :data:`COMPACT_AT` merges them) are copied, and a
+#: process holds a few maps an environment (at most 4 on a store of 4.7 million plans).
+MAP_AT = 1 << 20
 #: A process that reads at least this many shards of one atlas merges them into one shard
 #: (its plans once each) and removes the ones merged: a store that many runs added to stays a
 #: few files an atlas (fig. 4's had up to 174, read at 0.3 s an environment).
@@ -54,13 +66,20 @@ def read_shards(
     rejected: list[tuple[str, str]],
     check: Callable[[dict[str, np.ndarray]], None],
     read: list[Path] | None = None,
+    mapped: tuple[str, ...] = (),
 ) -> Iterator[dict[str, np.ndarray]]:
     """The arrays of every shard ``<prefix>-*.npz`` in ``root`` (:func:`write_shard`), each
     marked as used (and its path appended to ``read``); one whose bytes do not match its
     name's checksum, that lacks an array or that ``check`` refuses (ValueError) is appended
     to ``rejected`` as (name, why) and skipped. One gone since the folder was listed was
     merged into another by a process that read it (:meth:`PlanShards.load`), which wrote the
-    merged shard first: the folder is listed again and the shards not yet read are read."""
+    merged shard first: the folder is listed again and the shards not yet read are read.
+
+    The arrays named in ``mapped`` of a shard of :data:`MAP_AT` bytes or more are read-only
+    maps of the file's bytes (:func:`_mapped`), the others copies: the checksum was checked
+    over the whole file first, so a mapped array holds the bytes it was written with (a shard
+    is never written in place: a new one is renamed over nothing, and one merged away stays
+    readable while mapped)."""
     seen: set[str] = set()
     gone = True
     while gone:
@@ -71,21 +90,59 @@ def read_shards(
             seen.add(path.name)
             try:
                 digest = path.name[len(prefix) + 1 : -len(".npz")]
-                if hashlib.sha256(path.read_bytes()).hexdigest()[:16] != digest:
+                with path.open("rb") as fh:
+                    found = hashlib.file_digest(fh, "sha256").hexdigest()[:16]
+                if found != digest:
                     raise ValueError("its data does not match its checksum (truncated or changed)")
+                large = path.stat().st_size >= MAP_AT
                 with np.load(path) as data:
-                    arrays = {name: data[name] for name in data.files}
+                    arrays = {
+                        name: _mapped(path, name) if large and name in mapped else data[name]
+                        for name in data.files
+                    }
                 check(arrays)
             except FileNotFoundError:
                 gone = True
                 continue
-            except (OSError, ValueError, KeyError) as exc:
+            except (OSError, ValueError, KeyError, zipfile.BadZipFile) as exc:
                 rejected.append((path.name, str(exc).splitlines()[0]))
                 continue
             mark_used(path)
             if read is not None:
                 read.append(path)
             yield arrays
+
+
+def _mapped(path: Path, name: str) -> np.ndarray:
+    """The array ``name`` of the ``.npz`` at ``path`` as a read-only map of the file's bytes
+    (``np.savez`` stores its members uncompressed, each an ``.npy`` file's bytes); a copy
+    where the member is compressed."""
+    with zipfile.ZipFile(path) as archive:
+        info = archive.getinfo(f"{name}.npy")
+    if info.compress_type != zipfile.ZIP_STORED:
+        with np.load(path) as data:
+            return data[name]
+    with path.open("rb") as fh:
+        fh.seek(info.header_offset)
+        header = fh.read(30)  # the member's local header: its name and extra field follow
+        if header[:4] != b"PK\x03\x04":
+            raise ValueError(f"{name}: no local header where the archive says")
+        name_length, extra_length = struct.unpack("<HH", header[26:30])
+        fh.seek(info.header_offset + 30 + name_length + extra_length)
+        version = np.lib.format.read_magic(fh)
+        if version == (1, 0):
+            shape, fortran, dtype = np.lib.format.read_array_header_1_0(fh)
+        else:
+            shape, fortran, dtype = np.lib.format.read_array_header_2_0(fh)
+        offset = fh.tell()
+    if dtype.hasobject:
+        raise ValueError(f"{name}: an array of objects")
+    if offset + dtype.itemsize * int(np.prod(shape)) > path.stat().st_size:
+        raise ValueError(f"{name}: the file ends inside the array")
+    if int(np.prod(shape)) == 0:
+        return np.zeros(shape, dtype)
+    order = "F" if fortran else "C"
+    return np.memmap(path, dtype=dtype, mode="r", offset=offset, shape=shape, order=order)
 
 
 class PlanShards:
@@ -98,33 +155,42 @@ class PlanShards:
 
     def load(self, key: str, T: int, k: int) -> tuple[np.ndarray, np.ndarray]:
         """Every plan kept for the atlas ``key``: θ (n, k) and trajectories (n, T, 7), NaN
-        where no start converged; a shard whose content does not match its checksum, or of
-        another shape, is reported (:attr:`rejected`) and skipped. Having read
-        :data:`COMPACT_AT` shards or more, it writes their plans (once each) as one shard and
-        removes them (not on a read-only store); a plan is a function of (θ, E) alone, so
-        nothing is lost however processes interleave."""
+        where no start converged, in this process's memory (:meth:`blocks`, joined)."""
+        found = self.blocks(key, T, k)
+        thetas = [np.zeros((0, k))] + [t for t, _, _ in found]
+        plans = [np.zeros((0, T, 7))] + [np.asarray(p, float) for _, p, _ in found]
+        return np.concatenate(thetas), np.concatenate(plans)
+
+    def blocks(self, key: str, T: int, k: int) -> list[tuple[np.ndarray, np.ndarray, bool]]:
+        """Every plan kept for the atlas ``key``, a block a shard: θ (n, k), trajectories
+        (n, T, 7) (NaN where no start converged) and whether they are mapped from the shard's
+        file (:func:`read_shards`) rather than held in memory; a shard whose content does not
+        match its checksum, or of another shape, is reported (:attr:`rejected`) and skipped.
+        Having read :data:`COMPACT_AT` shards or more, it writes their plans (once each) as
+        one shard, removes them (not on a read-only store) and gives that one block, in
+        memory; a plan is a function of (θ, E) alone, so nothing is lost however processes
+        interleave."""
 
         def check(arrays: dict[str, np.ndarray]) -> None:
             t, p = arrays["thetas"], arrays["plans"]
             if t.shape[1:] != (k,) or p.shape != (len(t), T, 7):
                 raise ValueError(f"shapes {t.shape}, {p.shape}")
 
-        thetas, plans, read = [np.zeros((0, k))], [np.zeros((0, T, 7))], []
-        for arrays in read_shards(self.root, f"{key}.extra", self.rejected, check, read):
-            thetas.append(arrays["thetas"])
-            plans.append(arrays["plans"])
-        if len(read) == 1:  # as read: no copy
-            every, trajectories = thetas[1], plans[1]
-        else:
-            every, trajectories = np.concatenate(thetas), np.concatenate(plans)
-        if len(read) >= COMPACT_AT:
-            every, trajectories = distinct(every, trajectories)
-            with contextlib.suppress(OSError):  # a read-only store is read as it is
-                merged = self.save(key, every, trajectories)
-                for path in read:
-                    if path != merged:
-                        path.unlink(missing_ok=True)
-        return every, trajectories
+        found, read = [], []
+        prefix = f"{key}.extra"
+        for arrays in read_shards(self.root, prefix, self.rejected, check, read, ("plans",)):
+            plans = arrays["plans"]
+            found.append((arrays["thetas"], plans, isinstance(plans, np.memmap)))
+        if len(read) < COMPACT_AT:
+            return found
+        every = np.concatenate([t for t, _, _ in found])
+        every, trajectories = distinct(every, np.concatenate([p for _, p, _ in found]))
+        with contextlib.suppress(OSError):  # a read-only store is read as it is
+            merged = self.save(key, every, trajectories)
+            for path in read:
+                if path != merged:
+                    path.unlink(missing_ok=True)
+        return [(every, trajectories, False)]
 
     def save(self, key: str, thetas: np.ndarray, plans: np.ndarray) -> Path:
         """Plans of the atlas ``key`` (θ (n, k), trajectories (n, T, 7)) as a shard of their
@@ -160,6 +226,8 @@ class PlanTable(Mapping):
         self._blocks: list[tuple[int, np.ndarray]] = []  # (first row, rows), in row order
         self._rows = 0  # rows stored (a θ repeated in a block keeps its row, unpointed)
         self._tail: np.ndarray | None = None  # the last block's room, when it grows row by row
+        self._mapped = False  # whether a block is mapped from a shard's file (unchecked rows)
+        self._frozen = 0  # the blocks up to the last mapped one, never merged (nor copied)
 
     def __len__(self) -> int:
         return len(self._index)
@@ -181,15 +249,18 @@ class PlanTable(Mapping):
 
     def take(self, rows: Sequence[int] | np.ndarray) -> np.ndarray:
         """The trajectories at ``rows`` (:meth:`rows`'s), (n, T, 7), NaN where no start
-        converged."""
+        converged (a row with a NaN is no plan, as :meth:`add_many` keeps it)."""
         rows = np.asarray(rows, np.int64)
         out = np.empty((len(rows), self.T, 7))
         for start, block in self._blocks:
             inside = (rows >= start) & (rows < start + len(block))
             if inside.all():
-                return block[rows - start]
+                out = np.asarray(block[rows - start], float)
+                break
             if inside.any():
                 out[inside] = block[rows[inside] - start]
+        if self._mapped:  # a shard's rows were not looked at when mapped: whole or absent
+            out[~np.isfinite(out).all(axis=(1, 2))] = np.nan
         return out
 
     def add(self, memo: bytes, plan: np.ndarray | None) -> bool:
@@ -211,19 +282,25 @@ class PlanTable(Mapping):
         self._rows += 1
         return True
 
-    def add_many(self, memos: Sequence[bytes], plans: np.ndarray) -> list[bytes]:
+    def add_many(
+        self, memos: Sequence[bytes], plans: np.ndarray, *, mapped: bool = False
+    ) -> list[bytes]:
         """Keep each of ``plans`` (n, T, 7; NaN where no start converged) at its θ (its
-        bytes) where none is kept yet, as one block; those that were new, in order."""
-        plans = np.asarray(plans, float)
+        bytes) where none is kept yet, as one block; those that were new, in order.
+        ``mapped``: ``plans`` are a shard's, mapped from its file (:meth:`PlanShards.blocks`),
+        kept as they are (not read now, not copied, never merged with another block)."""
+        if not mapped:
+            plans = np.asarray(plans, float)
         if len(plans) != len(memos):
             raise ValueError(f"{len(memos)} thetas for {len(plans)} plans")
         if plans.shape[1:] != (self.T, 7):
             raise ValueError(f"plans of shape {plans.shape}, expected (n, {self.T}, 7)")
-        finite = np.isfinite(plans)
-        partial = ~finite.all(axis=(1, 2)) & finite.any(axis=(1, 2))
-        if partial.any():  # a plan is whole or absent: a row with a NaN is no plan
-            plans = np.array(plans)
-            plans[partial] = np.nan
+        if not mapped:
+            finite = np.isfinite(plans)
+            partial = ~finite.all(axis=(1, 2)) & finite.any(axis=(1, 2))
+            if partial.any():  # a plan is whole or absent: a row with a NaN is no plan
+                plans = np.array(plans)
+                plans[partial] = np.nan
         index, new = self._index, []
         for row, memo in enumerate(memos, start=self._rows):
             if memo not in index:
@@ -233,9 +310,12 @@ class PlanTable(Mapping):
             self._blocks.append((self._rows, plans))
             self._rows += len(plans)
             self._tail = None
-            if len(self._blocks) > MAX_BLOCKS:  # the later, smaller blocks as one
-                first, later = self._blocks[1][0], [block for _, block in self._blocks[1:]]
-                self._blocks[1:] = [(first, np.concatenate(later))]
+            if mapped:
+                self._mapped, self._frozen = True, len(self._blocks)
+            elif len(self._blocks) - self._frozen > MAX_BLOCKS:  # the later, smaller ones as one
+                second = self._frozen + 1
+                first, later = self._blocks[second][0], [b for _, b in self._blocks[second:]]
+                self._blocks[second:] = [(first, np.concatenate(later))]
         return new
 
 
@@ -278,9 +358,9 @@ class BetweenNodes:
             found = self._known[env_key] = PlanTable(self.T)
             self._keys[env_key] = atlas_key
             if self.shards is not None:
-                thetas, plans = self.shards.load(atlas_key, self.T, self.k)
-                found.add_many(row_keys(thetas), plans)
-                self._kept += len(thetas)
+                for thetas, plans, mapped in self.shards.blocks(atlas_key, self.T, self.k):
+                    found.add_many(row_keys(thetas), plans, mapped=mapped)
+                    self._kept += 0 if mapped else len(thetas)
         return found
 
     def added(self, env_key: bytes, theta: bytes) -> None:
