@@ -9,10 +9,10 @@ per process (θ's bytes -> the trajectory, None where no start converged), and
 the answer comes from, :func:`~corrections_sim.plans.atlas.answer_version`), written
 atomically; shards only add up (two
 workers that solved the same θ wrote the same plan), and one whose bytes do not match its
-checksum is skipped and said, its plans solved again. A shard's trajectories are mapped from
-its file, not copied into the process (:func:`read_shards`' ``mapped``): a machine's store
-can hold far more plans than a process could keep in memory (millions, gigabytes), and a
-process reads the pages of the ones it looks up.
+checksum is skipped and said, its plans solved again. A large shard's trajectories are mapped
+from its file, not copied into the process (:data:`MAP_AT`, :func:`read_shards`' ``mapped``):
+a machine's store can hold far more plans than a process could keep in memory (millions,
+gigabytes), and a process reads the pages of the ones it looks up.
 """
 
 from __future__ import annotations
