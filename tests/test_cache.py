@@ -253,8 +253,9 @@ def test_a_plan_table_answers_as_a_dictionary_of_first_plans_would(tmp_path, map
         PlanShards(tmp_path).save("key", thetas, plans)
     # Shards of 40 plans mapped, the one of 4 copied, in the order found.
     monkeypatch.setattr(between, "MAP_AT", 40 * T * 7 * 8)
-    for thetas, plans, is_mapped in PlanShards(tmp_path).blocks("key", T, 2):
-        assert is_mapped == (len(thetas) == 40) == isinstance(plans, np.memmap)
+    for thetas, plans in PlanShards(tmp_path).blocks("key", T, 2):
+        is_mapped = isinstance(plans, np.memmap)
+        assert is_mapped == (len(thetas) == 40)
         memos = between.row_keys(thetas)
         table.add_many(memos, plans, mapped=is_mapped)
         for memo, plan in zip(memos, plans, strict=True):
@@ -331,8 +332,8 @@ def test_a_compressed_shard_is_read_as_a_copy(tmp_path, monkeypatch):
     np.savez_compressed(tmp, thetas=thetas, plans=plans)
     digest = hashlib.sha256(tmp.read_bytes()).hexdigest()[:16]
     tmp.rename(tmp_path / f"key.extra-{digest}.npz")
-    [(read_thetas, read_plans, is_mapped)] = PlanShards(tmp_path).blocks("key", 3, 2)
-    assert not is_mapped and not isinstance(read_plans, np.memmap)
+    [(read_thetas, read_plans)] = PlanShards(tmp_path).blocks("key", 3, 2)
+    assert not isinstance(read_plans, np.memmap)
     assert np.array_equal(read_thetas, thetas) and np.array_equal(read_plans, plans)
 
 
@@ -343,5 +344,6 @@ def test_a_small_shard_is_copied_and_a_large_one_mapped(tmp_path):
     small = int(between.MAP_AT // (3 * 7 * 8)) // 2
     for n in (small, 4 * small):
         PlanShards(tmp_path).save("key", rng.normal(size=(n, 2)), rng.normal(size=(n, 3, 7)))
-    found = sorted((len(t), m) for t, _, m in PlanShards(tmp_path).blocks("key", 3, 2))
+    blocks = PlanShards(tmp_path).blocks("key", 3, 2)
+    found = sorted((len(t), isinstance(p, np.memmap)) for t, p in blocks)
     assert found == [(small, False), (4 * small, True)]

@@ -72,7 +72,7 @@ def read_shards(
     marked as used (and its path appended to ``read``); one whose bytes do not match its
     name's checksum, that lacks an array or that ``check`` refuses (ValueError) is appended
     to ``rejected`` as (name, why) and skipped. One gone since the folder was listed was
-    merged into another by a process that read it (:meth:`PlanShards.load`), which wrote the
+    merged into another by a process that read it (:meth:`PlanShards.blocks`), which wrote the
     merged shard first: the folder is listed again and the shards not yet read are read.
 
     The arrays named in ``mapped`` of a shard of :data:`MAP_AT` bytes or more are read-only
@@ -157,14 +157,14 @@ class PlanShards:
         """Every plan kept for the atlas ``key``: θ (n, k) and trajectories (n, T, 7), NaN
         where no start converged, in this process's memory (:meth:`blocks`, joined)."""
         found = self.blocks(key, T, k)
-        thetas = [np.zeros((0, k))] + [t for t, _, _ in found]
-        plans = [np.zeros((0, T, 7))] + [np.asarray(p, float) for _, p, _ in found]
+        thetas = [np.zeros((0, k))] + [t for t, _ in found]
+        plans = [np.zeros((0, T, 7))] + [np.asarray(p, float) for _, p in found]
         return np.concatenate(thetas), np.concatenate(plans)
 
-    def blocks(self, key: str, T: int, k: int) -> list[tuple[np.ndarray, np.ndarray, bool]]:
-        """Every plan kept for the atlas ``key``, a block a shard: θ (n, k), trajectories
-        (n, T, 7) (NaN where no start converged) and whether they are mapped from the shard's
-        file (:func:`read_shards`) rather than held in memory; a shard whose content does not
+    def blocks(self, key: str, T: int, k: int) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Every plan kept for the atlas ``key``, a block a shard: θ (n, k) and trajectories
+        (n, T, 7) (NaN where no start converged), a ``np.memmap`` of the shard's file where it
+        is mapped (:func:`read_shards`), else in memory; a shard whose content does not
         match its checksum, or of another shape, is reported (:attr:`rejected`) and skipped.
         Having read :data:`COMPACT_AT` shards or more, it writes their plans (once each) as
         one shard, removes them (not on a read-only store) and gives that one block, in
@@ -179,18 +179,17 @@ class PlanShards:
         found, read = [], []
         prefix = f"{key}.extra"
         for arrays in read_shards(self.root, prefix, self.rejected, check, read, ("plans",)):
-            plans = arrays["plans"]
-            found.append((arrays["thetas"], plans, isinstance(plans, np.memmap)))
+            found.append((arrays["thetas"], arrays["plans"]))
         if len(read) < COMPACT_AT:
             return found
-        every = np.concatenate([t for t, _, _ in found])
-        every, trajectories = distinct(every, np.concatenate([p for _, p, _ in found]))
+        every = np.concatenate([t for t, _ in found])
+        every, trajectories = distinct(every, np.concatenate([p for _, p in found]))
         with contextlib.suppress(OSError):  # a read-only store is read as it is
             merged = self.save(key, every, trajectories)
             for path in read:
                 if path != merged:
                     path.unlink(missing_ok=True)
-        return [(every, trajectories, False)]
+        return [(every, trajectories)]
 
     def save(self, key: str, thetas: np.ndarray, plans: np.ndarray) -> Path:
         """Plans of the atlas ``key`` (θ (n, k), trajectories (n, T, 7)) as a shard of their
@@ -358,7 +357,8 @@ class BetweenNodes:
             found = self._known[env_key] = PlanTable(self.T)
             self._keys[env_key] = atlas_key
             if self.shards is not None:
-                for thetas, plans, mapped in self.shards.blocks(atlas_key, self.T, self.k):
+                for thetas, plans in self.shards.blocks(atlas_key, self.T, self.k):
+                    mapped = isinstance(plans, np.memmap)
                     found.add_many(row_keys(thetas), plans, mapped=mapped)
                     self._kept += 0 if mapped else len(thetas)
         return found
