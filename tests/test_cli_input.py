@@ -8,6 +8,7 @@ Runs are tiny (1-2 runs, 1-2 corrections, one worker) so the module costs about 
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import time
@@ -82,6 +83,35 @@ def test_a_malformed_scheduler_fails_at_once_without_a_traceback(tmp_path):
     # not a speed bound (a loaded 2-core machine took 6.3 s to start Python and refuse).
     assert time.perf_counter() - start < 25
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("gcc", ["refuses", "missing"])
+def test_a_machine_whose_gcc_cannot_build_the_planner_gets_one_line(tmp_path, gcc):
+    """gcc refusing the planner's C (or absent) on a machine with an empty cache: one line
+    naming the planner's features, the library and gcc's error (or that gcc is missing), exit
+    status 1, and no figure; not a traceback from a worker."""
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    if gcc == "refuses":
+        fake = bin_dir / "gcc"
+        fake.write_text('#!/bin/sh\necho "x.c:1:1: error: unknown type name foo" >&2\nexit 1\n')
+        fake.chmod(0o755)
+    path = f"{bin_dir}:{os.environ['PATH']}" if gcc == "refuses" else str(bin_dir)
+    env = dict(os.environ, PATH=path, CORRECTIONS_SIM_CACHE=str(tmp_path / "cache"))
+    proc = subprocess.run(
+        [sys.executable, "-m", "corrections_sim.run", *TINY, "--out", str(tmp_path / "out")],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env=env,
+    )
+    assert proc.returncode == 1, proc.stderr
+    err = proc.stderr.splitlines()[-1] + "\n"
+    said = "error: unknown type name foo" if gcc == "refuses" else "no gcc on the PATH"
+    _one_line(err, "error: the planner over laptop, table: ", ".so: ", said)
+    assert "Traceback" not in proc.stderr
+    assert not (tmp_path / "out" / "fig4").exists()  # no figure (only the run cache's settings)
 
 
 def test_pp_alone_runs_with_a_fixed_rate_and_a_quick_preset_goes_to_scratch(tmp_path, monkeypatch):

@@ -112,17 +112,43 @@ def compile_library(
         build_shared_library(sources, library)
 
 
+class BuildError(RuntimeError):
+    """gcc could not build a library: one line naming it and gcc's first error (a command
+    prints it as its one-line error, exit status 1)."""
+
+
 def build_shared_library(sources: Path | list[Path], library: Path) -> None:
     """gcc ``sources`` (C) into ``library``: built beside the first and moved into place at
-    once, so a process that finds the library never loads half a file."""
+    once, so a process that finds the library never loads half a file.
+
+    Raises:
+        BuildError: no gcc on the PATH, or gcc refused the sources (the library's name and
+            gcc's first error line; nothing is left at ``library``).
+    """
     sources = [sources] if isinstance(sources, Path) else sources
     tmp = sources[0].parent / library.name
-    subprocess.run(
-        ["gcc", *GCC_FLAGS, *map(str, sources), "-o", str(tmp), "-lm"],
-        check=True,
-        capture_output=True,
-    )
+    try:
+        subprocess.run(
+            ["gcc", *GCC_FLAGS, *map(str, sources), "-o", str(tmp), "-lm"],
+            check=True,
+            capture_output=True,
+        )
+    except FileNotFoundError:
+        raise BuildError(
+            f"{library.name}: no gcc on the PATH to build it (the planner's compiled code "
+            "needs a C compiler: install gcc)"
+        ) from None
+    except subprocess.CalledProcessError as exc:
+        raise BuildError(f"{library.name}: gcc could not build it: {_first_error(exc)}") from None
     os.replace(tmp, library)
+
+
+def _first_error(exc: subprocess.CalledProcessError) -> str:
+    """gcc's first line that says "error" (else its last line, else its exit status)."""
+    text = exc.stderr.decode(errors="replace") if isinstance(exc.stderr, bytes) else exc.stderr
+    lines = [line.strip() for line in (text or "").splitlines() if line.strip()]
+    errors = [line for line in lines if "error" in line.lower()]
+    return (errors or lines or [f"exit status {exc.returncode}"])[0]
 
 
 #: The C loop of :class:`Rows`: the function ``%(name)s`` at each of ``n`` rows of ``x``

@@ -34,7 +34,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import hashlib
-import subprocess
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -44,7 +43,7 @@ import casadi as ca
 import numpy as np
 
 from corrections_sim.planning.cache import cache_dir
-from corrections_sim.planning.compiled import Rows
+from corrections_sim.planning.compiled import BuildError, Rows
 from corrections_sim.registry import Registry
 from corrections_sim.scene import geometry as g
 from corrections_sim.scene.environments import ENV_PARAMETERS, Environment, env_index, n_env_params
@@ -302,7 +301,7 @@ def _rows(names: tuple[str, ...], n_params: int) -> Rows | None:
     evaluates them, to the same numbers."""
     try:
         return Rows(_waypoint_feature_function(names, n_params), cache_dir())
-    except (OSError, subprocess.CalledProcessError) as error:
+    except (OSError, BuildError) as error:
         warnings.warn(
             f"waypoint features {names}: not compiled ({error}); CasADi evaluates them",
             RuntimeWarning,

@@ -29,6 +29,7 @@ above from the same start (``warm = "solver"`` always does: the reference path).
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import dataclasses
 import functools
@@ -49,7 +50,7 @@ from corrections_sim.planning import compiled
 from corrections_sim.planning.cache import cache_dir
 from corrections_sim.planning.clearance import CertifiedChecker
 from corrections_sim.planning.clearance import library_key as clearance_library_key
-from corrections_sim.planning.compiled import build_once, build_shared_library
+from corrections_sim.planning.compiled import BuildError, build_once, build_shared_library
 from corrections_sim.planning.features import (
     canonical,
     check_feature_names,
@@ -559,16 +560,18 @@ class Planner:
         self._checker = CollisionChecker()
         if self.config.certificate and self.config.jit:
             library = cache_dir() / f"clearance-{clearance_library_key()}.so"
-            self._checker = CertifiedChecker(self._checker, library)
+            with self._building():
+                self._checker = CertifiedChecker(self._checker, library)
         self._ipopt: ca.Function | None = None
         self._newton: NewtonPath | None = None
         if self.config.solver == "ipopt":
             self._ipopt_solver()
             return
         cfg = self._build
-        self._fatrop = _load_solver(
-            "trajopt_stages", "fatrop", stage_nlp(cfg), _fatrop_options(cfg, n), cfg
-        )
+        with self._building():
+            self._fatrop = _load_solver(
+                "trajopt_stages", "fatrop", stage_nlp(cfg), _fatrop_options(cfg, n), cfg
+            )
         J, free = N_ARM_JOINTS, np.full(N_ARM_JOINTS, np.inf)
         self._stage_bounds = {
             "lbx": np.concatenate([*[np.r_[lo, -free]] * (n - 1), lo]),
@@ -598,7 +601,8 @@ class Planner:
         if self._ipopt is None:
             cfg = dataclasses.replace(self._build, solver="ipopt")
             nlp, opts = self._nlp(cfg)
-            self._ipopt = _load_solver("trajopt", "ipopt", nlp, opts, cfg)
+            with self._building():
+                self._ipopt = _load_solver("trajopt", "ipopt", nlp, opts, cfg)
         return self._ipopt
 
     def _newton_path(self) -> NewtonPath:
@@ -612,10 +616,25 @@ class Planner:
             if cfg.jit:
                 key = newton_library_key(build_key(dataclasses.replace(cfg, solver="ipopt")))
                 library = cache_dir() / f"newton-{key}.so"
-            self._newton = NewtonPath(
-                trajectory_terms(cfg), cfg.smoothness, cfg.features, self._lbx, self._ubx, library
-            )
+            with self._building():
+                self._newton = NewtonPath(
+                    trajectory_terms(cfg),
+                    cfg.smoothness,
+                    cfg.features,
+                    self._lbx,
+                    self._ubx,
+                    library,
+                )
         return self._newton
+
+    @contextlib.contextmanager
+    def _building(self):
+        """gcc's failure to build a library of this planner, named by the features it plans
+        over (a learnt feature's name says which was being learnt): one line."""
+        try:
+            yield
+        except BuildError as exc:
+            raise BuildError(f"the planner over {', '.join(self.config.features)}: {exc}") from None
 
     def _newton_solve(self, theta: np.ndarray, env: Environment, start: np.ndarray, p, t0):
         """The warm start re-solved by :class:`NewtonPath`, checked by MuJoCo like every

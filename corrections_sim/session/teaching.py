@@ -13,6 +13,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from corrections_sim.planning.compiled import BuildError
 from corrections_sim.planning.planner import shared_planner
 from corrections_sim.plans.book import PlanBook
 from corrections_sim.session.refused import Refused
@@ -166,7 +167,8 @@ class Teaching:
 
         Raises:
             Refused: fewer traces than asked for (or with ``stop``, than the fewest), a trace
-                being recorded, or traces that rank nothing.
+                being recorded, traces that rank nothing, or a planner over the learnt
+                feature that gcc could not build (one line each; the traces stay given).
         """
         with self._lock:
             self._check_open()
@@ -183,7 +185,7 @@ class Teaching:
                 self.wanted = given
             try:
                 name = self._grow(self.traces)
-            except ValueError as exc:
+            except (ValueError, BuildError) as exc:
                 raise Refused(str(exc).splitlines()[0]) from None
             self.wanted, self.traces = 0, []
             return name
