@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 if "PYTEST_XDIST_WORKER" in os.environ:
     # A worker keeps to one core (below): BLAS threads would only wait on each other there.
@@ -30,6 +31,18 @@ def random_belief():
         return Belief(theta=rng.normal(size=k), cov=a @ a.T + 0.3 * np.eye(k))
 
     return make
+
+
+@pytest.fixture
+def refusing_gcc(tmp_path) -> tuple[Path, str]:
+    """(a folder holding a ``gcc`` that refuses every source as a compiler does, the error
+    line it prints on stderr before it exits 1); put the folder first on the PATH."""
+    folder = tmp_path / "refusing-gcc"
+    folder.mkdir()
+    says = "x.c:1:1: error: unknown type name foo"
+    (folder / "gcc").write_text(f'#!/bin/sh\necho "{says}" >&2\nexit 1\n')
+    (folder / "gcc").chmod(0o755)
+    return folder, says
 
 
 @pytest.fixture(scope="module")

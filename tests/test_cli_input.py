@@ -86,17 +86,14 @@ def test_a_malformed_scheduler_fails_at_once_without_a_traceback(tmp_path):
 
 
 @pytest.mark.parametrize("gcc", ["refuses", "missing"])
-def test_a_machine_whose_gcc_cannot_build_the_planner_gets_one_line(tmp_path, gcc):
+def test_a_machine_whose_gcc_cannot_build_the_planner_gets_one_line(tmp_path, refusing_gcc, gcc):
     """gcc refusing the planner's C (or absent) on a machine with an empty cache: one line
     naming the planner's features, the library and gcc's error (or that gcc is missing), exit
     status 1, and no figure; not a traceback from a worker."""
-    bin_dir = tmp_path / "bin"
-    bin_dir.mkdir()
-    if gcc == "refuses":
-        fake = bin_dir / "gcc"
-        fake.write_text('#!/bin/sh\necho "x.c:1:1: error: unknown type name foo" >&2\nexit 1\n')
-        fake.chmod(0o755)
-    path = f"{bin_dir}:{os.environ['PATH']}" if gcc == "refuses" else str(bin_dir)
+    folder, says = refusing_gcc
+    empty = tmp_path / "no-gcc"
+    empty.mkdir()
+    path = f"{folder}:{os.environ['PATH']}" if gcc == "refuses" else str(empty)
     env = dict(os.environ, PATH=path, CORRECTIONS_SIM_CACHE=str(tmp_path / "cache"))
     proc = subprocess.run(
         [sys.executable, "-m", "corrections_sim.run", *TINY, "--out", str(tmp_path / "out")],
@@ -108,7 +105,7 @@ def test_a_machine_whose_gcc_cannot_build_the_planner_gets_one_line(tmp_path, gc
     )
     assert proc.returncode == 1, proc.stderr
     err = proc.stderr.splitlines()[-1] + "\n"
-    said = "error: unknown type name foo" if gcc == "refuses" else "no gcc on the PATH"
+    said = says if gcc == "refuses" else "no gcc on the PATH"
     _one_line(err, "error: the planner over laptop, table: ", ".so: ", said)
     assert "Traceback" not in proc.stderr
     assert not (tmp_path / "out" / "fig4").exists()  # no figure (only the run cache's settings)

@@ -416,20 +416,8 @@ def test_the_calibrated_taught_feature_is_g8_of_the_taught_one():
     assert np.all(g <= y + 1e-12) and y.max() > 0.5
 
 
-def _failing_gcc(tmp_path: Path, monkeypatch) -> None:
-    """A gcc on the PATH that refuses every source as a compiler does, and an empty cache:
-    every library must be built, and none can be."""
-    bin_dir = tmp_path / "bin"
-    bin_dir.mkdir()
-    gcc = bin_dir / "gcc"
-    gcc.write_text('#!/bin/sh\necho "x.c:1:1: error: unknown type name foo" >&2\nexit 1\n')
-    gcc.chmod(0o755)
-    monkeypatch.setenv("PATH", f"{bin_dir}:{os.environ['PATH']}")
-    monkeypatch.setenv("CORRECTIONS_SIM_CACHE", str(tmp_path / "cache"))
-
-
 def test_a_learnt_feature_whose_planner_fails_to_compile_is_one_line_naming_it(
-    taught, tmp_path, monkeypatch
+    taught, tmp_path, monkeypatch, refusing_gcc
 ):
     """Issue 69's bad input: gcc failing to build the planner over a learnt feature is one
     line naming the features (the learnt one among them), the library and gcc's error; no
@@ -438,21 +426,22 @@ def test_a_learnt_feature_whose_planner_fails_to_compile_is_one_line_naming_it(
     from corrections_sim.planning.clearance import CertifiedChecker, library_key
     from corrections_sim.scene.world import CollisionChecker
 
-    clearance = [cache_dir() / f"clearance-{library_key()}.so"]
-    CertifiedChecker(CollisionChecker(), clearance[0])  # built here if the machine lacks it
-    _failing_gcc(tmp_path, monkeypatch)
-    (tmp_path / "cache").mkdir()
-    for path in clearance:  # so the build that fails is the learnt feature's NLP
-        (tmp_path / "cache" / path.name).symlink_to(path)
+    clearance = cache_dir() / f"clearance-{library_key()}.so"
+    CertifiedChecker(CollisionChecker(), clearance)  # built here if the machine lacks it
+    folder, says = refusing_gcc
+    monkeypatch.setenv("PATH", f"{folder}:{os.environ['PATH']}")
+    monkeypatch.setenv("CORRECTIONS_SIM_CACHE", str(tmp_path / "cache"))
+    (tmp_path / "cache").mkdir()  # empty but for the clearance check: what fails is the NLP
+    (tmp_path / "cache" / clearance.name).symlink_to(clearance)
     features = ("laptop", "table", taught[0].name)
     with pytest.raises(RuntimeError) as info:
         Planner(PlannerConfig(features=features))
     message = str(info.value)
     assert "\n" not in message
     assert message.startswith(f"the planner over laptop, table, {taught[0].name}: trajopt")
-    assert "gcc could not build it: x.c:1:1: error: unknown type name foo" in message
-    built = {p.name for p in (tmp_path / "cache").glob("*.so")}
-    assert built == {p.name for p in clearance}  # nothing half built left to load
+    assert f"gcc could not build it: {says}" in message
+    built = [p.name for p in (tmp_path / "cache").glob("*.so")]
+    assert built == [clearance.name]  # nothing half built left to load
 
 
 def test_no_gcc_at_all_is_one_line_saying_so(tmp_path, monkeypatch):
