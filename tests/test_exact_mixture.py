@@ -135,7 +135,8 @@ def test_its_parameters_are_its_own_and_checked_where_ex_c_checks_them():
     assert set(components.params(make_learner("EX-M"))) == {
         "models", "noise", "noise_dof", "noise_scales", "relevance", "concentrations",
         "relevance_prior", "relevance_count", "resolution", "cut", "max_level", "axes",
-        "spread",
+        "spread", "expand_traces", "expand_below", "expand_after", "expand_variances",
+        "expand_noises", "expand_inputs", "expand_hidden",
     }  # fmt: skip
     with pytest.raises(ValueError, match=r"^learners.EX-M.resolution: must be a number >= 0"):
         make_learner("EX-M", {"resolution": -1})

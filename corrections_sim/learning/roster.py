@@ -8,7 +8,8 @@ lines here.
   KF-A; :mod:`~corrections_sim.learning.boltzmann`: BP;
   :mod:`~corrections_sim.learning.relevance`: KF-CR, KF-CRP, PP-R, KF-CRX;
   :mod:`~corrections_sim.learning.particles`: PF-C, AL-PF;
-  :mod:`~corrections_sim.learning.exact`: EX-C, EX-CL, EX-M (on the study's plan atlas).
+  :mod:`~corrections_sim.learning.exact`: EX-C, EX-CL, EX-M (on the study's plan atlas;
+  its asking for feature traces is :mod:`~corrections_sim.learning.relevance.asking`).
 
 Each is a frozen dataclass whose fields are its own parameters (``[learners.KF-A]
 attenuation_min = 0.1`` in a study file); the filters' shared M, N and sigma points come from
@@ -30,7 +31,6 @@ from corrections_sim.learning.exact.learners import (
     ExactCorrectionAware,
     ExactCorrectionAwareLearntNoise,
 )
-from corrections_sim.learning.exact.mixture import ExactPersonModel
 from corrections_sim.learning.kalman.active import (
     ActiveLearning,
     CorrectionAwareActive,
@@ -50,6 +50,7 @@ from corrections_sim.learning.perceptron.learners import (
     PerceptronFromCorrectionAware,
 )
 from corrections_sim.learning.relevance import grid as _relevance_grid  # noqa: F401
+from corrections_sim.learning.relevance.asking import AskingPersonModel
 from corrections_sim.learning.relevance.expansion import ExpandingRelevanceKalman
 from corrections_sim.learning.relevance.learners import (
     PersonRelevanceKalman,
@@ -77,7 +78,7 @@ LEARNERS.register("PF-C", ParticleCorrectionAware)
 LEARNERS.register("AL-PF", ParticleActive)
 LEARNERS.register("EX-C", ExactCorrectionAware)
 LEARNERS.register("EX-CL", ExactCorrectionAwareLearntNoise)
-LEARNERS.register("EX-M", ExactPersonModel)
+LEARNERS.register("EX-M", AskingPersonModel)
 
 #: Learners that left the registry, and why (what naming one says; docs/decision.md).
 RETIRED = {

@@ -224,10 +224,8 @@ class ExactPersonModel(Learner):
     """
 
     label = "Exact posterior over θ, N and how the person corrects (EX-M)"
-    question = (
-        "The robot we recommend: what is learnt when θ, the person's noise and their way of "
-        "correcting are all left to the posterior, for people it was not tuned on?"
-    )
+    # Its question is EX-M's (:class:`~corrections_sim.learning.relevance.asking.AskingPersonModel`,
+    # registered as EX-M: this posterior that may also ask for feature traces).
     style = ("#000000", "-")  # black and solid, as no other learner (it was drawn as AL)
     needs_atlas = True  # its grids are the study's plan atlas
 

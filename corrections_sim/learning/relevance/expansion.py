@@ -31,10 +31,9 @@ from corrections_sim.scene.environments import Environment
 
 
 @dataclass(frozen=True)
-class ExpandingRelevanceKalman(PersonRelevanceKalman):
-    """KF-CRP that learns the feature it lacks (FERL): when the person's corrections are
-    believed mostly unexplained, it asks for feature traces, learns a feature from them and
-    learns its weight from the corrections that follow (see :meth:`expand`).
+class FeatureAsking:
+    """Mix-in: the parameters of a learner that may ask its person for feature traces and go
+    on over the feature it learns from them (KF-CRX; EX-M, :mod:`.asking`).
 
     Attributes:
         expand_traces: how many feature traces to ask the person for when their corrections
@@ -44,22 +43,16 @@ class ExpandingRelevanceKalman(PersonRelevanceKalman):
         expand_after: and no sooner than after this many corrections (>= 1).
         expand_variances: the prior variances the learnt feature's weight may start from,
             N(0, v) uncorrelated with the others; the one under which the person's corrections
-            so far were likeliest is kept (see :meth:`grow`). One value: that prior.
+            so far were likeliest is kept (see :meth:`ExpandingRelevanceKalman.grow`). One
+            value: that prior.
         expand_noises: the learnt feature's observation noise, as shares of the study's (its
             mean diagonal entry, :meth:`~corrections_sim.belief.KalmanNoise.grown`): the
             learnt feature's values are the ranking network's, so how much a correction moves
             them is not known beforehand; chosen with the variance, the pair under which the
-            corrections so far were likeliest (see :meth:`grow`). One value: that share.
+            corrections so far were likeliest. One value: that share.
         expand_inputs: what the learnt feature's network reads (``learnt.INPUTS``).
         expand_hidden: its hidden layers' widths.
     """
-
-    label = "KF-CRP with feature expansion (KF-CRX)"
-    question = (
-        "When most corrections are unexplained, can the robot ask for feature traces, learn "
-        "the feature it lacks (FERL) and go on learning with it?"
-    )
-    style = ("#17becf", "-")
 
     expand_traces: int = 10
     expand_below: float = 0.35
@@ -69,8 +62,9 @@ class ExpandingRelevanceKalman(PersonRelevanceKalman):
     expand_inputs: tuple[str, ...] = Network().inputs
     expand_hidden: tuple[int, ...] = Network().hidden
 
-    def __post_init__(self) -> None:
-        super().__post_init__()
+    def check_asking(self) -> None:
+        """Its asking parameters checked, each refused in one line naming its key; lists
+        kept as tuples."""
         require_count("expand_traces", self.expand_traces, 0)
         require_count("expand_after", self.expand_after, 1)
         if not (isinstance(self.expand_below, int | float) and 0 < self.expand_below < 1):
@@ -95,6 +89,26 @@ class ExpandingRelevanceKalman(PersonRelevanceKalman):
     def network(self) -> Network:
         """The shape of the feature it learns when it expands."""
         return Network(inputs=self.expand_inputs, hidden=self.expand_hidden)
+
+
+@dataclass(frozen=True)
+class ExpandingRelevanceKalman(FeatureAsking, PersonRelevanceKalman):
+    """KF-CRP that learns the feature it lacks (FERL): when the person's corrections are
+    believed mostly unexplained, it asks for feature traces, learns a feature from them and
+    learns its weight from the corrections that follow (see :meth:`expand`). Its ``expand_*``
+    parameters are :class:`FeatureAsking`'s.
+    """
+
+    label = "KF-CRP with feature expansion (KF-CRX)"
+    question = (
+        "When most corrections are unexplained, can the robot ask for feature traces, learn "
+        "the feature it lacks (FERL) and go on learning with it?"
+    )
+    style = ("#17becf", "-")
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        self.check_asking()
 
     def initial(self, belief: Belief, noise: KalmanNoise) -> Belief:
         # It keeps the prior and the corrections, to read them again over a learnt feature
@@ -288,8 +302,9 @@ def columns(belief, step: Step | None, learnt: dict, k: int) -> dict:
     (Spearman ρ, R² of the best affine fit), its weight θ̂ and the weight the person's maps
     to through that fit (θ*·a), the prior variance of its weight and the share of the
     study's observation noise its values are given that it chose, for every record after it
-    expanded."""
-    asked = RelevanceState.of(belief).asked
+    expanded. Whether it asked is its state's ``asked`` (KF-CRX's, or EX-M's while it may ask).
+    """
+    asked = bool(getattr(belief.state, "asked", False))
     if not (asked or (step is not None and step.expansion is not None)):
         return {}
     out: dict = {"asked": float(asked), "expanded": float(bool(belief.extra))}

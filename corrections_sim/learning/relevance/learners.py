@@ -22,7 +22,14 @@ from corrections_sim.learning.kalman.learners import (
 from corrections_sim.learning.params import require_positive
 from corrections_sim.learning.perceptron.learners import Perceptron
 from corrections_sim.learning.perceptron.update import perceptron_update
-from corrections_sim.learning.relevance.judge import SPACES, Relevance, explain, judge, load_fit
+from corrections_sim.learning.relevance.judge import (
+    SPACES,
+    Judgement,
+    Relevance,
+    explain,
+    judge,
+    load_fit,
+)
 from corrections_sim.learning.relevance.state import PersonBelief, RelevanceState
 from corrections_sim.people.corrections import (
     CORRECTIONS,
@@ -197,22 +204,7 @@ class PersonRelevanceKalman(CorrectionAwareKalman):
             beta, found = person.rate_mean, None
         else:
             full = super().update(ctx, prior, env, plan, phi_h).belief  # p(θ | z), β̂ = 1
-            irrelevant, _, scatter = self.densities()
-            found = judge(
-                ctx.book,
-                env,
-                plan.trajectory,
-                ctx.corrected,
-                self.model,
-                full.theta,
-                full.cov,
-                ctx.sigma.points(belief.theta, belief.cov + ctx.noise.process),
-                person=person,
-                scatter=[(w, sd**2 * np.eye(belief.dim)) for w, sd in scatter],
-                scatter_center=belief.theta,
-                irrelevant=irrelevant,
-                space=self.space,
-            )
+            found = self.judged(ctx, prior, full, env, plan, person)
             beta = found.relevance
         noise = KalmanNoise(process=ctx.noise.process, observation=ctx.noise.observation / beta)
         step = super().update(dataclasses.replace(ctx, noise=noise), prior, env, plan, phi_h)
@@ -227,6 +219,36 @@ class PersonRelevanceKalman(CorrectionAwareKalman):
             relevance=beta,
             residual=None if found is None else found.rho,
             expansion=expansion,
+        )
+
+    def judged(
+        self,
+        ctx: LearnerContext,
+        prior: Belief,
+        full: Belief,
+        env: Environment,
+        plan: Plan,
+        person: PersonBelief,
+    ) -> Judgement:
+        """The correction in ``ctx`` to ``plan`` judged (:func:`~.relevance.judge`): under the
+        belief over θ after taking it in as relevant, ``full``, with the belief before it,
+        ``prior`` (its sigma points start the search, its mean centres the scatter of
+        irrelevant explanations), and the belief over the ``person`` before it."""
+        irrelevant, _, scatter = self.densities()
+        return judge(
+            ctx.book,
+            env,
+            plan.trajectory,
+            ctx.corrected,
+            self.model,
+            full.theta,
+            full.cov,
+            ctx.sigma.points(prior.theta, prior.cov + ctx.noise.process),
+            person=person,
+            scatter=[(w, sd**2 * np.eye(prior.dim)) for w, sd in scatter],
+            scatter_center=prior.theta,
+            irrelevant=irrelevant,
+            space=self.space,
         )
 
     def expand(
