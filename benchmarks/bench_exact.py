@@ -52,6 +52,7 @@ def _measure(figure: str, learner: str, runs: int, iterations: int | None, small
     each update timed (CPU seconds)."""
     from corrections_sim.learning.exact.learners import ExactCorrectionAware
     from corrections_sim.learning.exact.mixture import ExactPersonModel
+    from corrections_sim.learning.relevance.asking import AskingPersonModel
     from corrections_sim.study import runner
 
     times: list[float] = []
@@ -70,8 +71,9 @@ def _measure(figure: str, learner: str, runs: int, iterations: int | None, small
 
         return timed
 
-    # EX-CL's update is EX-C's; EX-M's calls it once for each of its models.
-    for cls in (ExactCorrectionAware, ExactPersonModel):
+    # EX-CL's update is EX-C's; EX-M's calls it once for each of its models, and EX-M as
+    # registered (AskingPersonModel) calls the posterior's, then judges whether to ask.
+    for cls in (ExactCorrectionAware, ExactPersonModel, AskingPersonModel):
         cls.update = timing(cls.__dict__["update"])
     overrides = _overrides(runs, iterations, smaller)
     params = _settings(figure, overrides).study.learner_params().get(learner, {})
