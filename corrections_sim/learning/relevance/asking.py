@@ -91,9 +91,6 @@ class AskingPersonModel(FeatureAsking, ExactPersonModel):
         k + 1 features after teaching."""
         return _asker(tuple(getattr(self, name) for name in ASKING_KEYS))
 
-    def learns_features(self) -> bool:
-        return self.expand_traces > 0
-
     def initial(self, belief: Belief, noise: KalmanNoise) -> Belief:
         start = super().initial(belief, noise)
         if not self.expand_traces:

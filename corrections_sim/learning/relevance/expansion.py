@@ -90,6 +90,9 @@ class FeatureAsking:
         """The shape of the feature it learns when it expands."""
         return Network(inputs=self.expand_inputs, hidden=self.expand_hidden)
 
+    def learns_features(self) -> bool:
+        return self.expand_traces > 0
+
 
 @dataclass(frozen=True)
 class ExpandingRelevanceKalman(FeatureAsking, PersonRelevanceKalman):
@@ -155,9 +158,6 @@ class ExpandingRelevanceKalman(FeatureAsking, PersonRelevanceKalman):
         if traces is None:
             return self.declined(belief), {"asked": True, "taught": False}
         return self.grow(belief, env, traces, ctx.rng, ctx)
-
-    def learns_features(self) -> bool:
-        return self.expand_traces > 0
 
     def wants_traces(self, belief: Belief, corrections: int) -> int:
         """How many feature traces it asks for after ``corrections`` corrections with
