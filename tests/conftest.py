@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 
 if "PYTEST_XDIST_WORKER" in os.environ:
@@ -14,6 +15,15 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 from corrections_sim.learning import Belief
+
+
+@pytest.fixture(autouse=True)
+def _no_person_plans_from_another_test():
+    """Each test solves its people's plans itself (a process keeps them,
+    :meth:`FigureSettings.person_target`): what a test counts or patches is its own."""
+    settings = sys.modules.get("corrections_sim.study.settings")
+    if settings is not None:
+        settings._TARGETS.clear()
 
 
 @pytest.fixture

@@ -522,3 +522,29 @@ def test_the_persons_restarts_default_with_the_atlas_and_enter_the_key_only_when
     searched = mine.person_target(envs)
     assert asked == [2]
     assert searched.plans[0].reward >= cold.plans[0].reward - 1e-12
+
+
+def test_a_process_solves_a_persons_plans_once_and_they_are_target_solves_own():
+    """The person's plans (:meth:`FigureSettings.person_target`) are kept by the process: a
+    second study of the same person (other learners, runs and seed: the FERL study's robots
+    that know the person's feature, the relevance study's nudger) takes them without a solve,
+    and they are Target.solve's to the bit; another θ*, other restarts or other environments
+    are solved again."""
+    from corrections_sim.planning.planner import shared_planner
+    from corrections_sim.plans import book
+
+    base = {"theta_star": [1.0, -1.0], "runs": 1, "iterations": 1, "person_restarts": 1}
+    first = study_file.parse_study({**base, "learners": ["KF"]})
+    other = study_file.parse_study({**base, "learners": ["KF-C"], "runs": 3, "seed": 7})
+    envs = first.envs()[:2]
+    made = first.person_target(envs)
+    assert other.person_target(envs) is made
+    alone = book.Target.solve(shared_planner(first.planner_config()), [1.0, -1.0], envs, restarts=1)
+    for kept, fresh in zip(made.plans, alone.plans, strict=True):
+        assert np.array_equal(kept.trajectory, fresh.trajectory)
+        assert np.array_equal(kept.features, fresh.features) and kept.reward == fresh.reward
+    moved = study_file.parse_study({**base, "theta_star": [1.0, -0.5], "learners": ["KF"]})
+    assert moved.person_target(envs) is not made
+    assert first.person_target(envs[:1]) is not made
+    more = study_file.parse_study({**base, "person_restarts": 2, "learners": ["KF"]})
+    assert more.person_target(envs) is not made

@@ -385,15 +385,23 @@ class FigureSettings:
         """The person's side: their θ* and plans ξ*(θ*, E) over their own features, in
         ``envs`` (default: the study's). Every figure that needs the person's plans solves
         them here, so a person with features of their own is planned alike everywhere."""
-        planner = shared_planner(self.user_planner_config())
-        envs = self.envs() if envs is None else envs
+        config = self.user_planner_config()
+        envs = tuple(self.envs() if envs is None else envs)
         restarts = self.study.restarts()
-        if self.study.atlas is None:
-            return Target.solve(planner, self.study.person(), envs, restarts=restarts)
         # With an atlas, the person's plans get the atlas (when the person weighs the robot's
         # features) and the restarts a global answer needs.
-        atlas = self.atlas() if planner.config == self.planner_config() else None
-        return Target.solve(planner, self.study.person(), envs, atlas=atlas, restarts=restarts)
+        spec = self.atlas_spec() if config == self.planner_config() else None
+        theta = self.study.person()
+        key = (config, theta.tobytes(), tuple(e.key() for e in envs), restarts, spec)
+        found = _TARGETS.get(key)
+        if found is None:
+            planner = shared_planner(config)
+            atlas = None if spec is None else self.atlas()
+            found = Target.solve(planner, theta, envs, atlas=atlas, restarts=restarts)
+            _TARGETS[key] = found
+            while len(_TARGETS) > _TARGETS_KEPT:
+                _TARGETS.pop(next(iter(_TARGETS)))
+        return found
 
     def envs(self) -> tuple[Environment, ...]:
         """The study's environments (memoized per process)."""
@@ -409,6 +417,17 @@ class FigureSettings:
         if self.plugins:
             d["plugins"] = [p.as_dict() for p in self.plugins]
         return d
+
+
+#: The person's plans this process has solved (:meth:`FigureSettings.person_target`), by all
+#: they depend on: the person's planner, θ*, the environments, the restarts and the atlas that
+#: answers with them (its spec). Target.solve is a function of these alone (cold starts, the
+#: environment's own random starts and the atlas's answer are each fixed by them), so a study
+#: whose columns share a person (the FERL study's people and the robots that know their
+#: feature; the relevance study's nudger and the paper's person) solves them once. Kept for the
+#: last :data:`_TARGETS_KEPT`, oldest first out.
+_TARGETS: dict[tuple, Target] = {}
+_TARGETS_KEPT = 16
 
 
 #: The planner's settings a study takes (the ``[planner]`` table), with their defaults; passed
