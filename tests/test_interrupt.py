@@ -220,3 +220,38 @@ def test_an_interrupt_inside_a_foreign_call_is_still_an_interrupt():
     found = interruption(ctypes.ArgumentError("argument 1: Interrupted: SIGINT"))
     assert found is not None and found.signum == signal.SIGINT
     assert interruption(ctypes.ArgumentError("argument 1: TypeError: wrong type")) is None
+
+
+def test_an_interrupt_a_library_swallowed_stops_the_command_at_its_next_step(capsys):
+    """A SIGINT that lands in a library's ``try: import … except ImportError`` is lost to the
+    exception, and the command's signals are ignored after the first: the next step the command
+    takes (a progress report, the start of its pool) raises it again, once; once the command
+    has taken it (where it says it was interrupted), nothing more; a block that received no
+    signal raises nothing."""
+    from corrections_sim.cli.common import Progress
+    from corrections_sim.cli.executors import Interrupted, check_interrupted, interrupts, taken
+
+    def swallowed() -> None:  # as a library's optional import swallows it
+        with contextlib.suppress(KeyboardInterrupt):
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(1.0)
+
+    before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        with interrupts():
+            swallowed()
+            assert signal.getsignal(signal.SIGINT) == signal.SIG_IGN
+            with pytest.raises(Interrupted, match="SIGINT"):
+                Progress("fig4")(0, 3)
+            check_interrupted()  # raised once: the command has it now
+        with interrupts():
+            swallowed()
+            taken()
+            check_interrupted()
+        with interrupts():
+            check_interrupted()
+            Progress("fig4")(1, 3)
+    finally:
+        for s, h in before.items():
+            signal.signal(s, h)
+    capsys.readouterr()

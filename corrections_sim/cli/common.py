@@ -18,7 +18,7 @@ import numpy as np
 
 from corrections_sim.cli import output_folder
 from corrections_sim.cli.errors import UsageError
-from corrections_sim.cli.executors import uninterrupted
+from corrections_sim.cli.executors import check_interrupted, uninterrupted
 
 
 def out_dir(args: argparse.Namespace) -> Path:
@@ -99,6 +99,7 @@ class Progress:
         return Progress(f"{self.label} {label}", unit=unit, every=self.every, stream=self.stream)
 
     def __call__(self, done: int, total: int) -> None:
+        check_interrupted()  # one that a library's import swallowed (see there)
         if self.stream.isatty():
             if self._bar is None:
                 from tqdm import tqdm

@@ -22,7 +22,7 @@ from collections.abc import Sequence
 
 from corrections_sim.cli.command import nothing_kept_by_default
 from corrections_sim.cli.errors import UsageError
-from corrections_sim.cli.executors import Interrupted, interruption, interrupts
+from corrections_sim.cli.executors import Interrupted, interruption, interrupts, taken
 
 # Nothing heavier at import: ``python -m corrections_sim.run`` imports this module before
 # main() puts its interrupt handlers in place, so the commands (and numpy, with the options'
@@ -174,6 +174,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 2
         except (KeyboardInterrupt, Exception) as exc:
             cause = interruption(exc)
+            if cause is not None:
+                taken()
             if cause is None and isinstance(exc, RuntimeError):
                 # A missing GL backend, a planner failure: one line, no trace.
                 print(f"error: {str(exc).splitlines()[0]}", file=sys.stderr)

@@ -21,6 +21,7 @@ from corrections_sim.cli.common import Progress, check_replace, out_dir, say, st
 from corrections_sim.cli.errors import UsageError
 from corrections_sim.cli.executors import (
     Interrupted,
+    check_interrupted,
     check_scheduler_address,
     dask_executor,
     process_pool,
@@ -144,6 +145,7 @@ def run_figure(args: argparse.Namespace, figure) -> list[Path]:
     upgrade = getattr(figure, "upgrade_recorded", None)
     notice = check_replace(args, final, name, recorded, upgrade, preset=preset)
     t0 = time.perf_counter()
+    check_interrupted()  # one that a library's import swallowed: before any worker starts
     with contextlib.ExitStack() as stack:
         # The cluster is reached (or the pool started) before anything is written.
         first = stack.enter_context(open_executor(args))
