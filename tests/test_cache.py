@@ -46,6 +46,8 @@ def filled(tmp_path: Path) -> Path:
     _file(root / "reference" / "89ab.npy", 400)
     _file(root / "reference" / "89ab.npy.lock", 0)
     _file(root / "reference" / "89ab.123.tmp.npy", 5)
+    _file(root / "person" / "cdef.npz", 70)
+    _file(root / "person" / "tmpx9.npz.tmp", 4)
     _file(root / "tmpbuild" / "generated.c", 30)
     _file(root / "tmpbuild" / "trajopt-abc.so", 60)
     _file(root / "notes.txt", 3)
@@ -62,7 +64,9 @@ def test_entries_group_the_files_by_kind(filled):
         ("between", "0123-v1.extra-aaaa.npz"),
         ("cells", "0123-c1.cells-bbbb.npz"),
         ("reference", "89ab.npy"),
+        ("person", "cdef"),
         ("unfinished", "atlas/tmpq1w2.npz.tmp"),
+        ("unfinished", "person/tmpx9.npz.tmp"),
         ("unfinished", "reference/89ab.123.tmp.npy"),
         ("unfinished", "tmpbuild/"),
         ("other", "notes.txt"),
@@ -123,7 +127,7 @@ def test_the_command_lists_and_prunes(filled, monkeypatch, capsys):
     assert "atlas" in out and "unfinished" in out and "total" in out
     assert cli.main(["cache", "--prune", "30"]) == 0
     out = capsys.readouterr().out
-    assert "removed 9 entries not used for 30 days" in out
+    assert "removed 11 entries not used for 30 days" in out
     assert (filled / "atlas" / "4567.npy").exists() and (filled / "notes.txt").exists()
 
 

@@ -494,7 +494,7 @@ def test_the_shipped_study_files_are_in_the_nested_spelling(name):
 
 
 def test_the_persons_restarts_default_with_the_atlas_and_enter_the_key_only_when_set(
-    monkeypatch,
+    monkeypatch, tmp_path
 ):
     """``person_restarts``: 30 with an atlas, none without, unless set; the settings (and so a
     run's key) name it only where it differs from that default, so studies that do not set
@@ -511,8 +511,9 @@ def test_the_persons_restarts_default_with_the_atlas_and_enter_the_key_only_when
     assert study_file.parse_study({**base, "person_restarts": 0}).as_dict() == books.as_dict()
     mine = study_file.parse_study({**base, "person_restarts": 2})
     assert mine.study.restarts() == 2 and mine.as_dict()["person_restarts"] == 2
-    from corrections_sim.plans import book
+    from corrections_sim.plans import book, targets
 
+    monkeypatch.setattr(targets, "store_root", lambda: tmp_path)  # solved here, not read
     asked = []
     own = book.own_starts
     monkeypatch.setattr(book, "own_starts", lambda *a: asked.append(a[-1]) or own(*a))
@@ -524,22 +525,26 @@ def test_the_persons_restarts_default_with_the_atlas_and_enter_the_key_only_when
     assert searched.plans[0].reward >= cold.plans[0].reward - 1e-12
 
 
-def test_a_process_solves_a_persons_plans_once_and_they_are_target_solves_own():
+def test_a_process_solves_a_persons_plans_once_and_they_are_target_solves_own(
+    monkeypatch, tmp_path
+):
     """The person's plans (:meth:`FigureSettings.person_target`) are kept by the process: a
     second study of the same person (other learners, runs and seed: the FERL study's robots
     that know the person's feature, the relevance study's nudger) takes them without a solve,
     and they are Target.solve's to the bit; another θ*, other restarts or other environments
     are solved again."""
     from corrections_sim.planning.planner import shared_planner
-    from corrections_sim.plans import book
+    from corrections_sim.plans import book, targets
 
+    monkeypatch.setattr(targets, "store_root", lambda: tmp_path)
     base = {"theta_star": [1.0, -1.0], "runs": 1, "iterations": 1, "person_restarts": 1}
     first = study_file.parse_study({**base, "learners": ["KF"]})
     other = study_file.parse_study({**base, "learners": ["KF-C"], "runs": 3, "seed": 7})
     envs = first.envs()[:2]
     made = first.person_target(envs)
     assert other.person_target(envs) is made
-    alone = book.Target.solve(shared_planner(first.planner_config()), [1.0, -1.0], envs, restarts=1)
+    planner = shared_planner(first.planner_config())  # with the study's atlas, as the person
+    alone = book.Target.solve(planner, [1.0, -1.0], envs, atlas=first.atlas(), restarts=1)
     for kept, fresh in zip(made.plans, alone.plans, strict=True):
         assert np.array_equal(kept.trajectory, fresh.trajectory)
         assert np.array_equal(kept.features, fresh.features) and kept.reward == fresh.reward

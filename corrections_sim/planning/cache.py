@@ -12,6 +12,8 @@ last use is the newest modification time of its files. Kinds:
 - ``between``: a shard of plans solved between an atlas's nodes, ``atlas/*.extra-*.npz``;
 - ``cells``: a shard of interpolation cells checked on an atlas, ``atlas/*.cells-*.npz``;
 - ``reference``: a reference grid of plans, ``reference/<key>.npy`` with its build lock;
+- ``person``: a person's plan in one environment, ``person/<key>.npz``
+  (:mod:`corrections_sim.plans.targets`);
 - ``unfinished``: what a writer that died left (temporary files and build folders);
 - ``other``: anything else, listed and never removed.
 """
@@ -26,7 +28,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
-KINDS = ("compiled", "atlas", "between", "cells", "reference", "unfinished", "other")
+KINDS = ("compiled", "atlas", "between", "cells", "reference", "person", "unfinished", "other")
 #: The kinds :func:`prune` may remove.
 PRUNABLE = KINDS[:-1]
 
@@ -77,6 +79,8 @@ def _kind_and_name(relative: Path) -> tuple[str, str]:
             return "atlas", name.rsplit(".", 1)[0]
     if top == "reference" and len(relative.parts) == 2 and stem.endswith(".npy"):
         return "reference", stem
+    if top == "person" and len(relative.parts) == 2 and name.endswith(".npz"):
+        return "person", name.removesuffix(".npz")
     return "other", relative.as_posix()
 
 

@@ -195,6 +195,7 @@ class Target:
         *,
         atlas: Atlas | None = None,
         restarts: int = 0,
+        store=None,
     ) -> Target:
         """θ* and its plans with ``planner``, whose features are the person's; they are
         recorded when they differ from the robot's (see :func:`evaluate`).
@@ -202,13 +203,15 @@ class Target:
         With ``restarts`` > 0 each plan is the best of the planner's cold starts, ``atlas``'s
         answer (when given; an atlas of the person's planner) and ``restarts`` random starts
         of the environment's own (:func:`own_starts`): the person's plans are what regret is
-        measured against, so they get the search a figure's plans do not."""
+        measured against, so they get the search a figure's plans do not. ``store``: where
+        such plans are kept once solved (:class:`~corrections_sim.plans.targets.TargetStore`;
+        None: solved here)."""
         theta = np.asarray(theta_star, float)
         if atlas is not None and atlas.planner.config != planner.config:
             raise ValueError("Target.solve: the atlas was built for another planner")
         return cls(
             theta_star=theta,
-            plans=tuple(_best_plan(planner, theta, e, atlas, restarts) for e in envs),
+            plans=tuple(_kept_plan(planner, theta, e, atlas, restarts, store) for e in envs),
             features=planner.config.features,
         )
 
@@ -218,6 +221,25 @@ class Target:
         if self.features is None or tuple(self.features) == tuple(robot):
             return plan.features
         return feature_counts(plan.trajectory, env, self.features)
+
+
+def _kept_plan(
+    planner: Planner,
+    theta: np.ndarray,
+    env: Environment,
+    atlas: Atlas | None,
+    restarts: int,
+    store,
+) -> Plan:
+    """:func:`_best_plan`'s, read from ``store`` where it holds it, kept there once solved."""
+    if store is None:
+        return _best_plan(planner, theta, env, atlas, restarts)
+    key = store.key(planner.config, env, theta, restarts, atlas)
+    found = store.load(key, planner.config.n_waypoints, planner.config.k)
+    if found is None:
+        found = _best_plan(planner, theta, env, atlas, restarts)
+        store.save(key, found)
+    return found
 
 
 def _best_plan(

@@ -28,6 +28,7 @@ from corrections_sim.planning.planner import PlannerConfig, shared_planner
 from corrections_sim.plans.atlas import AtlasGrid
 from corrections_sim.plans.book import Target
 from corrections_sim.plans.spread import AtlasSpec
+from corrections_sim.plans.targets import TargetStore
 from corrections_sim.scene.environments import Environment
 from corrections_sim.study import environments
 
@@ -397,7 +398,8 @@ class FigureSettings:
         if found is None:
             planner = shared_planner(config)
             atlas = None if spec is None else self.atlas()
-            found = Target.solve(planner, theta, envs, atlas=atlas, restarts=restarts)
+            store = TargetStore() if restarts else None  # worth keeping: the searched ones
+            found = Target.solve(planner, theta, envs, atlas=atlas, restarts=restarts, store=store)
             _TARGETS[key] = found
             while len(_TARGETS) > _TARGETS_KEPT:
                 _TARGETS.pop(next(iter(_TARGETS)))

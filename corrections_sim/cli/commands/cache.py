@@ -1,6 +1,6 @@
 """``cache``: what the machine's cache holds (compiled libraries, plan atlases, the plans kept
-between their nodes, reference grids), by kind, and pruning of what no run used for a while
-(:mod:`corrections_sim.planning.cache`).
+between their nodes, reference grids, the people's plans), by kind, and pruning of what no run
+used for a while (:mod:`corrections_sim.planning.cache`).
 
     python -m corrections_sim.run cache               # what is there, its size, its last use
     python -m corrections_sim.run cache --prune 30    # remove what no run used for 30 days
