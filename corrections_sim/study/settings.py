@@ -10,6 +10,7 @@ study file's schema (:mod:`corrections_sim.study.schema`) names the key path of 
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
@@ -394,15 +395,17 @@ class FigureSettings:
         spec = self.atlas_spec() if config == self.planner_config() else None
         theta = self.study.person()
         key = (config, theta.tobytes(), tuple(e.key() for e in envs), restarts, spec)
-        found = _TARGETS.get(key)
+        with _TARGETS_LOCK:
+            found = _TARGETS.get(key)
         if found is None:
             planner = shared_planner(config)
             atlas = None if spec is None else self.atlas()
             store = TargetStore() if restarts else None  # worth keeping: the searched ones
             found = Target.solve(planner, theta, envs, atlas=atlas, restarts=restarts, store=store)
-            _TARGETS[key] = found
-            while len(_TARGETS) > _TARGETS_KEPT:
-                _TARGETS.pop(next(iter(_TARGETS)))
+            with _TARGETS_LOCK:
+                _TARGETS[key] = found
+                while len(_TARGETS) > _TARGETS_KEPT:
+                    _TARGETS.pop(next(iter(_TARGETS)))
         return found
 
     def envs(self) -> tuple[Environment, ...]:
@@ -430,6 +433,7 @@ class FigureSettings:
 #: last :data:`_TARGETS_KEPT`, oldest first out.
 _TARGETS: dict[tuple, Target] = {}
 _TARGETS_KEPT = 16
+_TARGETS_LOCK = threading.Lock()  # a figure's columns may prepare in threads of one process
 
 
 #: The planner's settings a study takes (the ``[planner]`` table), with their defaults; passed
