@@ -11,7 +11,7 @@ from corrections_sim.defaults import DEFAULTS
 from corrections_sim.learning.observation import CorrectedPlanFeatures
 from corrections_sim.people.users import BiasedUser, NoisyOptimalUser
 from corrections_sim.planning.planner import Plan, Planner, PlannerConfig, PlanningError
-from corrections_sim.plans.book import PlanBook, Target, evaluate
+from corrections_sim.plans.book import PlanBook, Target, TrailBook, evaluate
 from corrections_sim.scene.environments import Environment, paper_environments
 from corrections_sim.study import schema
 from corrections_sim.study.loop import run_learner
@@ -194,6 +194,34 @@ def test_plan_book_starts_from_the_first_solved_of_the_nearest_thetas(planner, e
         np.testing.assert_array_equal(theta, solved[int(np.argmin(one_by_one))][0])
     assert book.nearest(thetas[0], envs[1]) is None  # no plan in that environment yet
     assert PlanBook(planner, plans).nearest(thetas[0], envs[0]) is None  # no warm starts
+
+
+def test_trail_books_share_what_the_same_sequence_solved_and_no_more(planner, envs):
+    """Warm-started books asked the same new problems in the same order hold the same plans:
+    a TrailBook behind another on the same trail takes every plan from it and answers as a
+    PlanBook would, to the bit; once its problems differ it solves its own (and still answers as a
+    PlanBook asked the same sequence)."""
+    asked = [np.array([0.5, -0.5]), np.array([0.6, -0.4]), np.array([0.4, -0.7])]
+    memo: dict = {}
+
+    def run(book, thetas):
+        return [book.plan(t, envs[0]) for t in thetas]
+
+    first = TrailBook(planner, memo, warm_start=True)
+    plain = run(PlanBook(planner, warm_start=True), asked)
+    mine = run(first, asked)
+    again = TrailBook(planner, memo, warm_start=True)
+    theirs = run(again, asked)
+    assert (first.solves, first.taken) == (3, 0) and (again.solves, again.taken) == (3, 3)
+    for a, b, c in zip(plain, mine, theirs, strict=True):
+        np.testing.assert_array_equal(a.trajectory, b.trajectory)
+        assert b is c
+    other = [*asked[:2], np.array([-0.3, 0.2])]
+    apart = TrailBook(planner, memo, warm_start=True)
+    got = run(apart, other)
+    assert apart.taken == 2 and got[0] is mine[0]
+    expected = run(PlanBook(planner, warm_start=True), other)
+    np.testing.assert_array_equal(got[2].trajectory, expected[2].trajectory)
 
 
 def test_plan_book_observe_is_the_memoized_batch_of_features(planner, envs):

@@ -120,6 +120,43 @@ class PlanBook:
         return h
 
 
+class TrailBook(PlanBook):
+    """A :class:`PlanBook` that shares its solves with the other books of ``memo`` that asked
+        the same problems in the same order before it.
+
+        A book's answer to a new problem depends on the problem and on what the book solved before
+        (its warm start is the nearest plan it holds), and on nothing else: so a book that has been
+        asked the same sequence of new problems as another holds the same plans, and its next
+        solve of the same problem is the other's to the bit. Each solve is kept in ``memo`` under a
+        digest of that sequence and the problem, and taken from there by the next book along the
+        same trail. Used where one past is read again under several hypotheses that ask the same
+        problems until they differ (KF-CRX's expansion: the first correction's sigma points are the
+        same under every noise share). ``solves`` counts as a PlanBook's does (every new problem);
+    ``taken`` those of them it took from ``memo``."""
+
+    def __init__(self, planner: Planner, memo: dict, **kwargs) -> None:
+        super().__init__(planner, **kwargs)
+        self._memo = memo
+        self._trail = b""
+        self.taken = 0
+
+    def _solve(self, theta: np.ndarray, env: Environment) -> Plan:
+        trail = hashlib.sha256(self._trail + self._key(theta, env)[0] + env.key()).digest()
+        self._trail = trail
+        found = self._memo.get(trail)
+        if found is None:
+            try:
+                found = super()._solve(theta, env)
+            except PlanningError as exc:
+                found = exc
+            self._memo[trail] = found
+        else:
+            self.taken += 1
+        if isinstance(found, PlanningError):
+            raise found
+        return found
+
+
 RESTART_BUMP_STD = 0.4  # rad, std of each sine coefficient of a random restart
 RESTART_MODES = 3  # sine modes per joint in a random restart's perturbation
 

@@ -26,7 +26,7 @@ from corrections_sim.learnt.training import Network, learn, quality
 from corrections_sim.learnt.training import register as register_learnt
 from corrections_sim.planning.features import feature_counts
 from corrections_sim.planning.planner import Plan, PlanningError, shared_planner
-from corrections_sim.plans.book import PlanBook
+from corrections_sim.plans.book import TrailBook
 from corrections_sim.scene.environments import Environment
 
 
@@ -205,9 +205,10 @@ class ExpandingRelevanceKalman(FeatureAsking, PersonRelevanceKalman):
         name = register_learnt(learnt)
         first, *past = RelevanceState.of(belief).history or (PriorEntry(belief.theta, belief.cov),)
         best, evidences = None, []
+        solved: dict = {}  # the plans the re-reads share (TrailBook): the same bits, fewer solves
         for share in self.expand_noises:
             for variance in self.expand_variances:
-                grown, evidence = self._reread(first, past, name, variance, ctx, share)
+                grown, evidence = self._reread(first, past, name, variance, ctx, share, solved)
                 evidences.append(evidence)
                 if best is None or evidence > best[1]:
                     best = (grown, evidence, variance, share)
@@ -236,6 +237,7 @@ class ExpandingRelevanceKalman(FeatureAsking, PersonRelevanceKalman):
         variance: float,
         ctx: LearnerContext,
         share: float = 1.0,
+        solved: dict | None = None,
     ) -> tuple[Belief, float]:
         """The belief over k + 1 features (the learnt one, ``name``, last, its weight's prior
         N(0, ``variance``), its observation noise ``share`` times the study's) after reading
@@ -249,7 +251,10 @@ class ExpandingRelevanceKalman(FeatureAsking, PersonRelevanceKalman):
         grown = Belief(theta=np.append(theta0, 0.0), cov=cov)
         features = (*ctx.features, name)
         config = dataclasses.replace(ctx.book.planner.config, features=features)
-        book = PlanBook(shared_planner(config), warm_start=ctx.book.warm_start)
+        # The re-reads under every share and variance ask the same first problems (a share
+        # enters after the first correction's plans): they share those solves (TrailBook).
+        book = TrailBook(shared_planner(config), {} if solved is None else solved,
+                         warm_start=ctx.book.warm_start)  # fmt: skip
         evidence = 0.0
         for shown in past:
             env_i, robot, corrected = shown.env, shown.robot, shown.corrected
