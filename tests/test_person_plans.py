@@ -76,20 +76,19 @@ def test_without_restarts_nothing_is_kept(counted):
 def test_the_key_moves_with_the_person_the_search_the_environment_and_the_planner():
     settings = study_file.parse_study(dict(BASE))
     config = settings.user_planner_config()
-    e0, e1 = settings.envs()[:2]
-    key = targets.answer_key(config, e0, [1.0, -1.0], 2, None)
-    assert key == targets.answer_key(config, e0, np.array([1.0, -1.0]), 2, None)
+    envs = settings.envs()[:2]
+
+    def key(config=config, theta=(1.0, -1.0), restarts=2, atlas=None, env=0) -> str:
+        return targets.answer_keys(config, envs, theta, restarts, atlas)[env]
+
+    assert key() == key(theta=np.array([1.0, -1.0]))
+    assert key() == targets.answer_keys(config, envs[:1], [1.0, -1.0], 2, None)[0]
+    planner = study_file.parse_study({**BASE, "planner": {"n_starts": 2}}).user_planner_config()
     others = {
-        targets.answer_key(config, e0, [1.0, -0.5], 2, None),
-        targets.answer_key(config, e0, [1.0, -1.0], 3, None),
-        targets.answer_key(config, e1, [1.0, -1.0], 2, None),
-        targets.answer_key(config, e0, [1.0, -1.0], 2, settings.atlas()),
-        targets.answer_key(
-            study_file.parse_study({**BASE, "planner": {"n_starts": 2}}).user_planner_config(),
-            e0,
-            [1.0, -1.0],
-            2,
-            None,
-        ),
+        key(theta=(1.0, -0.5)),
+        key(restarts=3),
+        key(env=1),
+        key(atlas=settings.atlas()),
+        key(config=planner),
     }
-    assert key not in others and len(others) == 5
+    assert key() not in others and len(others) == 5

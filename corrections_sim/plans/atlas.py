@@ -307,26 +307,36 @@ def iter_cell_starts(
 # --- the cache on disk ------------------------------------------------------------------
 
 
-def atlas_key(config: PlannerConfig, env: Environment | None, grid: AtlasGrid, **options) -> str:
-    """What an atlas depends on: the planner's build key (its sources, the NLP's settings and
-    CasADi's version), the solver options that can change an answer, the environment (None:
-    the key of everything but the environment, an atlas's identity), the grid, the build's
-    options, :data:`ALGORITHM` and, when warm starts take Newton's steps, the Newton code's
-    key (its C and Python sources)."""
-    # The clearance certificate skips only checks whose answer it proves (the run key ignores
-    # it too): an atlas does not depend on it.
+def solver_key(config: PlannerConfig) -> tuple[str, str, str | None]:
+    """What an answer of ``config``'s planner depends on beyond the problem: (its build key —
+    its sources, the NLP's settings and CasADi's version —, every option that can change an
+    answer as JSON, and, when warm starts take Newton's steps, the Newton code's key — its C and
+    Python sources — or None). The clearance certificate is left out: it skips only checks
+    whose answer it proves (the run key ignores it too). Shared by every key of stored answers
+    (:func:`atlas_key`, the person's plans' :func:`~corrections_sim.plans.targets.answer_keys`)."""
     config = replace(config, certificate=True)
     shaping = asdict(config)
     shaping["features"] = list(shaping["features"])
+    warm = None
+    if config.warm == "newton":
+        warm = newton.library_key(build_key(replace(config, solver="ipopt")))
+    return build_key(config), json.dumps(shaping, sort_keys=True, default=str), warm
+
+
+def atlas_key(config: PlannerConfig, env: Environment | None, grid: AtlasGrid, **options) -> str:
+    """What an atlas depends on: the planner's answers (:func:`solver_key`), the environment
+    (None: the key of everything but the environment, an atlas's identity), the grid, the
+    build's options and :data:`ALGORITHM`."""
+    build, shaping, warm = solver_key(config)
     h = hashlib.sha256()
-    h.update(build_key(config).encode())
-    h.update(json.dumps(shaping, sort_keys=True, default=str).encode())
+    h.update(build.encode())
+    h.update(shaping.encode())
     h.update(b"" if env is None else env.key())
     h.update(json.dumps(asdict(grid), sort_keys=True).encode())
     h.update(json.dumps(options, sort_keys=True).encode())
     h.update(str(ALGORITHM).encode())
-    if config.warm == "newton":  # the build's warm solves take Newton's steps
-        h.update(newton.library_key(build_key(replace(config, solver="ipopt"))).encode())
+    if warm is not None:  # the build's warm solves take Newton's steps
+        h.update(warm.encode())
     return h.hexdigest()[:24]
 
 

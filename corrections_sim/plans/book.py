@@ -122,16 +122,16 @@ class PlanBook:
 
 class TrailBook(PlanBook):
     """A :class:`PlanBook` that shares its solves with the other books of ``memo`` that asked
-        the same problems in the same order before it.
+    the same problems in the same order before it.
 
-        A book's answer to a new problem depends on the problem and on what the book solved before
-        (its warm start is the nearest plan it holds), and on nothing else: so a book that has been
-        asked the same sequence of new problems as another holds the same plans, and its next
-        solve of the same problem is the other's to the bit. Each solve is kept in ``memo`` under a
-        digest of that sequence and the problem, and taken from there by the next book along the
-        same trail. Used where one past is read again under several hypotheses that ask the same
-        problems until they differ (KF-CRX's expansion: the first correction's sigma points are the
-        same under every noise share). ``solves`` counts as a PlanBook's does (every new problem);
+    A book's answer to a new problem depends on the problem and on what the book solved before
+    (its warm start is the nearest plan it holds), and on nothing else: so a book that has been
+    asked the same sequence of new problems as another holds the same plans, and its next solve
+    of the same problem is the other's to the bit. Each solve is kept in ``memo`` under a digest
+    of that sequence and the problem, and taken from there by the next book along the same
+    trail. Used where one past is read again under several hypotheses that ask the same problems
+    until they differ (KF-CRX's expansion: the first correction's sigma points are the same
+    under every noise share). ``solves`` counts as a PlanBook's does (every new problem);
     ``taken`` those of them it took from ``memo``."""
 
     def __init__(self, planner: Planner, memo: dict, **kwargs) -> None:
@@ -248,7 +248,7 @@ class Target:
             raise ValueError("Target.solve: the atlas was built for another planner")
         return cls(
             theta_star=theta,
-            plans=tuple(_kept_plan(planner, theta, e, atlas, restarts, store) for e in envs),
+            plans=_plans(planner, theta, envs, atlas, restarts, store),
             features=planner.config.features,
         )
 
@@ -260,23 +260,28 @@ class Target:
         return feature_counts(plan.trajectory, env, self.features)
 
 
-def _kept_plan(
+def _plans(
     planner: Planner,
     theta: np.ndarray,
-    env: Environment,
+    envs: Sequence[Environment],
     atlas: Atlas | None,
     restarts: int,
     store,
-) -> Plan:
-    """:func:`_best_plan`'s, read from ``store`` where it holds it, kept there once solved."""
+) -> tuple[Plan, ...]:
+    """:func:`_best_plan`'s in each of ``envs``, read from ``store`` where it holds them, kept
+    there once solved."""
     if store is None:
-        return _best_plan(planner, theta, env, atlas, restarts)
-    key = store.key(planner.config, env, theta, restarts, atlas)
-    found = store.load(key, planner.config.n_waypoints, planner.config.k)
-    if found is None:
-        found = _best_plan(planner, theta, env, atlas, restarts)
-        store.save(key, found)
-    return found
+        return tuple(_best_plan(planner, theta, e, atlas, restarts) for e in envs)
+    out = []
+    for env, key in zip(
+        envs, store.keys(planner.config, envs, theta, restarts, atlas), strict=True
+    ):
+        found = store.load(key, planner.config.n_waypoints, planner.config.k)
+        if found is None:
+            found = _best_plan(planner, theta, env, atlas, restarts)
+            store.save(key, found)
+        out.append(found)
+    return tuple(out)
 
 
 def _best_plan(

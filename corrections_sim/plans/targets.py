@@ -5,7 +5,7 @@ restarts), kept once per machine, as the plan atlas keeps its nodes.
 A study's person gets 30 random restarts an environment where it has an atlas (the plans regret
 is measured against must be global), about 12 s of CPU for fig. 4's 48 environments; every
 command of a study paid them again (13 times in one run of the suite, 156 s). The answer is a
-function of what :func:`answer_key` hashes alone — the planner's build key and every option
+function of what :func:`answer_keys` hashes alone — the planner's build key and every option
 that can change an answer, the code that picks the plan and draws the restarts, θ*, the
 restarts, the environment and, when the atlas answers too, its key and the version of the code
 that answers from it — so reading it back changes no number (tested: the same bits as a fresh
@@ -25,16 +25,16 @@ import json
 import os
 import tempfile
 import zipfile
-from dataclasses import asdict, replace
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from corrections_sim.planning import newton
 from corrections_sim.planning.cache import cache_dir, mark_used
-from corrections_sim.planning.planner import Plan, PlannerConfig, build_key
+from corrections_sim.planning.planner import Plan, PlannerConfig
 from corrections_sim.plans import book
+from corrections_sim.plans.atlas import solver_key
 from corrections_sim.scene.environments import Environment
 
 if TYPE_CHECKING:
@@ -49,28 +49,27 @@ def store_root() -> Path:
     return cache_dir() / "person"
 
 
-def answer_key(
-    config: PlannerConfig, env: Environment, theta, restarts: int, atlas: Atlas | None
-) -> str:
-    """What the person's plan in ``env`` depends on (module docstring), hashed."""
-    # The clearance certificate skips only checks whose answer it proves (as the atlas's key).
-    config = replace(config, certificate=True)
-    shaping = asdict(config)
-    shaping["features"] = list(shaping["features"])
+def answer_keys(
+    config: PlannerConfig, envs: Sequence[Environment], theta, restarts: int, atlas: Atlas | None
+) -> list[str]:
+    """What the person's plan in each of ``envs`` depends on (module docstring), hashed; what
+    the environments share is hashed once."""
     h = hashlib.sha256()
     h.update(f"person|{VERSION}".encode())
-    h.update(build_key(config).encode())
-    h.update(json.dumps(shaping, sort_keys=True, default=str).encode())
-    if config.warm == "newton":  # warm solves from the restarts take Newton's steps
-        h.update(newton.library_key(build_key(replace(config, solver="ipopt"))).encode())
+    for part in solver_key(config):
+        h.update(b"" if part is None else part.encode())
     for code in (book.Target.solve, book._best_plan, book.own_starts, book.random_starts):
         h.update(inspect.getsource(code).encode())
     h.update(repr((book.RESTART_MODES, book.RESTART_BUMP_STD)).encode())
     h.update(np.asarray(theta, float).tobytes())
     h.update(str(int(restarts)).encode())
-    h.update(env.key())
-    h.update(b"" if atlas is None else atlas.between_key(env).encode())
-    return h.hexdigest()[:24]
+    keys = []
+    for env in envs:
+        each = h.copy()
+        each.update(env.key())
+        each.update(b"" if atlas is None else atlas.between_key(env).encode())
+        keys.append(each.hexdigest()[:24])
+    return keys
 
 
 class TargetStore:
@@ -81,11 +80,16 @@ class TargetStore:
         #: (key, why) of every file found and not trusted.
         self.rejected: list[tuple[str, str]] = []
 
-    def key(
-        self, config: PlannerConfig, env: Environment, theta, restarts: int, atlas: Atlas | None
-    ) -> str:
-        """:func:`answer_key`'s."""
-        return answer_key(config, env, theta, restarts, atlas)
+    def keys(
+        self,
+        config: PlannerConfig,
+        envs: Sequence[Environment],
+        theta,
+        restarts: int,
+        atlas: Atlas | None,
+    ) -> list[str]:
+        """:func:`answer_keys`'s."""
+        return answer_keys(config, envs, theta, restarts, atlas)
 
     def load(self, key: str, n_waypoints: int, k: int) -> Plan | None:
         """The plan kept under ``key``, or None (none kept, or a file not trusted)."""
