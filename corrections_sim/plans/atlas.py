@@ -308,25 +308,19 @@ def iter_cell_starts(
 
 
 def solver_key(config: PlannerConfig) -> tuple[str, str, str | None]:
-    """What an answer of ``config``'s planner depends on beyond the problem: (its build key —
-    its sources, the NLP's settings and CasADi's version —, every option that can change an
-    answer as JSON, and, when warm starts take Newton's steps, the Newton code's key — its C and
-    Python sources — or None). The clearance certificate is left out: it skips only checks
-    whose answer it proves (the run key ignores it too). Shared by every key of stored answers
-    (:func:`atlas_key`, the person's plans' :func:`~corrections_sim.plans.targets.answer_keys`)."""
+    """What ``config``'s answers depend on beyond the problem, for every key of stored answers:
+    (the build key, the options as JSON but the clearance certificate — it skips only checks
+    whose answer it proves —, the Newton code's key when warm starts take its steps, or None)."""
     config = replace(config, certificate=True)
-    shaping = asdict(config)
-    shaping["features"] = list(shaping["features"])
-    warm = None
-    if config.warm == "newton":
-        warm = newton.library_key(build_key(replace(config, solver="ipopt")))
+    shaping = {**asdict(config), "features": list(config.features)}
+    ipopt = replace(config, solver="ipopt")
+    warm = newton.library_key(build_key(ipopt)) if config.warm == "newton" else None
     return build_key(config), json.dumps(shaping, sort_keys=True, default=str), warm
 
 
 def atlas_key(config: PlannerConfig, env: Environment | None, grid: AtlasGrid, **options) -> str:
-    """What an atlas depends on: the planner's answers (:func:`solver_key`), the environment
-    (None: the key of everything but the environment, an atlas's identity), the grid, the
-    build's options and :data:`ALGORITHM`."""
+    """What an atlas depends on: :func:`solver_key`, the environment (None: an atlas's identity,
+    the key of all but the environment), the grid, the build's options, :data:`ALGORITHM`."""
     build, shaping, warm = solver_key(config)
     h = hashlib.sha256()
     h.update(build.encode())
@@ -335,8 +329,7 @@ def atlas_key(config: PlannerConfig, env: Environment | None, grid: AtlasGrid, *
     h.update(json.dumps(asdict(grid), sort_keys=True).encode())
     h.update(json.dumps(options, sort_keys=True).encode())
     h.update(str(ALGORITHM).encode())
-    if warm is not None:  # the build's warm solves take Newton's steps
-        h.update(warm.encode())
+    h.update(b"" if warm is None else warm.encode())  # the build's warm solves: Newton's steps
     return h.hexdigest()[:24]
 
 
